@@ -1,0 +1,81 @@
+/*
+ * ns2_deepset.h - heterogeneous deep-set inference of the interaction force f_a,z
+ * (Neural-Swarm2, eq. learningmodel-hetero) in float and in fixed point.
+ *
+ *   f_a,z(i) = rho_{I(i)}( phi_env(x_env) + sum_j phi_{I(j)}(x_ij) )
+ *
+ * x_ij = [p_j - p_i; v_j - v_i] (m, m/s, world frame); the environment is the
+ * neighbour with p_j = v_j = 0, i.e. x_env = [-p_i; -v_i], and is always present.
+ *
+ * Neighbour handling (identical for both paths, see ns2_select_neighbors):
+ *   - a neighbour with a type >= NS2_NUM_ROBOT_TYPES or a non-finite state is
+ *     ignored (counted in n_invalid);
+ *   - a neighbour outside the interaction volume V(robot type, neighbour type),
+ *     a cuboid on p_j - p_i, is ignored (n_outside);
+ *   - the first NS2_MAX_NEIGHBORS accepted neighbours in array order are used,
+ *     later ones are ignored (n_truncated): pass them sorted by priority;
+ *   - every phi input is clamped to the declared input box of its type.
+ * Float sums run in a fixed order: environment first, then accepted neighbours
+ * in array order.  Invalid robot type or non-finite own state: result 0.0 and
+ * info->status < 0.
+ *
+ * No dynamic memory, no recursion; stack use is bounded by NS2_MAX_WIDTH.
+ */
+#ifndef NS2_DEEPSET_H
+#define NS2_DEEPSET_H
+
+#include <stdint.h>
+
+#include "ns2_model_config.h"
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+#define NS2_OK 0
+#define NS2_ERR_ROBOT_TYPE (-1) /* robot_type >= NS2_NUM_ROBOT_TYPES */
+#define NS2_ERR_STATE (-2)      /* own position/velocity NULL or not finite */
+#define NS2_ERR_NULL (-3)       /* n_neighbors > 0 but neighbors == NULL */
+
+typedef struct {
+    uint8_t type;   /* robot type of the neighbour, 0 .. NS2_NUM_ROBOT_TYPES-1 */
+    float rel[6];   /* [p_j - p_i (m); v_j - v_i (m/s)], world frame */
+} ns2_neighbor_t;
+
+typedef struct {
+    int32_t status;       /* NS2_OK or NS2_ERR_* */
+    uint16_t n_used;      /* robot neighbours fed to phi (the environment not counted) */
+    uint16_t n_invalid;   /* bad type or non-finite state */
+    uint16_t n_outside;   /* outside the interaction volume */
+    uint16_t n_truncated; /* accepted but beyond NS2_MAX_NEIGHBORS */
+} ns2_info_t;
+
+/* Indices (into neighbors[]) of the neighbours that take part, in order.
+ * Returns their number (<= NS2_MAX_NEIGHBORS); fills the counters of info. */
+uint16_t ns2_select_neighbors(uint8_t robot_type, const ns2_neighbor_t *neighbors,
+                              uint16_t n_neighbors, uint16_t idx[NS2_MAX_NEIGHBORS],
+                              ns2_info_t *info);
+
+/* Clamp a 6-vector to the input box of neighbour type t (t may be NS2_ENV_TYPE). */
+void ns2_clamp_input(uint8_t t, const float in[6], float out[6]);
+
+/* f_a,z (g) of a robot of type robot_type at position p (m) with velocity v (m/s).
+ * info may be NULL. */
+float ns2_predict_f32(uint8_t robot_type, const float p[3], const float v[3],
+                      const ns2_neighbor_t *neighbors, uint16_t n_neighbors, ns2_info_t *info);
+
+/* Fixed-point inference (int16 weights/activations, int32 accumulators).
+ * Returns f_a,z in Q format NS2_Q_OUT_FRAC (grams * 2^NS2_Q_OUT_FRAC), saturated
+ * to int16; 0 on error. */
+int16_t ns2_predict_q15(uint8_t robot_type, const float p[3], const float v[3],
+                        const ns2_neighbor_t *neighbors, uint16_t n_neighbors, ns2_info_t *info);
+
+/* ns2_predict_q15 converted to grams (exact: q * 2^-NS2_Q_OUT_FRAC). */
+float ns2_predict_q15_g(uint8_t robot_type, const float p[3], const float v[3],
+                        const ns2_neighbor_t *neighbors, uint16_t n_neighbors, ns2_info_t *info);
+
+#ifdef __cplusplus
+}
+#endif
+
+#endif /* NS2_DEEPSET_H */

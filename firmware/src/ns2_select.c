@@ -1,0 +1,94 @@
+/*
+ * ns2_select.c - neighbour selection shared by the float and fixed-point paths:
+ * interaction volume V (paper, "Heterogeneous Swarm Dynamics"), the neighbour
+ * limit and the input box.
+ */
+#include <math.h>
+#include <stddef.h>
+
+#include "ns2_internal.h"
+
+static int all_finite(const float *x, int n)
+{
+    for (int i = 0; i < n; ++i) {
+        if (!isfinite(x[i])) {
+            return 0;
+        }
+    }
+    return 1;
+}
+
+/* p_j - p_i inside the cuboid V(robot type, neighbour type); false for NaN. */
+static int in_volume(uint8_t robot_type, uint8_t nbr_type, const float rel[6])
+{
+    const float(*v)[3] = ns2_volume[robot_type][nbr_type];
+    for (int a = 0; a < 3; ++a) {
+        if (!(rel[a] >= v[0][a] && rel[a] <= v[1][a])) {
+            return 0;
+        }
+    }
+    return 1;
+}
+
+uint16_t ns2_select_neighbors(uint8_t robot_type, const ns2_neighbor_t *neighbors,
+                              uint16_t n_neighbors, uint16_t idx[NS2_MAX_NEIGHBORS],
+                              ns2_info_t *info)
+{
+    uint16_t used = 0;
+    info->n_used = 0;
+    info->n_invalid = 0;
+    info->n_outside = 0;
+    info->n_truncated = 0;
+    if (robot_type >= NS2_NUM_ROBOT_TYPES || neighbors == NULL) {
+        return 0;
+    }
+    for (uint16_t j = 0; j < n_neighbors; ++j) {
+        const ns2_neighbor_t *nb = &neighbors[j];
+        if (nb->type >= NS2_NUM_ROBOT_TYPES || !all_finite(nb->rel, 6)) {
+            info->n_invalid++;
+        } else if (!in_volume(robot_type, nb->type, nb->rel)) {
+            info->n_outside++;
+        } else if (used >= NS2_MAX_NEIGHBORS) {
+            info->n_truncated++;
+        } else {
+            idx[used++] = j;
+        }
+    }
+    info->n_used = used;
+    return used;
+}
+
+void ns2_clamp_input(uint8_t t, const float in[6], float out[6])
+{
+    const float(*box)[2] = ns2_input_box[t < NS2_NUM_NEIGHBOR_TYPES ? t : NS2_ENV_TYPE];
+    for (int a = 0; a < 6; ++a) {
+        const float x = in[a];
+        out[a] = x < box[a][0] ? box[a][0] : (x > box[a][1] ? box[a][1] : x);
+    }
+}
+
+/* Shared prologue of both predict functions: validate, build x_env, select. */
+int32_t ns2_prepare(uint8_t robot_type, const float p[3], const float v[3],
+                    const ns2_neighbor_t *neighbors, uint16_t n_neighbors,
+                    float x_env[6], uint16_t idx[NS2_MAX_NEIGHBORS], uint16_t *n_used,
+                    ns2_info_t *info)
+{
+    *n_used = 0;
+    info->status = NS2_OK;
+    info->n_used = 0;
+    info->n_invalid = 0;
+    info->n_outside = 0;
+    info->n_truncated = 0;
+    if (robot_type >= NS2_NUM_ROBOT_TYPES) {
+        info->status = NS2_ERR_ROBOT_TYPE;
+    } else if (p == NULL || v == NULL || !all_finite(p, 3) || !all_finite(v, 3)) {
+        info->status = NS2_ERR_STATE;
+    } else if (n_neighbors > 0 && neighbors == NULL) {
+        info->status = NS2_ERR_NULL;
+    } else {
+        const float env[6] = {-p[0], -p[1], -p[2], -v[0], -v[1], -v[2]};
+        ns2_clamp_input(NS2_ENV_TYPE, env, x_env);
+        *n_used = ns2_select_neighbors(robot_type, neighbors, n_neighbors, idx, info);
+    }
+    return info->status;
+}

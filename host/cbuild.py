@@ -1,0 +1,191 @@
+"""Host build of the firmware library through cffi.
+
+The very same ``firmware/src`` files that go to the STM32 are compiled here with
+the flags of ``firmware/flags.mk`` (warnings as errors), against the generated
+headers of one export folder, and linked into a cffi extension together with
+the host-only batch helpers of ``host/ns2_host.c``.  Builds are cached under
+``build/host/<hash of sources, headers and flags>``.
+"""
+from __future__ import annotations
+
+import hashlib
+import importlib.util
+import os
+import re
+import shutil
+import subprocess
+import sys
+import tempfile
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parent.parent
+BUILD_ROOT = Path(os.environ.get("NS2_BUILD_DIR", REPO / "build")) / "host"
+GENERATED = ("ns2_model_config.h", "ns2_model_float.h", "ns2_model_fixed.h")
+
+CDEF = """
+typedef struct { uint8_t type; float rel[6]; } ns2_neighbor_t;
+typedef struct { int32_t status; uint16_t n_used; uint16_t n_invalid; uint16_t n_outside;
+                 uint16_t n_truncated; } ns2_info_t;
+#define NS2_NUM_ROBOT_TYPES ...
+#define NS2_NUM_NEIGHBOR_TYPES ...
+#define NS2_ENV_TYPE ...
+#define NS2_MAX_NEIGHBORS ...
+#define NS2_HIDDEN ...
+#define NS2_Q_OUT_FRAC ...
+float ns2_predict_f32(uint8_t robot_type, const float p[3], const float v[3],
+                      const ns2_neighbor_t *neighbors, uint16_t n_neighbors, ns2_info_t *info);
+int16_t ns2_predict_q15(uint8_t robot_type, const float p[3], const float v[3],
+                        const ns2_neighbor_t *neighbors, uint16_t n_neighbors, ns2_info_t *info);
+float ns2_predict_q15_g(uint8_t robot_type, const float p[3], const float v[3],
+                        const ns2_neighbor_t *neighbors, uint16_t n_neighbors, ns2_info_t *info);
+uint16_t ns2_select_neighbors(uint8_t robot_type, const ns2_neighbor_t *neighbors,
+                              uint16_t n_neighbors, uint16_t *idx, ns2_info_t *info);
+void ns2_host_predict_batch(int fixed, uint32_t n_queries, const uint8_t *robot_type,
+                            const float *p, const float *v, const uint32_t *offsets,
+                            const ns2_neighbor_t *neighbors, float *out_f, int16_t *out_q,
+                            ns2_info_t *infos);
+double ns2_host_ns_per_call(int fixed, uint32_t reps, uint8_t robot_type, const float p[3],
+                            const float v[3], const ns2_neighbor_t *neighbors, uint16_t n);
+"""
+
+
+class BuildError(RuntimeError):
+    """The C library does not compile."""
+
+
+def flags() -> dict[str, list[str]]:
+    """Variables of firmware/flags.mk as lists."""
+    out = {}
+    for line in (REPO / "firmware" / "flags.mk").read_text().splitlines():
+        m = re.match(r"^(NS2_\w+)\s*:=\s*(.*)$", line)
+        if m:
+            out[m.group(1)] = m.group(2).split()
+    return out
+
+
+def host_cc() -> str:
+    return os.environ.get("CC", "gcc")
+
+
+def _key(gen_dir: Path, f: dict) -> str:
+    h = hashlib.sha256()
+    files = [REPO / s for s in f["NS2_SOURCES"]] + sorted((REPO / "firmware" / "include").glob("*.h")) \
+        + sorted((REPO / "firmware" / "src").glob("*.h")) + [REPO / "host" / "ns2_host.c", REPO / "host" / "ns2_host.h"] \
+        + [gen_dir / g for g in GENERATED]
+    for p in files:
+        h.update(p.name.encode())
+        h.update(p.read_bytes())
+    h.update(repr(sorted(f.items())).encode())
+    h.update(CDEF.encode())
+    h.update(host_cc().encode())
+    return h.hexdigest()[:20]
+
+
+def compile_objects(gen_dir: Path, out: Path, cc: str, extra: list[str], f: dict) -> list[Path]:
+    """Compile the firmware sources with the library's strict flags."""
+    inc = [f"-I{REPO / i}" for i in f["NS2_INCLUDES"]] + [f"-I{gen_dir}"]
+    objs = []
+    for src in f["NS2_SOURCES"] + ["host/ns2_host.c"]:
+        obj = out / (Path(src).stem + ".o")
+        cmd = [cc, *f["NS2_STD_FLAGS"], *f["NS2_OPT_FLAGS"], *f["NS2_WARN_FLAGS"], *extra, *inc,
+               f"-I{REPO / 'host'}", "-c", str(REPO / src), "-o", str(obj)]
+        r = subprocess.run(cmd, capture_output=True, text=True)
+        if r.returncode != 0:
+            raise BuildError(f"{' '.join(cmd)}\n{r.stdout}{r.stderr}")
+        objs.append(obj)
+    return objs
+
+
+@lru_cache(maxsize=None)
+def load(gen_dir: str | Path):
+    """Build (or reuse) the host library for the headers in ``gen_dir``; returns (ffi, lib)."""
+    from cffi import FFI
+
+    gen_dir = Path(gen_dir).resolve()
+    for g in GENERATED:
+        if not (gen_dir / g).is_file():
+            raise BuildError(f"{gen_dir / g} missing: run `ns2 export` first")
+    f = flags()
+    key = _key(gen_dir, f)
+    name = f"_ns2_host_{key}"
+    final = BUILD_ROOT / key
+    if not final.is_dir():
+        BUILD_ROOT.mkdir(parents=True, exist_ok=True)
+        tmp = Path(tempfile.mkdtemp(dir=BUILD_ROOT, prefix=".tmp-"))
+        try:
+            objs = compile_objects(gen_dir, tmp, host_cc(), ["-fPIC"], f)
+            ffi = FFI()
+            ffi.cdef(CDEF)
+            ffi.set_source(name, '#include "ns2_deepset.h"\n#include "ns2_host.h"\n',
+                           include_dirs=[str(REPO / i) for i in f["NS2_INCLUDES"]] + [str(gen_dir), str(REPO / "host")],
+                           extra_objects=[str(o) for o in objs],
+                           extra_compile_args=["-std=c99", "-O2", "-ffp-contract=off"])
+            ffi.compile(tmpdir=str(tmp), verbose=False)
+            try:
+                os.rename(tmp, final)
+            except OSError:  # built concurrently by another process
+                shutil.rmtree(tmp, ignore_errors=True)
+        except BaseException:
+            shutil.rmtree(tmp, ignore_errors=True)
+            raise
+    so = next(final.glob(f"{name}*.so"))
+    spec = importlib.util.spec_from_file_location(name, so)
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules[name] = mod
+    spec.loader.exec_module(mod)
+    return mod.ffi, mod.lib
+
+
+class CModel:
+    """The firmware inference, built for the host, with numpy batch calls."""
+
+    def __init__(self, gen_dir: str | Path):
+        self.ffi, self.lib = load(gen_dir)
+        ffi = self.ffi
+        assert ffi.sizeof("ns2_neighbor_t") == 28 and ffi.offsetof("ns2_neighbor_t", "rel") == 4
+        self.nbr_dtype = np.dtype({"names": ["type", "rel"], "formats": [np.uint8, (np.float32, 6)],
+                                   "offsets": [0, 4], "itemsize": 28})
+        self.info_dtype = np.dtype({"names": ["status", "n_used", "n_invalid", "n_outside", "n_truncated"],
+                                    "formats": [np.int32] + [np.uint16] * 4,
+                                    "offsets": [0, 4, 6, 8, 10], "itemsize": ffi.sizeof("ns2_info_t")})
+
+    def neighbors(self, types, rels) -> np.ndarray:
+        a = np.zeros(len(types), self.nbr_dtype)
+        a["type"] = types
+        a["rel"] = rels
+        return a
+
+    def _ptr(self, ctype: str, a: np.ndarray):
+        return self.ffi.cast(ctype, self.ffi.from_buffer(a))
+
+    def predict(self, q, fixed: bool) -> tuple[np.ndarray, np.ndarray]:
+        """Run queries.Queries through the C; returns (outputs, info records)."""
+        given = q.given()
+        counts = given.sum(1)
+        offsets = np.zeros(len(q) + 1, np.uint32)
+        np.cumsum(counts, out=offsets[1:])
+        nb = self.neighbors(q.nbr_type[given], q.nbr_rel[given])
+        if nb.size == 0:
+            nb = np.zeros(1, self.nbr_dtype)
+        rt = np.ascontiguousarray(q.robot_type, np.uint8)
+        p = np.ascontiguousarray(q.p, np.float32)
+        v = np.ascontiguousarray(q.v, np.float32)
+        out_f = np.zeros(len(q), np.float32)
+        out_q = np.zeros(len(q), np.int16)
+        infos = np.zeros(len(q), self.info_dtype)
+        self.lib.ns2_host_predict_batch(int(fixed), len(q), self._ptr("uint8_t *", rt), self._ptr("float *", p),
+                                        self._ptr("float *", v), self._ptr("uint32_t *", offsets),
+                                        self._ptr("ns2_neighbor_t *", nb), self._ptr("float *", out_f),
+                                        self._ptr("int16_t *", out_q), self._ptr("ns2_info_t *", infos))
+        return (out_q if fixed else out_f), infos
+
+    def ns_per_call(self, fixed: bool, reps: int, robot_type: int, p, v, types, rels) -> float:
+        nb = self.neighbors(types, rels) if len(types) else np.zeros(1, self.nbr_dtype)
+        pp = np.ascontiguousarray(p, np.float32)
+        vv = np.ascontiguousarray(v, np.float32)
+        return self.lib.ns2_host_ns_per_call(int(fixed), reps, robot_type, self._ptr("float *", pp),
+                                             self._ptr("float *", vv), self._ptr("ns2_neighbor_t *", nb),
+                                             len(types))

@@ -1,0 +1,46 @@
+/* ns2_host.c - see ns2_host.h. */
+#define _POSIX_C_SOURCE 199309L
+#include <time.h>
+
+#include "ns2_host.h"
+
+void ns2_host_predict_batch(int fixed, uint32_t n_queries, const uint8_t *robot_type,
+                            const float *p, const float *v, const uint32_t *offsets,
+                            const ns2_neighbor_t *neighbors, float *out_f, int16_t *out_q,
+                            ns2_info_t *infos)
+{
+    for (uint32_t q = 0; q < n_queries; ++q) {
+        const uint16_t n = (uint16_t)(offsets[q + 1] - offsets[q]);
+        const ns2_neighbor_t *nb = n ? &neighbors[offsets[q]] : (const ns2_neighbor_t *)0;
+        if (fixed) {
+            out_q[q] = ns2_predict_q15(robot_type[q], &p[3 * q], &v[3 * q], nb, n, &infos[q]);
+        } else {
+            out_f[q] = ns2_predict_f32(robot_type[q], &p[3 * q], &v[3 * q], nb, n, &infos[q]);
+        }
+    }
+}
+
+static double now_ns(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (double)ts.tv_sec * 1e9 + (double)ts.tv_nsec;
+}
+
+double ns2_host_ns_per_call(int fixed, uint32_t reps, uint8_t robot_type, const float p[3],
+                            const float v[3], const ns2_neighbor_t *neighbors, uint16_t n)
+{
+    volatile float sink_f = 0.0f;
+    volatile int16_t sink_q = 0;
+    const double t0 = now_ns();
+    for (uint32_t r = 0; r < reps; ++r) {
+        if (fixed) {
+            sink_q = ns2_predict_q15(robot_type, p, v, neighbors, n, (ns2_info_t *)0);
+        } else {
+            sink_f = ns2_predict_f32(robot_type, p, v, neighbors, n, (ns2_info_t *)0);
+        }
+    }
+    (void)sink_f;
+    (void)sink_q;
+    return (now_ns() - t0) / (double)(reps ? reps : 1u);
+}

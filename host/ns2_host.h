@@ -1,0 +1,21 @@
+/* ns2_host.h - host-only batch and timing helpers around the firmware library
+ * (not part of the firmware; they only loop over the firmware's own calls). */
+#ifndef NS2_HOST_H
+#define NS2_HOST_H
+
+#include <stdint.h>
+
+#include "ns2_deepset.h"
+
+/* Run n_queries predictions; query q uses neighbors[offsets[q] .. offsets[q+1]).
+ * fixed = 0: ns2_predict_f32 into out_f; fixed = 1: ns2_predict_q15 into out_q. */
+void ns2_host_predict_batch(int fixed, uint32_t n_queries, const uint8_t *robot_type,
+                            const float *p, const float *v, const uint32_t *offsets,
+                            const ns2_neighbor_t *neighbors, float *out_f, int16_t *out_q,
+                            ns2_info_t *infos);
+
+/* Mean wall time in ns of one call of query 0, over reps calls (CLOCK_MONOTONIC). */
+double ns2_host_ns_per_call(int fixed, uint32_t reps, uint8_t robot_type, const float p[3],
+                            const float v[3], const ns2_neighbor_t *neighbors, uint16_t n);
+
+#endif /* NS2_HOST_H */

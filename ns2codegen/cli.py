@@ -1,0 +1,123 @@
+"""`ns2` command line: gen-data, train, export (and later sim/plan)."""
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import click
+
+from .config import Config, ConfigError
+
+
+class _Errors(click.Group):
+    """Turn the package's expected errors into a one-line message and exit code 1."""
+
+    def invoke(self, ctx):
+        from .checkpoint import CheckpointError
+        from .data.dataset import DatasetError
+        from .fileio import OutputError
+        from .quantize import QuantizationError
+
+        try:
+            return super().invoke(ctx)
+        except (ConfigError, CheckpointError, DatasetError, OutputError, QuantizationError) as e:
+            raise click.ClickException(str(e)) from e
+
+
+@click.group(cls=_Errors)
+@click.version_option(package_name="ns2codegen")
+def main():
+    """Neural-Swarm2 deep sets: training, export to C, verification."""
+
+
+def _config(path) -> Config:
+    return Config.load(path)
+
+
+@main.command("gen-data")
+@click.option("--kind", type=click.Choice(["downwash", "max"]), default="downwash", show_default=True,
+              help="analytic downwash + ground effect, or the paper's 2-group max example")
+@click.option("--samples-per-scenario", type=click.IntRange(min=1), default=2000, show_default=True)
+@click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--noise", type=click.FloatRange(min=0.0), default=0.0, help="label noise std (g)")
+@click.option("--config", "config_path", type=click.Path(dir_okay=False), default=None)
+@click.option("--out", type=click.Path(dir_okay=False), required=True)
+def gen_data(kind, samples_per_scenario, seed, noise, config_path, out):
+    """Generate an analytic training data set (.npz, format in README)."""
+    from .data import analytic
+
+    cfg = _config(config_path)
+    if kind == "downwash":
+        ds = analytic.downwash_dataset(cfg, samples_per_scenario, seed=seed, noise_g=noise)
+    else:
+        ds = analytic.max_dataset(cfg, samples_per_scenario, seed=seed)
+    _parent_ok(out)
+    ds.save(out)
+    click.echo(f"wrote {out}: {len(ds)} samples, {len(ds.scenario_names)} scenarios")
+
+
+def _parent_ok(path) -> None:
+    from .fileio import OutputError
+
+    parent = Path(path).resolve().parent
+    if not parent.is_dir():
+        raise OutputError(f"output folder {parent} does not exist")
+
+
+@main.command()
+@click.option("--data", "data_path", type=click.Path(dir_okay=False), required=True)
+@click.option("--config", "config_path", type=click.Path(dir_okay=False), default=None)
+@click.option("--out", type=click.Path(dir_okay=False), required=True)
+@click.option("--epochs", type=click.IntRange(min=1), default=None)
+@click.option("--seed", type=int, default=None)
+@click.option("--batch-size", type=click.IntRange(min=1), default=None)
+@click.option("--lr", type=click.FloatRange(min=0.0, min_open=True), default=None)
+@click.option("--hidden", type=click.IntRange(min=1), default=None, help="H (overrides config)")
+@click.option("--layers", type=click.IntRange(min=2), default=None, help="L (overrides config)")
+@click.option("--quiet", is_flag=True)
+def train(data_path, config_path, out, epochs, seed, batch_size, lr, hidden, layers, quiet):
+    """Train the heterogeneous deep set; writes a checkpoint and prints the report."""
+    from tqdm import tqdm
+
+    from .checkpoint import save_checkpoint
+    from .data.dataset import Dataset
+    from .train import train as run
+
+    cfg = _config(config_path)
+    overrides = {k: v for k, v in (("hidden", hidden), ("layers", layers)) if v is not None}
+    if overrides:
+        cfg = cfg.with_overrides(**overrides)
+    ds = Dataset.load(data_path)
+    _parent_ok(out)
+    n_epochs = epochs or cfg.train["epochs"]
+    with tqdm(total=int(len(ds) * (1 - cfg.train["validation_fraction"])) * n_epochs, unit="sample",
+              disable=quiet, file=sys.stderr, unit_scale=True) as bar:
+        model, report = run(cfg, ds, epochs=epochs, seed=seed, batch_size=batch_size, lr=lr,
+                            progress=bar.update)
+    save_checkpoint(out, model, cfg, {"seed": report["seed"], "data_hash": ds.content_hash(),
+                                      "data_file": Path(data_path).name, "report": report})
+    v = report["validation"]
+    click.echo(json.dumps({"checkpoint": out, "validation_mse": v["mse"], "label_variance": v["label_var"],
+                           "mse_per_scenario": v["mse_per_scenario"],
+                           "samples_per_second": report["samples_per_second"]}, indent=2))
+
+
+@main.command()
+@click.argument("checkpoint", type=click.Path(dir_okay=False))
+@click.option("--out", "out_dir", type=click.Path(file_okay=False), default="firmware/generated",
+              show_default=True)
+def export(checkpoint, out_dir):
+    """Export CHECKPOINT to C headers (float + fixed point) and a manifest."""
+    from .export import export as run
+
+    man = run(checkpoint, out_dir)
+    err = man["fixed_vs_float_error_g"]
+    click.echo(f"wrote {out_dir}: model {man['model_hash'][:16]}, Lipschitz bound "
+               f"{man['lipschitz']['per_neighbor_input']:.4g} g per unit input, overflow margin "
+               f"{man['overflow_proof']['min_margin_bits']} bits, |fixed-float| max "
+               f"{err['box']['max_abs_g']:.3g} g (box), {err['typical']['max_abs_g']:.3g} g (typical)")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,195 @@
+"""Configuration: robot types, vehicle parameters, model dimensions, interaction volume.
+
+Plain data loaded from a TOML file (``config/default.toml``).  Robot types are
+data, not code: adding a ``[[robot_types]]`` entry adds a phi and a rho net and
+a type id in the generated C headers.  The environment is always the last
+neighbour type (paper, Example "small and large robots, and the environment").
+"""
+from __future__ import annotations
+
+import copy
+import json
+import math
+import re
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+
+DEFAULT_CONFIG = Path(__file__).resolve().parent.parent / "config" / "default.toml"
+
+_C_KEYWORDS = {
+    "auto", "break", "case", "char", "const", "continue", "default", "do", "double",
+    "else", "enum", "extern", "float", "for", "goto", "if", "inline", "int", "long",
+    "register", "restrict", "return", "short", "signed", "sizeof", "static", "struct",
+    "switch", "typedef", "union", "unsigned", "void", "volatile", "while", "_Bool",
+    "_Complex", "_Imaginary",
+}
+
+
+class ConfigError(ValueError):
+    """The configuration is malformed or inconsistent."""
+
+
+def c_identifier(name: str) -> str:
+    """Sanitize ``name`` into a lower-case C identifier fragment."""
+    ident = re.sub(r"[^0-9A-Za-z_]", "_", name.strip()).lower()
+    ident = re.sub(r"_+", "_", ident).strip("_")
+    if not ident:
+        raise ConfigError(f"name {name!r} has no usable characters for a C identifier")
+    if ident[0].isdigit():
+        ident = "t_" + ident
+    if ident in _C_KEYWORDS:
+        ident = ident + "_"
+    return ident
+
+
+@dataclass(frozen=True)
+class Config:
+    """Validated configuration; ``raw`` is the JSON-able dict it came from."""
+
+    raw: dict
+
+    # --- types -------------------------------------------------------------
+    @property
+    def robot_types(self) -> list[str]:
+        return [t["name"] for t in self.raw["robot_types"]]
+
+    @property
+    def env_name(self) -> str:
+        return self.raw["environment"]["name"]
+
+    @property
+    def neighbor_types(self) -> list[str]:
+        """Robot types followed by the environment (its index is ``env_index``)."""
+        return self.robot_types + [self.env_name]
+
+    @property
+    def env_index(self) -> int:
+        return len(self.robot_types)
+
+    @property
+    def num_robot_types(self) -> int:
+        return len(self.robot_types)
+
+    def vehicle(self, name: str) -> dict:
+        for t in self.raw["robot_types"]:
+            if t["name"] == name:
+                return t
+        raise KeyError(name)
+
+    # --- model -------------------------------------------------------------
+    @property
+    def model(self) -> dict:
+        return self.raw["model"]
+
+    @property
+    def train(self) -> dict:
+        return self.raw["train"]
+
+    def phi_dims(self) -> list[int]:
+        """6 -> phi_first -> width x (L-2) -> H  (paper: 6-25-40-40-H for L = 4)."""
+        m = self.model
+        return [6, m["phi_first"]] + [m["width"]] * (m["layers"] - 2) + [m["hidden"]]
+
+    def rho_dims(self) -> list[int]:
+        """H -> width x (L-1) -> 1  (paper: H-40-40-40-1 for L = 4)."""
+        m = self.model
+        return [m["hidden"]] + [m["width"]] * (m["layers"] - 1) + [1]
+
+    # --- boxes and volumes ---------------------------------------------------
+    def input_box(self, neighbor_type: int) -> list[list[float]]:
+        """6 [lo, hi] ranges of the phi input of ``neighbor_type``."""
+        sec = self.raw["environment"] if neighbor_type == self.env_index else self.raw["neighbors"]
+        return [list(map(float, r)) for r in sec["pos_box"]] + [list(map(float, r)) for r in sec["vel_box"]]
+
+    def volume(self, robot_type: int, neighbor_type: int) -> tuple[list[float], list[float]]:
+        vols = self.raw["interaction_volume"]
+        key = f"{self.robot_types[robot_type]}.{self.neighbor_types[neighbor_type]}"
+        v = vols.get(key, vols["default"])
+        return [float(x) for x in v["lo"]], [float(x) for x in v["hi"]]
+
+    def to_json(self) -> str:
+        return json.dumps(self.raw, sort_keys=True, separators=(",", ":"))
+
+    def with_overrides(self, **model_overrides) -> "Config":
+        raw = copy.deepcopy(self.raw)
+        raw["model"].update(model_overrides)
+        return Config.from_dict(raw)
+
+    # --- construction --------------------------------------------------------
+    @staticmethod
+    def from_dict(raw: dict) -> "Config":
+        raw = copy.deepcopy(raw)
+        _validate(raw)
+        return Config(raw)
+
+    @staticmethod
+    def load(path: str | Path | None = None) -> "Config":
+        path = Path(path) if path is not None else DEFAULT_CONFIG
+        try:
+            with open(path, "rb") as f:
+                raw = tomllib.load(f)
+        except FileNotFoundError as e:
+            raise ConfigError(f"config file not found: {path}") from e
+        except tomllib.TOMLDecodeError as e:
+            raise ConfigError(f"config file {path} is not valid TOML: {e}") from e
+        return Config.from_dict(raw)
+
+
+def _range_list(value, n: int, what: str) -> None:
+    if not (isinstance(value, list) and len(value) == n):
+        raise ConfigError(f"{what}: expected {n} [lo, hi] pairs")
+    for r in value:
+        if not (isinstance(r, list) and len(r) == 2 and all(isinstance(x, (int, float)) for x in r)):
+            raise ConfigError(f"{what}: expected [lo, hi] numbers, got {r!r}")
+        if not (math.isfinite(r[0]) and math.isfinite(r[1]) and r[0] < r[1]):
+            raise ConfigError(f"{what}: need finite lo < hi, got {r!r}")
+
+
+def _validate(raw: dict) -> None:
+    for sec in ("model", "train", "robot_types", "environment", "neighbors", "interaction_volume"):
+        if sec not in raw:
+            raise ConfigError(f"config is missing section [{sec}]")
+    m = raw["model"]
+    for key in ("hidden", "layers", "phi_first", "width", "max_neighbors"):
+        if not isinstance(m.get(key), int) or m[key] < 1:
+            raise ConfigError(f"model.{key} must be a positive integer")
+    if m["layers"] < 2:
+        raise ConfigError("model.layers must be >= 2")
+    if m["max_neighbors"] > 255:
+        raise ConfigError("model.max_neighbors must be <= 255")
+    if not (isinstance(m.get("gamma"), (int, float)) and m["gamma"] > 0):
+        raise ConfigError("model.gamma must be a positive number")
+    types = raw["robot_types"]
+    if not isinstance(types, list) or not types:
+        raise ConfigError("need at least one [[robot_types]] entry")
+    names = [t.get("name") for t in types] + [raw["environment"].get("name")]
+    if not all(isinstance(n, str) and n for n in names):
+        raise ConfigError("every robot type and the environment need a non-empty name")
+    idents = [c_identifier(n) for n in names]
+    if len(set(idents)) != len(idents):
+        raise ConfigError(f"type names collide as C identifiers: {names}")
+    for t in types:
+        for key in ("mass_g", "max_thrust_g", "lambda"):
+            if not (isinstance(t.get(key), (int, float)) and t[key] > 0):
+                raise ConfigError(f"robot type {t['name']}: {key} must be positive")
+    env, nb = raw["environment"], raw["neighbors"]
+    _range_list(env.get("pos_box"), 3, "environment.pos_box")
+    _range_list(env.get("vel_box"), 3, "environment.vel_box")
+    _range_list(nb.get("pos_box"), 3, "neighbors.pos_box")
+    _range_list(nb.get("vel_box"), 3, "neighbors.vel_box")
+    vols = raw["interaction_volume"]
+    if "default" not in vols:
+        raise ConfigError("interaction_volume needs a 'default' cuboid")
+    robot_names = [t["name"] for t in types]
+    for key, v in vols.items():
+        if key != "default":
+            parts = key.split(".")
+            if len(parts) != 2 or parts[0] not in robot_names or parts[1] not in robot_names:
+                raise ConfigError(f"interaction_volume.{key}: expected '<robot type>.<robot type>'")
+        lo, hi = v.get("lo"), v.get("hi")
+        _range_list([[a, b] for a, b in zip(lo or [], hi or [])], 3, f"interaction_volume.{key}")
+        for d in range(3):
+            blo, bhi = nb["pos_box"][d]
+            if lo[d] < blo or hi[d] > bhi:
+                raise ConfigError(f"interaction_volume.{key} leaves neighbors.pos_box in axis {d}")

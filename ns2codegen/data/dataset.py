@@ -1,0 +1,164 @@
+"""Training data set: per robot-sample (robot type, neighbour set, label), CSR layout.
+
+One sample is one robot at one time step (paper, "Data Collection"):
+
+  robot_type[n]   int   index into Config.robot_types
+  label_g[n]      f_a,z of that robot in grams
+  scenario[n]     int   index into scenario_names (Table "data_collection")
+  time_s[n]       s     time within the scenario's flight
+  nbr_offsets     [N+1] neighbours of sample n are rows offsets[n]:offsets[n+1]
+  nbr_type[m]     int   index into Config.neighbor_types (environment last)
+  nbr_state[m]    6     x_ij = [p_j - p_i; v_j - v_i] (m, m/s, world frame);
+                        the environment row is [-p_i; -v_i] (p_j = v_j = 0)
+
+Within a sample the neighbour rows are grouped by type in ascending type index,
+so the environment row (always present) is the last one.  Saved as ``.npz``.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+FORMAT = "ns2codegen-dataset-v1"
+
+
+class DatasetError(ValueError):
+    """The data set file is malformed."""
+
+
+@dataclass
+class Dataset:
+    robot_type: np.ndarray
+    label_g: np.ndarray
+    scenario: np.ndarray
+    time_s: np.ndarray
+    nbr_offsets: np.ndarray
+    nbr_type: np.ndarray
+    nbr_state: np.ndarray
+    neighbor_types: list[str]
+    scenario_names: list[str]
+    extra: dict = field(default_factory=dict)
+
+    def __len__(self) -> int:
+        return int(self.robot_type.shape[0])
+
+    # ------------------------------------------------------------------
+    @staticmethod
+    def from_samples(robot_type, label_g, scenario, time_s, neighbors, neighbor_types, scenario_names):
+        """Build from per-sample neighbour lists ``[(type, state6), ...]`` (sorted by type here)."""
+        counts = np.array([len(nb) for nb in neighbors], dtype=np.int64)
+        offsets = np.zeros(len(neighbors) + 1, dtype=np.int64)
+        np.cumsum(counts, out=offsets[1:])
+        types = np.empty(offsets[-1], dtype=np.int64)
+        states = np.empty((offsets[-1], 6), dtype=np.float32)
+        for n, nb in enumerate(neighbors):
+            for r, (t, s) in enumerate(sorted(nb, key=lambda e: e[0])):
+                types[offsets[n] + r] = t
+                states[offsets[n] + r] = s
+        return Dataset(np.asarray(robot_type, np.int64), np.asarray(label_g, np.float32),
+                       np.asarray(scenario, np.int64), np.asarray(time_s, np.float64),
+                       offsets, types, states, list(neighbor_types), list(scenario_names)).validated()
+
+    def validated(self) -> "Dataset":
+        n = len(self)
+        for name in ("label_g", "scenario", "time_s"):
+            if getattr(self, name).shape != (n,):
+                raise DatasetError(f"{name} must have shape ({n},)")
+        off = self.nbr_offsets
+        if off.shape != (n + 1,) or off[0] != 0 or np.any(np.diff(off) < 0):
+            raise DatasetError("nbr_offsets must be a non-decreasing CSR offset array starting at 0")
+        m = int(off[-1])
+        if self.nbr_type.shape != (m,) or self.nbr_state.shape != (m, 6):
+            raise DatasetError("nbr_type / nbr_state do not match nbr_offsets")
+        nt = len(self.neighbor_types)
+        if m and (self.nbr_type.min() < 0 or self.nbr_type.max() >= nt):
+            raise DatasetError("nbr_type out of range")
+        if n and (self.robot_type.min() < 0 or self.robot_type.max() >= nt - 1):
+            raise DatasetError("robot_type out of range")
+        if n and (self.scenario.min() < 0 or self.scenario.max() >= len(self.scenario_names)):
+            raise DatasetError("scenario out of range")
+        if not (np.all(np.isfinite(self.label_g)) and np.all(np.isfinite(self.nbr_state))):
+            raise DatasetError("labels and neighbour states must be finite")
+        # every sample has exactly one environment row, and it is the last one
+        env = nt - 1
+        is_env = self.nbr_type == env
+        if n and (np.any(np.diff(off) < 1) or not np.all(is_env[off[1:] - 1])
+                  or int(is_env.sum()) != n):
+            raise DatasetError("every sample needs exactly one environment neighbour, listed last")
+        return self
+
+    def content_hash(self) -> str:
+        h = hashlib.sha256()
+        for a in (self.robot_type, self.label_g, self.scenario, self.time_s,
+                  self.nbr_offsets, self.nbr_type, self.nbr_state):
+            h.update(np.ascontiguousarray(a).tobytes())
+        h.update(json.dumps([self.neighbor_types, self.scenario_names]).encode())
+        return h.hexdigest()
+
+    def subset(self, mask: np.ndarray) -> "Dataset":
+        idx = np.flatnonzero(mask)
+        counts = np.diff(self.nbr_offsets)[idx]
+        offsets = np.zeros(len(idx) + 1, dtype=np.int64)
+        np.cumsum(counts, out=offsets[1:])
+        rows = np.repeat(self.nbr_offsets[idx] - offsets[:-1], counts) + np.arange(offsets[-1])
+        return Dataset(self.robot_type[idx], self.label_g[idx], self.scenario[idx], self.time_s[idx],
+                       offsets, self.nbr_type[rows], self.nbr_state[rows],
+                       self.neighbor_types, self.scenario_names, dict(self.extra))
+
+    # ------------------------------------------------------------------
+    def save(self, path: str | Path) -> None:
+        path = Path(path)
+        meta = json.dumps({"format": FORMAT, "neighbor_types": self.neighbor_types,
+                           "scenario_names": self.scenario_names, "extra": self.extra})
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp.npz")
+        os.close(fd)
+        try:
+            np.savez_compressed(tmp, meta=np.array(meta), robot_type=self.robot_type, label_g=self.label_g,
+                                scenario=self.scenario, time_s=self.time_s, nbr_offsets=self.nbr_offsets,
+                                nbr_type=self.nbr_type, nbr_state=self.nbr_state)
+            os.replace(tmp, path)
+        except BaseException:
+            Path(tmp).unlink(missing_ok=True)
+            raise
+
+    @staticmethod
+    def load(path: str | Path) -> "Dataset":
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                meta = json.loads(str(z["meta"]))
+                if meta.get("format") != FORMAT:
+                    raise DatasetError(f"{path}: not an {FORMAT} file")
+                return Dataset(z["robot_type"].astype(np.int64), z["label_g"].astype(np.float32),
+                               z["scenario"].astype(np.int64), z["time_s"].astype(np.float64),
+                               z["nbr_offsets"].astype(np.int64), z["nbr_type"].astype(np.int64),
+                               z["nbr_state"].astype(np.float32), meta["neighbor_types"],
+                               meta["scenario_names"], meta.get("extra", {})).validated()
+        except DatasetError:
+            raise
+        except Exception as e:  # zip/npz/json/key errors: one clear message
+            raise DatasetError(f"cannot read data set {path}: {e}") from e
+
+
+def split_by_pieces(ds: Dataset, pieces: int = 50, val_fraction: float = 0.2, seed: int = 0) -> np.ndarray:
+    """Boolean validation mask: each scenario's time span cut into ``pieces`` equal pieces,
+    ``val_fraction`` of the pieces (seeded) held out (paper, "Learning Results")."""
+    rng = np.random.default_rng(seed)
+    val = np.zeros(len(ds), dtype=bool)
+    n_val = max(1, int(round(pieces * val_fraction)))
+    for s in range(len(ds.scenario_names)):
+        idx = np.flatnonzero(ds.scenario == s)
+        if idx.size == 0:
+            continue
+        t = ds.time_s[idx]
+        t0, t1 = t.min(), t.max()
+        span = (t1 - t0) if t1 > t0 else 1.0
+        piece = np.minimum(((t - t0) / span * pieces).astype(np.int64), pieces - 1)
+        held = rng.choice(pieces, size=n_val, replace=False)
+        val[idx[np.isin(piece, held)]] = True
+    return val

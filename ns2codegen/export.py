@@ -1,0 +1,152 @@
+"""Export a checkpoint to C headers (float + fixed point) and a JSON manifest.
+
+Output (deterministic: the same checkpoint gives byte-identical files):
+  ns2_model_config.h   types, dimensions, interaction volume, input boxes
+  ns2_model_float.h    float32 weights as exact hexadecimal literals
+  ns2_model_fixed.h    int16/int32 tables, Q formats, shifts
+  ns2_model_manifest.json  hash, dims, Q formats, Lipschitz bound, overflow proof,
+                       measured |fixed - float| error
+All four are staged first and renamed into place only when all were written.
+"""
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+
+import jinja2
+import numpy as np
+
+from . import __version__
+from .checkpoint import load_checkpoint
+from .config import c_identifier
+from .fileio import atomic_write_files
+from .queries import random_queries
+from .quantize import ExportModel, from_checkpoint
+
+TEMPLATES = Path(__file__).resolve().parent.parent / "templates"
+HEADERS = ("ns2_model_config.h", "ns2_model_float.h", "ns2_model_fixed.h")
+MANIFEST = "ns2_model_manifest.json"
+ERROR_QUERIES = 20000
+
+
+def cfloat(x) -> str:
+    """Exact C float literal (hexadecimal) of a float32 value."""
+    v = float(np.float32(x))
+    if not np.isfinite(v):
+        raise ValueError(f"non-finite value {v} cannot be exported")
+    if v == 0.0:
+        return "-0.0f" if np.signbit(v) else "0.0f"
+    m = re.match(r"(-?0x[01])\.?([0-9a-f]*?)0*p([+-]\d+)$", v.hex())
+    mant = m.group(1) + ("." + m.group(2) if m.group(2) else "")
+    return f"{mant}p{m.group(3)}f"
+
+
+def _block(items: list[str], per_line: int) -> str:
+    lines = ["    " + ", ".join(items[i:i + per_line]) + "," for i in range(0, len(items), per_line)]
+    return "\n".join(lines)
+
+
+def _env() -> jinja2.Environment:
+    env = jinja2.Environment(loader=jinja2.FileSystemLoader(str(TEMPLATES)), undefined=jinja2.StrictUndefined,
+                             trim_blocks=True, lstrip_blocks=True, keep_trailing_newline=True)
+    env.filters["cfloat"] = cfloat
+    env.filters["cfloats"] = lambda xs: ", ".join(cfloat(x) for x in np.ravel(xs))
+    env.filters["cfloat_block"] = lambda a: _block([cfloat(x) for x in np.ravel(a)], 6)
+    env.filters["int_block"] = lambda a: _block([str(int(x)) for x in np.ravel(a)], 12)
+    return env
+
+
+def measure_errors(m: ExportModel) -> dict:
+    """Measured |fixed - float| (grams) of the C semantics, via the bit-exact references."""
+    from .reference import predict_f32, predict_q15
+
+    out = {}
+    cases = {"box": dict(max_given=m.max_neighbors, inside=0.8, edge=0.05),
+             "typical": dict(max_given=2, inside=1.0, edge=0.0)}
+    for name, kw in cases.items():
+        q = random_queries(m.cfg, ERROR_QUERIES, seed=4242, **kw)
+        if name == "typical":  # flight-like: within 1.5 m of the ground, |v| small
+            q.p[:, 2] = np.abs(q.p[:, 2]) % 1.5
+            q.v *= np.float32(0.25)
+        f, sel = predict_f32(m, q)
+        i, _ = predict_q15(m, q)
+        ok = sel.status == 0
+        err = np.abs(i.astype(np.float64) * 2.0 ** -m.q15.out_frac - f.astype(np.float64))[ok]
+        out[name] = {"queries": int(ok.sum()), "max_abs_g": float(err.max()),
+                     "mean_abs_g": float(err.mean()), "p99_abs_g": float(np.percentile(err, 99)),
+                     "float_range_g": [float(f[ok].min()), float(f[ok].max())],
+                     "description": f"{kw} (random_queries seed 4242)"}
+    return out
+
+
+def render(m: ExportModel) -> dict[str, str]:
+    cfg, q = m.cfg, m.q15
+    types = [{"name": n, "ident": c_identifier(n), "index": i, "is_env": i == cfg.env_index}
+             for i, n in enumerate(cfg.neighbor_types)]
+    lip = m.lipschitz()
+    nets, qnets = [], []
+    for kind, fnets, qn, names in (("phi", m.phi, q.phi, cfg.neighbor_types), ("rho", m.rho, q.rho, cfg.robot_types)):
+        for i, (net, qnet) in enumerate(zip(fnets, qn)):
+            base = {"kind": kind, "type_name": names[i], "ident": c_identifier(names[i])}
+            nets.append(dict(base, lipschitz=f"{lip[kind][i]:.9g}",
+                             dims=[net[0][0].shape[1]] + [w.shape[0] for w, _ in net],
+                             layers=[{"n_in": w.shape[1], "n_out": w.shape[0], "w": w, "b": b} for w, b in net]))
+            qnets.append(dict(base, layers=qnet.layers))
+    ctx = {"version": __version__, "model_hash": m.model_hash, "types": types,
+           "num_robot_types": cfg.num_robot_types, "num_neighbor_types": len(types),
+           "env_index": cfg.env_index, "max_neighbors": m.max_neighbors, "hidden": m.hidden,
+           "layers": cfg.model["layers"], "max_width": max(max(cfg.phi_dims()), max(cfg.rho_dims())),
+           "lipschitz": lip["per_neighbor_input"], "volumes": m.volumes, "boxes": m.boxes,
+           "nets": nets, "qnets": qnets, "q": q, "in_scale": q.in_scale,
+           "out_scale": 2.0 ** -q.out_frac,
+           "min_margin_bits": min(p["margin_bits"] for p in q.proof)}
+    env = _env()
+    return {h: env.get_template(h + ".j2").render(**ctx) for h in HEADERS}
+
+
+def manifest(m: ExportModel, errors: dict) -> dict:
+    cfg, q = m.cfg, m.q15
+    meta = m.meta
+    return {
+        "generator": f"ns2codegen {__version__}",
+        "model_hash": m.model_hash,
+        "data_hash": meta.get("data_hash"),
+        "seed": meta.get("seed"),
+        "robot_types": cfg.robot_types,
+        "neighbor_types": cfg.neighbor_types,
+        "dims": {"phi": cfg.phi_dims(), "rho": cfg.rho_dims(), "hidden": m.hidden,
+                 "max_neighbors": m.max_neighbors},
+        "normalization": meta.get("normalization"),
+        "lipschitz": m.lipschitz(),
+        "interaction_volume": {f"{cfg.robot_types[r]}.{cfg.robot_types[t]}": m.volumes[r, t].tolist()
+                               for r in range(cfg.num_robot_types) for t in range(cfg.num_robot_types)},
+        "input_box": {cfg.neighbor_types[t]: m.boxes[t].tolist() for t in range(len(cfg.neighbor_types))},
+        "q_formats": {
+            "scheme": "int16 weights/activations, int32 accumulators, value = int * 2^-frac; "
+                      "y = sat16(floor((acc + 2^(shift-1)) / 2^shift)) (round half up); "
+                      "inputs sat16(round_half_up(x * 2^in_frac)) after clamping to the input box",
+            "in_frac": dict(zip(cfg.neighbor_types, q.in_frac)),
+            "phi_out_frac": q.phi_out_frac, "sum_shift": q.sum_shift,
+            "rho_in_frac": q.rho_in_frac, "out_frac": q.out_frac,
+            "layers": [{k: p[k] for k in ("layer", "f_in", "f_w", "f_out", "shift")} for p in q.proof[:-1]],
+        },
+        "overflow_proof": {
+            "method": "integer interval arithmetic from the input box through every layer; every partial "
+                      "sum of a dot product is bounded by |b| + sum |w_i| max|x_i| (+ rounding term)",
+            "layers": q.proof,
+            "min_margin_bits": min(p["margin_bits"] for p in q.proof),
+        },
+        "fixed_vs_float_error_g": errors,
+        "training": meta.get("report", {}).get("validation"),
+    }
+
+
+def export(checkpoint: str | Path, out_dir: str | Path) -> dict:
+    """Export ``checkpoint`` into ``out_dir``; returns the manifest."""
+    m = from_checkpoint(load_checkpoint(checkpoint))
+    files = render(m)
+    man = manifest(m, measure_errors(m))
+    files[MANIFEST] = json.dumps(man, indent=2, sort_keys=True) + "\n"
+    atomic_write_files(Path(out_dir), files)
+    return man

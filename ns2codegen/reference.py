@@ -1,0 +1,169 @@
+"""Deterministic Python references of the C inference (firmware/src/ns2_*.c).
+
+* ``predict_f32``: torch float32, the same operations in the same order as the C
+  (dot products from the bias, inputs in index order, latent sum environment
+  first then neighbours in array order), hence bit-exact with the C float path.
+* ``predict_q15``: an integer model (numpy int64) of the fixed-point C, also
+  checking at every step that the int32 accumulators stay in range.
+
+Both share the neighbour selection of ns2_select.c (``select``).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from .queries import Queries
+
+ERR_ROBOT_TYPE, ERR_STATE = -1, -2
+INT32_MAX = 2**31 - 1
+
+
+@dataclass
+class Selection:
+    status: np.ndarray     # int32 [Q]
+    accepted: np.ndarray   # bool [Q, S], slots that enter the sum
+    n_invalid: np.ndarray
+    n_outside: np.ndarray
+    n_truncated: np.ndarray
+    x_env: np.ndarray      # float32 [Q, 6], clamped environment input
+
+
+def clamp(x: np.ndarray, box: np.ndarray) -> np.ndarray:
+    """x < lo ? lo : (x > hi ? hi : x), elementwise with box [..., 6, 2] (float32)."""
+    lo, hi = box[..., 0], box[..., 1]
+    return np.where(x < lo, lo, np.where(x > hi, hi, x)).astype(np.float32)
+
+
+def select(m, q: Queries) -> Selection:
+    """Mirror of ns2_prepare / ns2_select_neighbors for a batch of queries."""
+    k = m.num_robot_types
+    given = q.given()
+    with np.errstate(invalid="ignore"):
+        own_ok = np.isfinite(q.p).all(1) & np.isfinite(q.v).all(1)
+        status = np.where(q.robot_type >= k, ERR_ROBOT_TYPE, np.where(own_ok, 0, ERR_STATE)).astype(np.int32)
+        ok = status == 0
+        type_ok = q.nbr_type < k
+        valid = given & type_ok & np.isfinite(q.nbr_rel).all(2) & ok[:, None]
+        rt = np.minimum(q.robot_type, k - 1).astype(np.int64)
+        nt = np.minimum(q.nbr_type, k - 1).astype(np.int64)
+        vol = m.volumes[rt[:, None], nt]  # [Q, S, 2, 3]
+        rel = q.nbr_rel[..., :3]
+        inside = ((rel >= vol[..., 0, :]) & (rel <= vol[..., 1, :])).all(2)
+    in_vol = valid & inside
+    rank = np.cumsum(in_vol, axis=1)
+    accepted = in_vol & (rank <= m.max_neighbors)
+    x_env = clamp(np.concatenate([-q.p, -q.v], 1), m.boxes[m.env_index])
+    cnt = lambda a: np.where(ok, a.sum(1), 0).astype(np.int64)  # noqa: E731
+    return Selection(status, accepted, cnt(given & ok[:, None] & ~valid), cnt(valid & ~inside),
+                     cnt(in_vol & ~accepted), x_env)
+
+
+# ---------------------------------------------------------------- float32 reference
+def _dense_f32(w: torch.Tensor, b: torch.Tensor, x: torch.Tensor, relu: bool) -> torch.Tensor:
+    acc = b.expand(x.shape[0], -1).clone()
+    for i in range(w.shape[1]):
+        acc = acc + w[:, i] * x[:, i:i + 1]  # two roundings: no fused multiply-add
+    return torch.where(acc > 0, acc, torch.zeros_like(acc)) if relu else acc
+
+
+def _net_f32(net, x: torch.Tensor) -> torch.Tensor:
+    n = len(net)
+    for l, (w, b) in enumerate(net):
+        x = _dense_f32(torch.from_numpy(w), torch.from_numpy(b), x, l + 1 < n)
+    return x
+
+
+def predict_f32(m, q: Queries) -> tuple[np.ndarray, Selection]:
+    sel = select(m, q)
+    nq = len(q)
+    h = torch.zeros((nq, m.hidden), dtype=torch.float32)
+    ok = sel.status == 0
+    if ok.any():
+        h[ok] = _net_f32(m.phi[m.env_index], torch.from_numpy(sel.x_env[ok]))
+    if sel.accepted.any():
+        phi_out = torch.zeros((nq, q.slots, m.hidden), dtype=torch.float32)
+        for t in range(m.num_robot_types):
+            mask = sel.accepted & (q.nbr_type == t)
+            if mask.any():
+                x = clamp(q.nbr_rel[mask], m.boxes[t])
+                phi_out[torch.from_numpy(mask)] = _net_f32(m.phi[t], torch.from_numpy(x))
+        acc_mask = torch.from_numpy(sel.accepted)
+        for s in range(q.slots):  # array order, like the C
+            if acc_mask[:, s].any():
+                h = torch.where(acc_mask[:, s, None], h + phi_out[:, s], h)
+    out = torch.zeros(nq, dtype=torch.float32)
+    for r in range(m.num_robot_types):
+        rows = torch.from_numpy(ok & (q.robot_type == r))
+        if rows.any():
+            out[rows] = _net_f32(m.rho[r], h[rows])[:, 0]
+    return out.numpy(), sel
+
+
+# ---------------------------------------------------------------- integer reference
+def floor_shift(a: np.ndarray, s: int) -> np.ndarray:
+    return a >> s  # numpy's >> on int64 is an arithmetic (floor) shift
+
+
+def round_shift_sat(a: np.ndarray, s: int) -> np.ndarray:
+    if s > 0:
+        a = a + (1 << (s - 1))
+        _check_int32(a, "rounding")
+        a = floor_shift(a, s)
+    return np.clip(a, -32768, 32767)
+
+
+def _check_int32(a: np.ndarray, what: str) -> None:
+    if a.size and (a.max() > INT32_MAX or a.min() < -INT32_MAX - 1):
+        raise OverflowError(f"int32 overflow in {what}: the exporter's proof is wrong")
+
+
+def quantize_input(x: np.ndarray, scale: float) -> np.ndarray:
+    """sat16(round_half_up(x * scale)) computed in float32 like the C."""
+    v = x.astype(np.float32) * np.float32(scale)
+    fl = np.floor(v)
+    qv = fl.astype(np.int64) + ((v - fl) >= np.float32(0.5))
+    return np.clip(qv, -32768, 32767)
+
+
+def dense_q15(layer, x: np.ndarray, relu: bool) -> np.ndarray:
+    w = layer.w.astype(np.int64)
+    xp = np.zeros((x.shape[0], w.shape[1]), np.int64)
+    xp[:, :x.shape[1]] = x
+    # the sequential C sum: every partial sum bounded by |b| + sum |w_i x_i|
+    _check_int32(np.abs(layer.b.astype(np.int64))[None, :] + np.abs(xp) @ np.abs(w).T, "dense partial sums")
+    acc = layer.b.astype(np.int64)[None, :] + xp @ w.T
+    y = round_shift_sat(acc, layer.shift)
+    return np.maximum(y, 0) if relu else y
+
+
+def net_q15(net, x: np.ndarray) -> np.ndarray:
+    n = len(net.layers)
+    for l, layer in enumerate(net.layers):
+        x = dense_q15(layer, x, l + 1 < n)
+    return x
+
+
+def predict_q15(m, q: Queries) -> tuple[np.ndarray, Selection]:
+    """Raw int16 outputs (grams * 2^out_frac) of the fixed-point C."""
+    qm = m.q15
+    sel = select(m, q)
+    nq = len(q)
+    ok = sel.status == 0
+    h = np.zeros((nq, m.hidden), np.int64)
+    h[ok] = net_q15(qm.phi[m.env_index], quantize_input(sel.x_env[ok], qm.in_scale[m.env_index]))
+    for t in range(m.num_robot_types):
+        mask = sel.accepted & (q.nbr_type == t)
+        if mask.any():
+            x = quantize_input(clamp(q.nbr_rel[mask], m.boxes[t]), qm.in_scale[t])
+            np.add.at(h, np.nonzero(mask)[0], net_q15(qm.phi[t], x))  # integer sums: any order
+    _check_int32(h, "latent sum")
+    hq = round_shift_sat(h, qm.sum_shift)
+    out = np.zeros(nq, np.int64)
+    for r in range(m.num_robot_types):
+        rows = ok & (q.robot_type == r)
+        if rows.any():
+            out[rows] = net_q15(qm.rho[r], hq[rows])[:, 0]
+    return out.astype(np.int16), sel
