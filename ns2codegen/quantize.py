@@ -207,7 +207,7 @@ def quantize_layer(w: np.ndarray, b: np.ndarray, f_in: int, f_out_wanted: int,
     wpad[:, :n_in] = wq
     acc = max(bound)
     proof = {"layer": name, "f_in": f_in, "f_w": f_w, "f_out": f_out, "shift": shift,
-             "max_abs_input": int(max(amax)), "max_abs_weight": int(np.abs(wq).max()),
+             "max_abs_input": int(max(amax)), "max_abs_inputs": [int(a) for a in amax], "max_abs_weight": int(np.abs(wq).max()),
              "max_abs_bias": int(np.abs(bq).max()), "accumulator_bound": int(acc),
              "int32_max": INT32_MAX, "margin_bits": round(math.log2(INT32_MAX / max(acc, 1)), 3)}
     return QLayer(wpad, bq.astype(np.int32), n_in, shift, f_in, f_w, f_out, out_lo, out_hi, proof)
