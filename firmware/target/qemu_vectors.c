@@ -1,0 +1,58 @@
+/*
+ * qemu_vectors.c - test image: reads query vectors from ns2_in.bin through
+ * semihosting, runs the float and fixed-point inference on the (emulated)
+ * STM32F405 and writes the results to ns2_out.bin.  Formats: host/target.py.
+ */
+#include <stdio.h>
+#include <string.h>
+
+#include "ns2_deepset.h"
+
+#define MAX_GIVEN 64u
+
+typedef struct {
+    uint8_t robot_type;
+    uint8_t pad;
+    uint16_t n;
+    float p[3];
+    float v[3];
+} query_t;
+
+typedef struct {
+    float f32;
+    int16_t q15;
+    uint16_t pad;
+    ns2_info_t info_f32;
+    ns2_info_t info_q15;
+} result_t;
+
+static ns2_neighbor_t neighbors[MAX_GIVEN];
+
+int main(void)
+{
+    FILE *in = fopen("ns2_in.bin", "rb");
+    FILE *out = fopen("ns2_out.bin", "wb");
+    char magic[4];
+    uint32_t count = 0;
+    if (in == NULL || out == NULL || fread(magic, 1, 4, in) != 4 || memcmp(magic, "NS2V", 4) != 0 ||
+        fread(&count, sizeof count, 1, in) != 1) {
+        return 2;
+    }
+    for (uint32_t k = 0; k < count; ++k) {
+        query_t q;
+        result_t r;
+        if (fread(&q, sizeof q, 1, in) != 1 || q.n > MAX_GIVEN ||
+            (q.n > 0 && fread(neighbors, sizeof neighbors[0], q.n, in) != q.n)) {
+            return 4;
+        }
+        memset(&r, 0, sizeof r);
+        r.f32 = ns2_predict_f32(q.robot_type, q.p, q.v, neighbors, q.n, &r.info_f32);
+        r.q15 = ns2_predict_q15(q.robot_type, q.p, q.v, neighbors, q.n, &r.info_q15);
+        if (fwrite(&r, sizeof r, 1, out) != 1) {
+            return 5;
+        }
+    }
+    fclose(out);
+    fclose(in);
+    return 0;
+}

@@ -1,0 +1,110 @@
+"""Cortex-M4F target builds of the firmware library and runs in QEMU.
+
+``build_image`` cross-compiles the library (the same sources and flags as the
+host build, plus ``firmware/flags.mk``'s ARM flags) with a test program from
+``firmware/target/`` into an ELF for the STM32F405.  ``run_vectors`` runs the
+query-vector image in ``qemu-system-arm -M netduinoplus2`` with semihosting:
+queries go in through ``ns2_in.bin``, results come back in ``ns2_out.bin``.
+
+ns2_in.bin:  "NS2V", u32 count, then per query
+             u8 robot_type, u8 pad, u16 n, f32 p[3], f32 v[3],
+             n x ns2_neighbor_t (u8 type, 3 pad bytes, f32 rel[6])
+ns2_out.bin: per query f32 float result, i16 fixed result, u16 pad,
+             ns2_info_t of the float call, ns2_info_t of the fixed call
+"""
+from __future__ import annotations
+
+import hashlib
+import os
+import shutil
+import subprocess
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from .cbuild import REPO, BUILD_ROOT, GENERATED, BuildError, flags
+
+ARM_CC = os.environ.get("ARM_CC", "arm-none-eabi-gcc")
+TARGET_DIR = REPO / "firmware" / "target"
+QEMU = "qemu-system-arm"
+
+QUERY_DT = np.dtype([("robot_type", "u1"), ("pad", "u1"), ("n", "<u2"), ("p", "<f4", 3), ("v", "<f4", 3)])
+NBR_DT = np.dtype({"names": ["type", "rel"], "formats": ["u1", ("<f4", 6)], "offsets": [0, 4], "itemsize": 28})
+INFO_DT = [("status", "<i4"), ("n_used", "<u2"), ("n_invalid", "<u2"), ("n_outside", "<u2"), ("n_truncated", "<u2")]
+RESULT_DT = np.dtype([("f32", "<f4"), ("q15", "<i2"), ("pad", "<u2"), ("info_f32", INFO_DT), ("info_q15", INFO_DT)])
+
+
+def have_toolchain() -> bool:
+    return shutil.which(ARM_CC) is not None
+
+
+def have_qemu() -> bool:
+    return shutil.which(QEMU) is not None
+
+
+def build_image(gen_dir: Path, program: str = "qemu_vectors.c", opt: str | None = None,
+                extra_sources: tuple[str, ...] = ()) -> Path:
+    """Cross-compile ``firmware/target/<program>`` + the library into an ELF (cached)."""
+    f = flags()
+    gen_dir = Path(gen_dir).resolve()
+    opt_flags = [opt] if opt else f["NS2_OPT_FLAGS"]
+    sources = [REPO / s for s in f["NS2_SOURCES"]] + [REPO / s for s in extra_sources] + \
+        [TARGET_DIR / "startup_cm4.c", TARGET_DIR / program]
+    h = hashlib.sha256()
+    for p in sources + sorted((REPO / "firmware" / "include").glob("*.h")) + \
+            sorted((REPO / "firmware" / "src").glob("*.h")) + [gen_dir / g for g in GENERATED] + \
+            [TARGET_DIR / "stm32f405.ld"]:
+        h.update(p.name.encode() + p.read_bytes())
+    h.update(repr((sorted(f.items()), opt_flags, ARM_CC)).encode())
+    out = BUILD_ROOT.parent / "arm" / f"{Path(program).stem}-{h.hexdigest()[:16]}.elf"
+    if out.is_file():
+        return out
+    out.parent.mkdir(parents=True, exist_ok=True)
+    inc = [f"-I{REPO / i}" for i in f["NS2_INCLUDES"]] + [f"-I{gen_dir}"]
+    with tempfile.TemporaryDirectory() as tmp:
+        su = Path(tmp)
+        cmd = [ARM_CC, *f["NS2_ARM_FLAGS"], *f["NS2_STD_FLAGS"], *opt_flags, *f["NS2_WARN_FLAGS"], *inc,
+               "-ffunction-sections", "-fdata-sections", "-g",
+               "--specs=rdimon.specs", "-nostartfiles", f"-T{TARGET_DIR / 'stm32f405.ld'}",
+               "-Wl,--gc-sections", *map(str, sources), "-lm", "-o", str(su / out.name)]
+        r = subprocess.run(cmd, capture_output=True, text=True)
+        if r.returncode != 0:
+            raise BuildError(f"{' '.join(cmd)}\n{r.stdout}{r.stderr}")
+        os.replace(su / out.name, out)
+    return out
+
+
+def encode_queries(q) -> bytes:
+    """Queries (ns2codegen.queries) in the ns2_in.bin layout."""
+    parts = [b"NS2V", np.uint32(len(q)).tobytes()]
+    for i in range(len(q)):
+        head = np.zeros(1, QUERY_DT)
+        head["robot_type"], head["n"], head["p"], head["v"] = q.robot_type[i], q.n[i], q.p[i], q.v[i]
+        nb = np.zeros(int(q.n[i]), NBR_DT)
+        nb["type"] = q.nbr_type[i, :q.n[i]]
+        nb["rel"] = q.nbr_rel[i, :q.n[i]]
+        parts += [head.tobytes(), nb.tobytes()]
+    return b"".join(parts)
+
+
+class TargetError(RuntimeError):
+    """The emulated target failed or produced no complete result."""
+
+
+def run_vectors(elf: Path, q, timeout: float = 300.0) -> np.ndarray:
+    """Run queries on the emulated STM32F405; returns RESULT_DT records."""
+    with tempfile.TemporaryDirectory() as tmp:
+        (Path(tmp) / "ns2_in.bin").write_bytes(encode_queries(q))
+        cmd = [QEMU, "-M", "netduinoplus2", "-nographic", "-monitor", "none", "-serial", "null",
+               "-semihosting-config", "enable=on,target=native", "-kernel", str(elf)]
+        try:
+            r = subprocess.run(cmd, cwd=tmp, capture_output=True, text=True, timeout=timeout)
+        except subprocess.TimeoutExpired as e:
+            raise TargetError(f"qemu timed out after {timeout} s") from e
+        if r.returncode != 0:
+            raise TargetError(f"target exited with {r.returncode}: {r.stdout}{r.stderr}")
+        data = (Path(tmp) / "ns2_out.bin").read_bytes()
+    if len(data) != len(q) * RESULT_DT.itemsize:
+        raise TargetError(f"expected {len(q)} results, got {len(data) / RESULT_DT.itemsize}")
+    return np.frombuffer(data, RESULT_DT)
