@@ -42,6 +42,34 @@ def cfloat(x) -> str:
     return f"{mant}p{m.group(3)}f"
 
 
+def pad4(n: int) -> int:
+    return (n + 3) // 4 * 4
+
+
+def float_layout(w: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """W [out, in] -> [row block][input][4 rows] (rows zero-padded to 4); b padded."""
+    n_out, n_in = w.shape
+    wp = np.zeros((pad4(n_out), n_in), np.float32)
+    wp[:n_out] = w
+    bp = np.zeros(pad4(n_out), np.float32)
+    bp[:n_out] = b
+    return wp.reshape(-1, 4, n_in).transpose(0, 2, 1).ravel(), bp
+
+
+def fixed_layout(w: np.ndarray, b: np.ndarray, shift: int) -> tuple[np.ndarray, np.ndarray]:
+    """int16 W [out, in_pad4] -> int32 words [row block][input quad][4 rows][2 words],
+    each word two int16 (even input in the low half); b plus the rounding offset
+    2^(shift-1), padded to 4 rows (padded rows give 0)."""
+    n_out, n_in = w.shape
+    wp = np.zeros((pad4(n_out), pad4(n_in)), np.int64)
+    wp[:n_out, :n_in] = w
+    blocks = wp.reshape(-1, 4, pad4(n_in) // 4, 4).transpose(0, 2, 1, 3).ravel()
+    words = blocks[1::2] * 65536 + (blocks[0::2] & 0xFFFF)
+    bp = np.zeros(pad4(n_out), np.int64)
+    bp[:n_out] = b.astype(np.int64) + ((1 << (shift - 1)) if shift else 0)
+    return words, bp
+
+
 def _block(items: list[str], per_line: int) -> str:
     lines = ["    " + ", ".join(items[i:i + per_line]) + "," for i in range(0, len(items), per_line)]
     return "\n".join(lines)
@@ -91,8 +119,11 @@ def render(m: ExportModel) -> dict[str, str]:
             base = {"kind": kind, "type_name": names[i], "ident": c_identifier(names[i])}
             nets.append(dict(base, lipschitz=f"{lip[kind][i]:.9g}",
                              dims=[net[0][0].shape[1]] + [w.shape[0] for w, _ in net],
-                             layers=[{"n_in": w.shape[1], "n_out": w.shape[0], "w": w, "b": b} for w, b in net]))
-            qnets.append(dict(base, layers=qnet.layers))
+                             layers=[dict(zip(("w", "b"), float_layout(w, b)), n_in=w.shape[1],
+                                          n_out=pad4(w.shape[0])) for w, b in net]))
+            qnets.append(dict(base, layers=[dict(zip(("w", "b"), fixed_layout(l.w, l.b, l.shift)), layer=l,
+                                                 n_quads=pad4(l.n_in) // 4, n_out=pad4(l.w.shape[0]))
+                                            for l in qnet.layers]))
     ctx = {"version": __version__, "model_hash": m.model_hash, "types": types,
            "num_robot_types": cfg.num_robot_types, "num_neighbor_types": len(types),
            "env_index": cfg.env_index, "max_neighbors": m.max_neighbors, "hidden": m.hidden,
@@ -100,7 +131,8 @@ def render(m: ExportModel) -> dict[str, str]:
            "lipschitz": lip["per_neighbor_input"], "volumes": m.volumes, "boxes": m.boxes,
            "nets": nets, "qnets": qnets, "q": q, "in_scale": q.in_scale,
            "out_scale": 2.0 ** -q.out_frac,
-           "min_margin_bits": min(p["margin_bits"] for p in q.proof)}
+           "min_margin_bits": min(p["margin_bits"] for p in q.proof),
+           "quad_counts": sorted({pad4(l.n_in) // 4 for net in q.phi + q.rho for l in net.layers})}
     env = _env()
     return {h: env.get_template(h + ".j2").render(**ctx) for h in HEADERS}
 

@@ -43,7 +43,7 @@ class QuantizationError(ValueError):
 
 @dataclass
 class QLayer:
-    w: np.ndarray          # int16 [out, in_pad], zero-padded to an even input count
+    w: np.ndarray          # int16 [out, in_pad], inputs zero-padded to a multiple of four
     b: np.ndarray          # int32 [out]
     n_in: int
     shift: int
@@ -177,7 +177,7 @@ def round_shift_sat_int(a: int, s: int) -> int:
 def quantize_layer(w: np.ndarray, b: np.ndarray, f_in: int, f_out_wanted: int,
                    in_lo: np.ndarray, in_hi: np.ndarray, relu: bool, name: str) -> QLayer:
     n_out, n_in = w.shape
-    in_pad = n_in + (n_in & 1)
+    in_pad = (n_in + 3) // 4 * 4
     amax = np.maximum(np.abs(in_lo), np.abs(in_hi)).astype(object)  # exact Python ints
     w64, b64 = w.astype(np.float64), b.astype(np.float64)
     wmax = float(np.abs(w64).max())

@@ -4,6 +4,9 @@
 
 #include "ns2_deepset.h"
 
+/* n rounded up to a multiple of four (row blocks and input quads of the kernels) */
+#define NS2_PAD4(n) ((((n) + 3) / 4) * 4)
+
 /* Validate the query, build the clamped environment input x_env = [-p; -v] and
  * select the neighbours (their indices into neighbors[] go to idx).
  * Returns info->status. */
