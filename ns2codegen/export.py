@@ -46,28 +46,28 @@ def pad4(n: int) -> int:
     return (n + 3) // 4 * 4
 
 
-def float_layout(w: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """W [out, in] -> [row block][input][4 rows] (rows zero-padded to 4); b padded."""
+def float_layout(w: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Stream of a float layer: per block of four rows (rows zero-padded to a multiple
+    of four) the four biases, then the four weights of each input: [block][1 + n_in][4]."""
     n_out, n_in = w.shape
-    wp = np.zeros((pad4(n_out), n_in), np.float32)
-    wp[:n_out] = w
-    bp = np.zeros(pad4(n_out), np.float32)
-    bp[:n_out] = b
-    return wp.reshape(-1, 4, n_in).transpose(0, 2, 1).ravel(), bp
+    wp = np.zeros((pad4(n_out), n_in + 1), np.float32)
+    wp[:n_out, 0] = b
+    wp[:n_out, 1:] = w
+    return wp.reshape(-1, 4, n_in + 1).transpose(0, 2, 1).ravel()
 
 
-def fixed_layout(w: np.ndarray, b: np.ndarray, shift: int) -> tuple[np.ndarray, np.ndarray]:
-    """int16 W [out, in_pad4] -> int32 words [row block][input quad][4 rows][2 words],
-    each word two int16 (even input in the low half); b plus the rounding offset
-    2^(shift-1), padded to 4 rows (padded rows give 0)."""
+def fixed_layout(w: np.ndarray, b: np.ndarray, shift: int) -> np.ndarray:
+    """Stream of a fixed-point layer (int32 words): per block of four rows the four
+    biases plus the rounding offset 2^(shift-1), then per input quad and row two words
+    of packed int16 weights (even input in the low half): [block][4 + n_quads * 8]."""
     n_out, n_in = w.shape
     wp = np.zeros((pad4(n_out), pad4(n_in)), np.int64)
     wp[:n_out, :n_in] = w
-    blocks = wp.reshape(-1, 4, pad4(n_in) // 4, 4).transpose(0, 2, 1, 3).ravel()
-    words = blocks[1::2] * 65536 + (blocks[0::2] & 0xFFFF)
-    bp = np.zeros(pad4(n_out), np.int64)
-    bp[:n_out] = b.astype(np.int64) + ((1 << (shift - 1)) if shift else 0)
-    return words, bp
+    quads = wp.reshape(-1, 4, pad4(n_in) // 4, 4).transpose(0, 2, 1, 3)  # [block][quad][row][4]
+    words = (quads[..., 1::2] * 65536 + (quads[..., 0::2] & 0xFFFF)).reshape(quads.shape[0], -1)
+    bias = np.zeros(pad4(n_out), np.int64)
+    bias[:n_out] = b.astype(np.int64) + ((1 << (shift - 1)) if shift else 0)
+    return np.concatenate([bias.reshape(-1, 4), words], axis=1).ravel()
 
 
 def _block(items: list[str], per_line: int) -> str:
@@ -119,10 +119,10 @@ def render(m: ExportModel) -> dict[str, str]:
             base = {"kind": kind, "type_name": names[i], "ident": c_identifier(names[i])}
             nets.append(dict(base, lipschitz=f"{lip[kind][i]:.9g}",
                              dims=[net[0][0].shape[1]] + [w.shape[0] for w, _ in net],
-                             layers=[dict(zip(("w", "b"), float_layout(w, b)), n_in=w.shape[1],
-                                          n_out=pad4(w.shape[0])) for w, b in net]))
-            qnets.append(dict(base, layers=[dict(zip(("w", "b"), fixed_layout(l.w, l.b, l.shift)), layer=l,
-                                                 n_quads=pad4(l.n_in) // 4, n_out=pad4(l.w.shape[0]))
+                             layers=[dict(wb=float_layout(w, b), n_in=w.shape[1], n_blocks=pad4(w.shape[0]) // 4)
+                                     for w, b in net]))
+            qnets.append(dict(base, layers=[dict(wb=fixed_layout(l.w, l.b, l.shift), layer=l,
+                                                 n_quads=pad4(l.n_in) // 4, n_blocks=pad4(l.w.shape[0]) // 4)
                                             for l in qnet.layers]))
     ctx = {"version": __version__, "model_hash": m.model_hash, "types": types,
            "num_robot_types": cfg.num_robot_types, "num_neighbor_types": len(types),

@@ -38,12 +38,31 @@ def test_export_is_byte_identical(exported, tmp_path):
 
 def test_float_weights_round_trip_exactly(exported):
     text = (exported.gen_dir / "ns2_model_float.h").read_text()
-    w, _ = exported.em.phi[0][0]
-    start = text.index("ns2_f32_phi_small_w0[")
+    w, b = exported.em.phi[0][1]  # phi[small] layer 1: 25 -> 40
+    start = text.index("ns2_f32_phi_small_l1[")
     body = text[text.index("{", start) + 1:text.index("};", start)]
     vals = np.array([float.fromhex(t.strip().rstrip("f")) for t in body.split(",") if t.strip()], np.float64)
-    assert np.array_equal(vals.astype(np.float32), w.ravel()) and np.array_equal(vals, w.ravel().astype(np.float64))
+    stream = vals.reshape(-1, 1 + w.shape[1], 4)  # [block][bias, inputs][row]
+    assert np.array_equal(stream[:, 0, :].ravel()[:w.shape[0]], b.astype(np.float64))
+    assert np.array_equal(stream[:, 1:, :].transpose(0, 2, 1).reshape(-1, w.shape[1])[:w.shape[0]],
+                          w.astype(np.float64))
+    assert np.array_equal(vals.astype(np.float32).astype(np.float64), vals)  # exactly float32 values
     assert export_mod.cfloat(-0.0) == "-0.0f" and export_mod.cfloat(1.0) == "0x1p+0f"
+
+
+def test_fixed_stream_layout(exported):
+    """The packed int32 stream decodes to the quantized int16 weights and biases."""
+    layer = exported.em.q15.rho[0].layers[0]
+    stream = export_mod.fixed_layout(layer.w, layer.b, layer.shift)
+    nq = layer.w.shape[1] // 4
+    blocks = stream.reshape(-1, 4 + 8 * nq)
+    half = (1 << (layer.shift - 1)) if layer.shift else 0
+    assert np.array_equal(blocks[:, :4].ravel()[:layer.w.shape[0]], layer.b.astype(np.int64) + half)
+    words = blocks[:, 4:].reshape(-1, nq, 4, 2)
+    lo = ((words & 0xFFFF) ^ 0x8000) - 0x8000
+    hi = (words - (words & 0xFFFF)) // 65536
+    w = np.stack([lo, hi], -1).reshape(-1, nq, 4, 4).transpose(0, 2, 1, 3).reshape(-1, 4 * nq)
+    assert np.array_equal(w[:layer.w.shape[0]], layer.w)
 
 
 @pytest.mark.parametrize("header", HEADERS)

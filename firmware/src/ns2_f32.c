@@ -22,77 +22,125 @@
 
 #define NS2_F32_BUF NS2_PAD4(NS2_MAX_WIDTH)
 
-/* Accumulate n inputs into four rows: acc[r] += w[r] * x_i, i ascending (C). */
-static void rows4_c(uint16_t n, const float *x, const float **wp, float acc[4])
-{
-    const float *w = *wp;
-    for (uint16_t i = 0; i < n; ++i) {
-        const float xi = x[i];
-        acc[0] += w[0] * xi;
-        acc[1] += w[1] * xi;
-        acc[2] += w[2] * xi;
-        acc[3] += w[3] * xi;
-        w += 4;
-    }
-    *wp = w;
-}
-
 #if defined(__ARM_FP) && (__ARM_FP & 4) && defined(__thumb2__) && !defined(NS2_NO_ASM)
-/* Cortex-M4F: two inputs per iteration, one VLDM for two inputs and one for their
- * eight weights, then VMUL and VADD (two roundings each, as in C with
- * -ffp-contract=off), per row in ascending input order; odd tail in C. */
-static void rows4(uint16_t n, const float *x, const float **wp, float acc[4])
-{
-    uint32_t pairs = n / 2u;
-    const float *w = *wp;
-    if (pairs) {
-        __asm__ volatile("vldmia %[acc], {s0-s3}\n\t"
-                         "1:\n\t"
-                         "vldmia %[x]!, {s4-s5}\n\t"
-                         "vldmia %[w]!, {s8-s15}\n\t"
-                         "vmul.f32 s8, s8, s4\n\t"
-                         "vmul.f32 s9, s9, s4\n\t"
-                         "vmul.f32 s10, s10, s4\n\t"
-                         "vmul.f32 s11, s11, s4\n\t"
-                         "vadd.f32 s0, s0, s8\n\t"
-                         "vadd.f32 s1, s1, s9\n\t"
-                         "vadd.f32 s2, s2, s10\n\t"
-                         "vadd.f32 s3, s3, s11\n\t"
-                         "vmul.f32 s12, s12, s5\n\t"
-                         "vmul.f32 s13, s13, s5\n\t"
-                         "vmul.f32 s14, s14, s5\n\t"
-                         "vmul.f32 s15, s15, s5\n\t"
-                         "vadd.f32 s0, s0, s12\n\t"
-                         "vadd.f32 s1, s1, s13\n\t"
-                         "vadd.f32 s2, s2, s14\n\t"
-                         "vadd.f32 s3, s3, s15\n\t"
-                         "subs %[n], %[n], #1\n\t"
-                         "bne 1b\n\t"
-                         "vstmia %[acc], {s0-s3}"
-                         : [x] "+r"(x), [w] "+r"(w), [n] "+r"(pairs)
-                         : [acc] "r"(acc)
-                         : "s0", "s1", "s2", "s3", "s4", "s5", "s8", "s9", "s10", "s11", "s12", "s13",
-                           "s14", "s15", "cc", "memory");
+/* Cortex-M4F layer kernel: per block one VLDM of the biases; per pair of inputs
+ * one VLDM of the two inputs and one of their eight weights, then VMUL and VADD
+ * (two roundings each, exactly C's a += w * x under -ffp-contract=off), per row
+ * in ascending input order; an odd last input alone.  ReLU on the bit patterns,
+ * BIC r, r, r, ASR #31, which maps every negative value and -0 to +0 and keeps
+ * positive values: the same as the C ReLU for all non-NaN values, and the
+ * exporter proves that no activation can overflow to Inf or NaN. */
+#define NS2_F32_KERNEL(NAME, RELU_STORE)                                                      \
+    __attribute__((noinline)) static void dense_f32_##NAME(const float *x, const float *w,     \
+                                                           float *y, uint32_t n_blocks,        \
+                                                           uint32_t n_in)                      \
+    {                                                                                         \
+        const uint32_t pairs = n_in / 2u, odd = n_in & 1u, back = 4u * n_in;                   \
+        uint32_t cnt, t0, t1, t2, t3;                                                         \
+        const float *xp = x;                                                                  \
+        __asm__ volatile("1:\n\t"                                                             \
+                         "vldmia %[wp]!, {s0-s3}\n\t"                                         \
+                         "movs %[cnt], %[pairs]\n\t"                                          \
+                         "beq 3f\n\t"                                                         \
+                         "2:\n\t"                                                             \
+                         "vldmia %[xp]!, {s4-s5}\n\t"                                         \
+                         "vldmia %[wp]!, {s8-s15}\n\t"                                        \
+                         "vmul.f32 s8, s8, s4\n\t"                                            \
+                         "vmul.f32 s9, s9, s4\n\t"                                            \
+                         "vmul.f32 s10, s10, s4\n\t"                                          \
+                         "vmul.f32 s11, s11, s4\n\t"                                          \
+                         "vadd.f32 s0, s0, s8\n\t"                                            \
+                         "vadd.f32 s1, s1, s9\n\t"                                            \
+                         "vadd.f32 s2, s2, s10\n\t"                                           \
+                         "vadd.f32 s3, s3, s11\n\t"                                           \
+                         "vmul.f32 s12, s12, s5\n\t"                                          \
+                         "vmul.f32 s13, s13, s5\n\t"                                          \
+                         "vmul.f32 s14, s14, s5\n\t"                                          \
+                         "vmul.f32 s15, s15, s5\n\t"                                          \
+                         "vadd.f32 s0, s0, s12\n\t"                                           \
+                         "vadd.f32 s1, s1, s13\n\t"                                           \
+                         "vadd.f32 s2, s2, s14\n\t"                                           \
+                         "vadd.f32 s3, s3, s15\n\t"                                           \
+                         "subs %[cnt], %[cnt], #1\n\t"                                        \
+                         "bne 2b\n\t"                                                         \
+                         "3:\n\t"                                                             \
+                         "cmp %[odd], #0\n\t"                                                 \
+                         "beq 4f\n\t"                                                         \
+                         "vldmia %[xp]!, {s4}\n\t"                                            \
+                         "vldmia %[wp]!, {s8-s11}\n\t"                                        \
+                         "vmul.f32 s8, s8, s4\n\t"                                            \
+                         "vmul.f32 s9, s9, s4\n\t"                                            \
+                         "vmul.f32 s10, s10, s4\n\t"                                          \
+                         "vmul.f32 s11, s11, s4\n\t"                                          \
+                         "vadd.f32 s0, s0, s8\n\t"                                            \
+                         "vadd.f32 s1, s1, s9\n\t"                                            \
+                         "vadd.f32 s2, s2, s10\n\t"                                           \
+                         "vadd.f32 s3, s3, s11\n\t"                                           \
+                         "4:\n\t"                                                             \
+                         "sub %[xp], %[xp], %[back]\n\t"                                      \
+                         RELU_STORE                                                           \
+                         "subs %[n], %[n], #1\n\t"                                            \
+                         "bne 1b"                                                             \
+                         : [xp] "+r"(xp), [wp] "+r"(w), [y] "+r"(y), [n] "+r"(n_blocks),       \
+                           [cnt] "=&r"(cnt), [t0] "=&r"(t0), [t1] "=&r"(t1), [t2] "=&r"(t2),   \
+                           [t3] "=&r"(t3)                                                     \
+                         : [pairs] "r"(pairs), [odd] "r"(odd), [back] "r"(back)               \
+                         : "s0", "s1", "s2", "s3", "s4", "s5", "s8", "s9", "s10", "s11", "s12", \
+                           "s13", "s14", "s15", "cc", "memory");                              \
+        (void)t0, (void)t1, (void)t2, (void)t3;                                               \
     }
-    *wp = w;
-    rows4_c((uint16_t)(n & 1u), x, wp, acc);
-}
-#else
-#define rows4 rows4_c
-#endif
+NS2_F32_KERNEL(lin, "vstmia %[y]!, {s0-s3}\n\t")
+NS2_F32_KERNEL(relu, "vmov %[t0], %[t1], s0, s1\n\t"
+                     "vmov %[t2], %[t3], s2, s3\n\t"
+                     "bic %[t0], %[t0], %[t0], asr #31\n\t"
+                     "bic %[t1], %[t1], %[t1], asr #31\n\t"
+                     "bic %[t2], %[t2], %[t2], asr #31\n\t"
+                     "bic %[t3], %[t3], %[t3], asr #31\n\t"
+                     "strd %[t0], %[t1], [%[y]], #8\n\t"
+                     "strd %[t2], %[t3], [%[y]], #8\n\t")
 
-/* y = W x + b, optional ReLU (NaN -> 0).  Per row: acc = b; acc += w_i * x_i, i ascending. */
 static void dense_f32(const ns2_f32_layer_t *layer, const float *x, float *y, int relu)
 {
-    const float *w = layer->w;
-    for (uint16_t o = 0; o < layer->n_out; o = (uint16_t)(o + 4u)) {
-        float acc[4] = {layer->b[o], layer->b[o + 1u], layer->b[o + 2u], layer->b[o + 3u]};
-        rows4(layer->n_in, x, &w, acc);
-        for (int r = 0; r < 4; ++r) {
-            y[o + r] = (relu && !(acc[r] > 0.0f)) ? 0.0f : acc[r];
-        }
+    if (layer->n_blocks == 0u) {
+        return;
+    }
+    if (relu) {
+        dense_f32_relu(x, layer->wb, y, layer->n_blocks, layer->n_in);
+    } else {
+        dense_f32_lin(x, layer->wb, y, layer->n_blocks, layer->n_in);
     }
 }
+#else
+/* One layer, portable C.  Per block of four rows: acc = bias; acc += w_i * x_i for
+ * i ascending; ReLU as (acc > 0 ? acc : 0). */
+static void dense_f32(const ns2_f32_layer_t *layer, const float *x, float *y, int relu)
+{
+    const float *w = layer->wb;
+    for (uint16_t blk = 0; blk < layer->n_blocks; ++blk) {
+        float a0 = w[0], a1 = w[1], a2 = w[2], a3 = w[3];
+        w += 4;
+        for (uint16_t i = 0; i < layer->n_in; ++i) {
+            const float xi = x[i];
+            a0 += w[0] * xi;
+            a1 += w[1] * xi;
+            a2 += w[2] * xi;
+            a3 += w[3] * xi;
+            w += 4;
+        }
+        if (relu) {
+            a0 = a0 > 0.0f ? a0 : 0.0f;
+            a1 = a1 > 0.0f ? a1 : 0.0f;
+            a2 = a2 > 0.0f ? a2 : 0.0f;
+            a3 = a3 > 0.0f ? a3 : 0.0f;
+        }
+        y[0] = a0;
+        y[1] = a1;
+        y[2] = a2;
+        y[3] = a3;
+        y += 4;
+    }
+}
+#endif
 
 /* Evaluate an MLP; returns a pointer to its output (inside buf). */
 static const float *net_f32(const ns2_f32_net_t *net, const float *x, float buf[2][NS2_F32_BUF])

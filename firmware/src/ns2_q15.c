@@ -23,24 +23,24 @@
  * multiples of four.  Right shifts of negative numbers are written so that they
  * are defined C.
  */
-#include <math.h>
 #include <stddef.h>
 
 #include "ns2_internal.h"
 #include "ns2_model_fixed.h"
 
-/* Portable SMLAD: acc + lo(a) lo(b) + hi(a) hi(b) (no overflow: see the proof). */
+/* Signed low and high halves of a packed word (sign extension without
+ * implementation-defined conversions or shifts). */
 static int32_t lo16(int32_t w)
 {
-    const int32_t u = w & 0xFFFF;
-    return u >= 0x8000 ? u - 0x10000 : u;
+    return ((w & 0xFFFF) ^ 0x8000) - 0x8000;
 }
 
 static int32_t hi16(int32_t w)
 {
-    return (w - (w & 0xFFFF)) / 0x10000; /* exact: a multiple of 2^16 */
+    return (int32_t)((((uint32_t)w) >> 16) ^ 0x8000u) - 0x8000;
 }
 
+/* Portable SMLAD: acc + lo(a) lo(b) + hi(a) hi(b) (no overflow: see the proof). */
 static int32_t ns2_smlad_c(int32_t a, int32_t b, int32_t acc)
 {
     return acc + lo16(a) * lo16(b) + hi16(a) * hi16(b);
@@ -75,24 +75,17 @@ static int32_t pack16(int32_t y0, int32_t y1)
     return y1 * 0x10000 + (y0 & 0xFFFF);
 }
 
-static int32_t unpack_lo(int32_t w)
-{
-    const int32_t u = w & 0xFFFF;
-    return u >= 0x8000 ? u - 0x10000 : u;
-}
-
-static int32_t unpack_hi(int32_t w)
-{
-    return (w - (w & 0xFFFF)) / 0x10000; /* exact: a multiple of 2^16 */
-}
-
 /* x -> sat16(round_half_up(x * scale)), scale = 2^f_in; x is already clamped. */
 static int32_t quantize(float x, float scale)
 {
-    const float v = x * scale; /* exact: scale is a power of two */
-    const float fl = floorf(v);
-    int32_t q = (int32_t)fl;
-    if (v - fl >= 0.5f) {
+    const float v = x * scale;  /* exact: scale is a power of two; |v| < 2^16 */
+    int32_t q = (int32_t)v;     /* truncation toward zero */
+    float fl = (float)q;        /* exact */
+    if (fl > v) {               /* negative non-integer: floor = trunc - 1 */
+        q -= 1;
+        fl -= 1.0f;
+    }
+    if (v - fl >= 0.5f) {       /* v - floor(v), the same float operation as the reference */
         q += 1;
     }
     return sat16(q);
@@ -105,114 +98,101 @@ static int32_t finish(int32_t acc, uint8_t shift, int relu)
     return (relu && r < 0) ? 0 : r;
 }
 
-/* Four rows over n_quads input quads, portable C (any target, any quad count). */
-static void quads_c(uint16_t n_quads, const int32_t *xp, const int32_t **wp, int32_t acc[4])
-{
-    const int32_t *w = *wp;
-    for (uint16_t q = 0; q < n_quads; ++q) {
-        const int32_t x01 = xp[0];
-        const int32_t x23 = xp[1];
-        xp += 2;
-        for (int r = 0; r < 4; ++r) {
-            acc[r] = ns2_smlad_c(w[2 * r], x01, acc[r]);
-            acc[r] = ns2_smlad_c(w[2 * r + 1], x23, acc[r]);
-        }
-        w += 8;
-    }
-    *wp = w;
-}
-
+/* One layer, portable C: per block the four biases, then n_quads input quads. */
 static void dense_q15_c(const ns2_q15_layer_t *layer, const int32_t *x, int32_t *y, int relu)
 {
-    const int32_t *w = layer->w;
-    const int32_t *b = layer->b;
-    for (uint16_t o = 0; o < layer->n_out; o = (uint16_t)(o + 4u)) {
-        int32_t acc[4] = {b[o], b[o + 1u], b[o + 2u], b[o + 3u]};
-        quads_c(layer->n_quads, x, &w, acc);
-        y[o / 2u] = pack16(finish(acc[0], layer->shift, relu), finish(acc[1], layer->shift, relu));
-        y[o / 2u + 1u] = pack16(finish(acc[2], layer->shift, relu), finish(acc[3], layer->shift, relu));
+    const int32_t *w = layer->wb;
+    for (uint16_t blk = 0; blk < layer->n_blocks; ++blk) {
+        int32_t acc[4] = {w[0], w[1], w[2], w[3]};
+        const int32_t *xp = x;
+        w += 4;
+        for (uint16_t q = 0; q < layer->n_quads; ++q) {
+            const int32_t x01 = xp[0];
+            const int32_t x23 = xp[1];
+            xp += 2;
+            for (int r = 0; r < 4; ++r) {
+                acc[r] = ns2_smlad_c(w[2 * r], x01, acc[r]);
+                acc[r] = ns2_smlad_c(w[2 * r + 1], x23, acc[r]);
+            }
+            w += 8;
+        }
+        y[2u * blk] = pack16(finish(acc[0], layer->shift, relu), finish(acc[1], layer->shift, relu));
+        y[2u * blk + 1u] = pack16(finish(acc[2], layer->shift, relu), finish(acc[3], layer->shift, relu));
     }
 }
 
 #if defined(__ARM_FEATURE_DSP) && __ARM_FEATURE_DSP && defined(__thumb2__) && !defined(NS2_NO_ASM)
-/* SSAT #16 (saturate to int16) and USAT #15 (ReLU and saturate to [0, 32767]) */
-static inline int32_t ssat16(int32_t v)
-{
-    int32_t r;
-    __asm__("ssat %0, #16, %1" : "=r"(r) : "r"(v));
-    return r;
-}
-
-static inline int32_t usat15(int32_t v)
-{
-    int32_t r;
-    __asm__("usat %0, #15, %1" : "=r"(r) : "r"(v));
-    return r;
-}
-
-/* Cortex-M4 kernels, one per input-quad count NQ of the model (fully unrolled by
- * the assembler): per quad one LDRD of the two input words, four LDRD of weight
- * pairs and eight SMLAD for four rows.  The epilogue uses ASR (arithmetic: GCC's
- * documented >> of negative numbers) and SSAT #16 / USAT #15, i.e. the same floor shift,
- * saturation and ReLU as finish(). */
-#define NS2_Q15_KERNEL(NQ)                                                                      \
-    __attribute__((noinline)) static void dense_q15_##NQ(const ns2_q15_layer_t *layer,           \
-                                                         const int32_t *x, int32_t *y,           \
-                               int relu)                                                        \
+/* Cortex-M4 kernels, one per input-quad count NQ of the model and per output
+ * kind (USAT #15 = ReLU + saturation for hidden layers, SSAT #16 for the last).
+ * Per block: two LDRD of the biases; per quad (unrolled NQ times by the
+ * assembler) one LDRD of the two input words, two LDM of four weight words and
+ * eight SMLAD; then ASR (the floor shift), saturation, two PKHBT and one STRD.
+ * Same arithmetic as dense_q15_c: integer sums are exact, SMLAD is
+ * acc + lo*lo + hi*hi, ASR is floor division by 2^shift. */
+#define NS2_Q15_KERNEL(NQ, NAME, SAT)                                                           \
+    __attribute__((noinline)) static void dense_q15_##NQ##_##NAME(                              \
+        const int32_t *x, const int32_t *w, int32_t *y, uint32_t n_blocks, int32_t s)           \
     {                                                                                           \
-        const int32_t *w = layer->w;                                                            \
-        const int32_t *b = layer->b;                                                            \
-        const int32_t s = layer->shift;                                                         \
-        for (uint16_t o = 0; o < layer->n_out; o = (uint16_t)(o + 4u)) {                         \
-            int32_t a0 = b[0], a1 = b[1], a2 = b[2], a3 = b[3];                                 \
-            int32_t x0, x1, w0, w1;                                                             \
-            const int32_t *xp = x;                                                              \
-            b += 4;                                                                             \
-            __asm__ volatile(".rept %c[nq]\n\t"                                                 \
-                             "ldrd %[x0], %[x1], [%[xp]], #8\n\t"                               \
-                             "ldrd %[w0], %[w1], [%[wp]], #8\n\t"                               \
-                             "smlad %[a0], %[w0], %[x0], %[a0]\n\t"                             \
-                             "smlad %[a0], %[w1], %[x1], %[a0]\n\t"                             \
-                             "ldrd %[w0], %[w1], [%[wp]], #8\n\t"                               \
-                             "smlad %[a1], %[w0], %[x0], %[a1]\n\t"                             \
-                             "smlad %[a1], %[w1], %[x1], %[a1]\n\t"                             \
-                             "ldrd %[w0], %[w1], [%[wp]], #8\n\t"                               \
-                             "smlad %[a2], %[w0], %[x0], %[a2]\n\t"                             \
-                             "smlad %[a2], %[w1], %[x1], %[a2]\n\t"                             \
-                             "ldrd %[w0], %[w1], [%[wp]], #8\n\t"                               \
-                             "smlad %[a3], %[w0], %[x0], %[a3]\n\t"                             \
-                             "smlad %[a3], %[w1], %[x1], %[a3]\n\t"                             \
-                             ".endr"                                                            \
-                             : [a0] "+r"(a0), [a1] "+r"(a1), [a2] "+r"(a2), [a3] "+r"(a3),       \
-                               [xp] "+r"(xp), [wp] "+r"(w), [x0] "=&r"(x0), [x1] "=&r"(x1),      \
-                               [w0] "=&r"(w0), [w1] "=&r"(w1)                                   \
-                             : [nq] "i"(NQ)                                                     \
-                             : "memory");                                                       \
-            if (relu) {                                                                         \
-                a0 = usat15(a0 >> s);                                              \
-                a1 = usat15(a1 >> s);                                              \
-                a2 = usat15(a2 >> s);                                              \
-                a3 = usat15(a3 >> s);                                              \
-            } else {                                                                            \
-                a0 = ssat16(a0 >> s);                                                       \
-                a1 = ssat16(a1 >> s);                                                       \
-                a2 = ssat16(a2 >> s);                                                       \
-                a3 = ssat16(a3 >> s);                                                       \
-            }                                                                                   \
-            y[0] = pack16(a0, a1);                                                              \
-            y[1] = pack16(a2, a3);                                                              \
-            y += 2;                                                                             \
-        }                                                                                       \
+        int32_t a0, a1, a2, a3, x0, x1;                                                         \
+        const int32_t *xp = x;                                                                  \
+        __asm__ volatile("1:\n\t"                                                               \
+                         "ldrd %[a0], %[a1], [%[wp]], #8\n\t"                                   \
+                         "ldrd %[a2], %[a3], [%[wp]], #8\n\t"                                   \
+                         ".rept %c[nq]\n\t"                                                     \
+                         "ldrd %[x0], %[x1], [%[xp]], #8\n\t"                                   \
+                         "ldmia %[wp]!, {r8, r9, r10, r11}\n\t"                                 \
+                         "smlad %[a0], r8, %[x0], %[a0]\n\t"                                    \
+                         "smlad %[a0], r9, %[x1], %[a0]\n\t"                                    \
+                         "smlad %[a1], r10, %[x0], %[a1]\n\t"                                   \
+                         "smlad %[a1], r11, %[x1], %[a1]\n\t"                                   \
+                         "ldmia %[wp]!, {r8, r9, r10, r11}\n\t"                                 \
+                         "smlad %[a2], r8, %[x0], %[a2]\n\t"                                    \
+                         "smlad %[a2], r9, %[x1], %[a2]\n\t"                                    \
+                         "smlad %[a3], r10, %[x0], %[a3]\n\t"                                   \
+                         "smlad %[a3], r11, %[x1], %[a3]\n\t"                                   \
+                         ".endr\n\t"                                                            \
+                         "sub %[xp], %[xp], #%c[back]\n\t"                                      \
+                         "ldr %[x0], %[smem]\n\t"                                               \
+                         "asr %[a0], %[a0], %[x0]\n\t"                                          \
+                         "asr %[a1], %[a1], %[x0]\n\t"                                          \
+                         "asr %[a2], %[a2], %[x0]\n\t"                                          \
+                         "asr %[a3], %[a3], %[x0]\n\t"                                          \
+                         SAT " %[a0], " SAT_BITS_##NAME ", %[a0]\n\t"                           \
+                         SAT " %[a1], " SAT_BITS_##NAME ", %[a1]\n\t"                           \
+                         SAT " %[a2], " SAT_BITS_##NAME ", %[a2]\n\t"                           \
+                         SAT " %[a3], " SAT_BITS_##NAME ", %[a3]\n\t"                           \
+                         "pkhbt %[a0], %[a0], %[a1], lsl #16\n\t"                               \
+                         "pkhbt %[a2], %[a2], %[a3], lsl #16\n\t"                               \
+                         "strd %[a0], %[a2], [%[y]], #8\n\t"                                    \
+                         "subs %[n], %[n], #1\n\t"                                              \
+                         "bne 1b"                                                               \
+                         : [a0] "=&r"(a0), [a1] "=&r"(a1), [a2] "=&r"(a2), [a3] "=&r"(a3),       \
+                           [x0] "=&r"(x0), [x1] "=&r"(x1), [xp] "+r"(xp), [wp] "+r"(w),          \
+                           [y] "+r"(y), [n] "+r"(n_blocks)                                      \
+                         : [nq] "i"(NQ), [back] "i"(8 * (NQ)), [smem] "m"(s)                    \
+                         : "r8", "r9", "r10", "r11", "cc", "memory");                           \
     }
-NS2_Q15_FOR_EACH_QUAD_COUNT(NS2_Q15_KERNEL)
+#define SAT_BITS_relu "#15"
+#define SAT_BITS_lin "#16"
+#define NS2_Q15_KERNELS(NQ)              \
+    NS2_Q15_KERNEL(NQ, relu, "usat")     \
+    NS2_Q15_KERNEL(NQ, lin, "ssat")
+NS2_Q15_FOR_EACH_QUAD_COUNT(NS2_Q15_KERNELS)
 
-#define NS2_Q15_CASE(NQ)                   \
-    case NQ:                               \
-        dense_q15_##NQ(layer, x, y, relu); \
+#define NS2_Q15_CASE(NQ)                                                                  \
+    case NQ:                                                                              \
+        if (relu) {                                                                       \
+            dense_q15_##NQ##_relu(x, layer->wb, y, layer->n_blocks, (int32_t)layer->shift); \
+        } else {                                                                          \
+            dense_q15_##NQ##_lin(x, layer->wb, y, layer->n_blocks, (int32_t)layer->shift);  \
+        }                                                                                 \
         return;
 
 static void dense_q15(const ns2_q15_layer_t *layer, const int32_t *x, int32_t *y, int relu)
 {
+    if (layer->n_blocks == 0u) {
+        return;
+    }
     switch (layer->n_quads) {
         NS2_Q15_FOR_EACH_QUAD_COUNT(NS2_Q15_CASE)
     default:
@@ -247,11 +227,11 @@ static void quantize_input(const float x[6], float scale, int32_t xq[4])
 static void accumulate(int32_t h[NS2_HIDDEN], const int32_t *phi)
 {
     for (int k = 0; k + 1 < NS2_HIDDEN; k += 2) {
-        h[k] += unpack_lo(phi[k / 2]);
-        h[k + 1] += unpack_hi(phi[k / 2]);
+        h[k] += lo16(phi[k / 2]);
+        h[k + 1] += hi16(phi[k / 2]);
     }
 #if NS2_HIDDEN % 2
-    h[NS2_HIDDEN - 1] += unpack_lo(phi[NS2_HIDDEN / 2]);
+    h[NS2_HIDDEN - 1] += lo16(phi[NS2_HIDDEN / 2]);
 #endif
 }
 
@@ -287,7 +267,7 @@ int16_t ns2_predict_q15(uint8_t robot_type, const float p[3], const float v[3],
         const int32_t h1 = 2 * k + 1 < NS2_HIDDEN ? round_shift_sat(h[2 * k + 1], NS2_Q_SUM_SHIFT) : 0;
         hq[k] = pack16(h0, h1);
     }
-    return (int16_t)unpack_lo(net_q15(&ns2_q15_rho[robot_type], hq, buf)[0]);
+    return (int16_t)lo16(net_q15(&ns2_q15_rho[robot_type], hq, buf)[0]);
 }
 
 float ns2_predict_q15_g(uint8_t robot_type, const float p[3], const float v[3],
