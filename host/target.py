@@ -44,7 +44,7 @@ def have_qemu() -> bool:
 
 
 def build_image(gen_dir: Path, program: str = "qemu_vectors.c", opt: str | None = None,
-                extra_sources: tuple[str, ...] = ()) -> Path:
+                extra_sources: tuple[str, ...] = (), defines: tuple[str, ...] = ()) -> Path:
     """Cross-compile ``firmware/target/<program>`` + the library into an ELF (cached)."""
     f = flags()
     gen_dir = Path(gen_dir).resolve()
@@ -56,7 +56,7 @@ def build_image(gen_dir: Path, program: str = "qemu_vectors.c", opt: str | None 
             sorted((REPO / "firmware" / "src").glob("*.h")) + [gen_dir / g for g in GENERATED] + \
             [TARGET_DIR / "stm32f405.ld"]:
         h.update(p.name.encode() + p.read_bytes())
-    h.update(repr((sorted(f.items()), opt_flags, ARM_CC)).encode())
+    h.update(repr((sorted(f.items()), opt_flags, ARM_CC, defines)).encode())
     out = BUILD_ROOT.parent / "arm" / f"{Path(program).stem}-{h.hexdigest()[:16]}.elf"
     if out.is_file():
         return out
@@ -65,7 +65,7 @@ def build_image(gen_dir: Path, program: str = "qemu_vectors.c", opt: str | None 
     with tempfile.TemporaryDirectory() as tmp:
         su = Path(tmp)
         cmd = [ARM_CC, *f["NS2_ARM_FLAGS"], *f["NS2_STD_FLAGS"], *opt_flags, *f["NS2_WARN_FLAGS"], *inc,
-               "-ffunction-sections", "-fdata-sections", "-g",
+               *[f"-D{d}" for d in defines], "-ffunction-sections", "-fdata-sections", "-g",
                "--specs=rdimon.specs", "-nostartfiles", f"-T{TARGET_DIR / 'stm32f405.ld'}",
                "-Wl,--gc-sections", *map(str, sources), "-lm", "-o", str(su / out.name)]
         r = subprocess.run(cmd, capture_output=True, text=True)

@@ -169,6 +169,10 @@ def manifest(m: ExportModel, errors: dict) -> dict:
             "layers": q.proof,
             "min_margin_bits": min(p["margin_bits"] for p in q.proof),
         },
+        "float_activation_bound": {
+            "value": meta["float_activation_bound"],
+            "method": "float64 interval arithmetic over the input box with all neighbour slots "
+                      "filled; below 1e30 the float path cannot overflow to Inf/NaN"},
         "fixed_vs_float_error_g": errors,
         "training": meta.get("report", {}).get("validation"),
     }

@@ -113,6 +113,37 @@ class ExportModel:
                         "of the exported float32 weights, rounded up"}
 
 
+FLOAT_LIMIT = 1e30  # far below FLT_MAX: sums of up to 1 + max_neighbors phi outputs stay finite
+
+
+def float_activation_bound(m: ExportModel) -> float:
+    """Bound on |every float activation| for inputs in the box (interval arithmetic in
+    float64, all neighbours at once): the float path can never produce Inf or NaN."""
+    def run(net, lo, hi):
+        worst = 0.0
+        for l, (w, b) in enumerate(net):
+            w64, b64 = w.astype(np.float64), b.astype(np.float64)
+            new_lo = b64 + np.minimum(w64 * lo, w64 * hi).sum(1)
+            new_hi = b64 + np.maximum(w64 * lo, w64 * hi).sum(1)
+            worst = max(worst, float(np.abs(new_lo).max()), float(np.abs(new_hi).max()))
+            lo, hi = new_lo, new_hi
+            if l + 1 < len(net):
+                lo, hi = np.maximum(lo, 0.0), np.maximum(hi, 0.0)
+        return worst, lo, hi
+
+    worst, h_lo, h_hi = 0.0, 0.0, 0.0
+    for t, net in enumerate(m.phi):
+        box = m.boxes[t].astype(np.float64)
+        wt, lo, hi = run(net, box[:, 0], box[:, 1])
+        count = 1 if t == m.env_index else m.max_neighbors
+        worst = max(worst, wt)
+        h_lo, h_hi = h_lo + count * np.minimum(lo, 0.0), h_hi + count * np.maximum(hi, 0.0)
+    worst = max(worst, float(np.abs(h_lo).max()), float(np.abs(h_hi).max()))
+    for net in m.rho:
+        worst = max(worst, run(net, h_lo, h_hi)[0])
+    return worst
+
+
 def from_checkpoint(ck: Checkpoint) -> ExportModel:
     cfg = ck.cfg
 
@@ -125,6 +156,11 @@ def from_checkpoint(ck: Checkpoint) -> ExportModel:
     boxes = np.array([cfg.input_box(t) for t in range(len(cfg.neighbor_types))], np.float32)
     m = ExportModel(cfg, [net("phi", t) for t in range(len(cfg.neighbor_types))],
                     [net("rho", r) for r in range(k)], volumes, boxes, ck.model_hash(), ck.meta)
+    bound = float_activation_bound(m)
+    if not bound < FLOAT_LIMIT:
+        raise QuantizationError(f"float activations can reach {bound:.3g} for inputs in the box "
+                                f"(limit {FLOAT_LIMIT:g}): the weights are not exportable")
+    m.meta = dict(m.meta, float_activation_bound=bound)
     m.q15 = quantize(m)
     return m
 
