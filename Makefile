@@ -3,16 +3,14 @@
 #   make export   train the built-in default model (if needed) and write the
 #                 C headers + manifest to firmware/generated/
 #   make test     the whole test suite (host C, cross-compiled Cortex-M4F build)
-#   make bench    benchmarks, JSON on stdout
+#   make bench    benchmarks, JSON on stdout (host training/inference, then the
+#                 emulated Cortex-M4: instructions, cycles, budget, memory)
 #   make firmware cross-build the library for the STM32F405 and print its size
 PYTHON ?= python3
 NS2 := $(PYTHON) -m ns2codegen.cli
 GEN := firmware/generated
 DEFAULT := build/default
 CHECKPOINT ?= $(DEFAULT)/model.pt
-ARM_CC ?= arm-none-eabi-gcc
-
-include firmware/flags.mk
 
 .PHONY: all deps export test bench firmware clean
 
@@ -43,19 +41,15 @@ test: deps
 
 bench: deps
 	$(PYTHON) benchmarks/bench_core.py
+	$(PYTHON) benchmarks/bench_target.py
 
-ARM_OBJS := $(patsubst firmware/src/%.c,build/arm/%.o,$(NS2_SOURCES))
-build/arm/%.o: firmware/src/%.c $(GEN)/ns2_model_config.h
-	@mkdir -p build/arm
-	$(ARM_CC) $(NS2_ARM_FLAGS) $(NS2_STD_FLAGS) $(NS2_OPT_FLAGS) $(NS2_WARN_FLAGS) -fstack-usage \
-		$(addprefix -I,$(NS2_INCLUDES)) -I$(GEN) -c $< -o $@
+# Cortex-M4F cross build of the library: flash, RAM, worst-case stack (JSON)
+firmware: deps $(GEN)/ns2_model_config.h
+	$(PYTHON) -m ns2host.firmware_report $(GEN)
+	$(PYTHON) -m ns2host.firmware_report $(GEN) --opt=-Os
 
 $(GEN)/ns2_model_config.h:
 	$(MAKE) export
-
-firmware: deps $(ARM_OBJS)
-	arm-none-eabi-size -t $(ARM_OBJS)
-	@cat build/arm/*.su
 
 clean:
 	rm -rf build

@@ -224,15 +224,13 @@ static void quantize_input(const float x[6], float scale, int32_t xq[4])
     xq[3] = 0;
 }
 
-static void accumulate(int32_t h[NS2_HIDDEN], const int32_t *phi)
+/* h = phi (first term) or h += phi, from packed int16 pairs */
+static void accumulate(int32_t h[NS2_HIDDEN], const int32_t *phi, int first)
 {
-    for (int k = 0; k + 1 < NS2_HIDDEN; k += 2) {
-        h[k] += lo16(phi[k / 2]);
-        h[k + 1] += hi16(phi[k / 2]);
+    for (int k = 0; k < NS2_HIDDEN; ++k) {
+        const int32_t v = (k & 1) ? hi16(phi[k / 2]) : lo16(phi[k / 2]);
+        h[k] = first ? v : h[k] + v;
     }
-#if NS2_HIDDEN % 2
-    h[NS2_HIDDEN - 1] += lo16(phi[NS2_HIDDEN / 2]);
-#endif
 }
 
 int16_t ns2_predict_q15(uint8_t robot_type, const float p[3], const float v[3],
@@ -251,16 +249,13 @@ int16_t ns2_predict_q15(uint8_t robot_type, const float p[3], const float v[3],
     if (ns2_prepare(robot_type, p, v, neighbors, n_neighbors, x, idx, &n_used, inf) != NS2_OK) {
         return 0;
     }
-    for (int k = 0; k < NS2_HIDDEN; ++k) {
-        h[k] = 0;
-    }
     quantize_input(x, ns2_q15_in_scale[NS2_ENV_TYPE], xq);
-    accumulate(h, net_q15(&ns2_q15_phi[NS2_ENV_TYPE], xq, buf));
+    accumulate(h, net_q15(&ns2_q15_phi[NS2_ENV_TYPE], xq, buf), 1);
     for (uint16_t j = 0; j < n_used; ++j) {
         const ns2_neighbor_t *nb = &neighbors[idx[j]];
         ns2_clamp_input(nb->type, nb->rel, x);
         quantize_input(x, ns2_q15_in_scale[nb->type], xq);
-        accumulate(h, net_q15(&ns2_q15_phi[nb->type], xq, buf));
+        accumulate(h, net_q15(&ns2_q15_phi[nb->type], xq, buf), 0);
     }
     for (int k = 0; k < NS2_PAD4(NS2_HIDDEN) / 2; ++k) {
         const int32_t h0 = 2 * k < NS2_HIDDEN ? round_shift_sat(h[2 * k], NS2_Q_SUM_SHIFT) : 0;

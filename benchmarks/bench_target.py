@@ -1,0 +1,161 @@
+"""Target benchmarks (JSON on stdout): the cross-compiled library on an emulated
+Cortex-M4 (unicorn), executed instructions and estimated cycles (cost model in
+ns2host/cm4_count.py) per phi and rho evaluation and per full prediction with
+1, 4, 15 and 16 neighbours, float and fixed point; microseconds at 168 MHz; the
+2 ms-tick budget; emlearn's generated C for the same layer sizes side by side;
+flash, RAM and worst-case stack from the cross build.
+
+    python benchmarks/bench_target.py [--gen firmware/generated]
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from ns2codegen.checkpoint import load_checkpoint, save_checkpoint
+from ns2codegen.config import Config
+from ns2codegen.data.analytic import downwash_dataset
+from ns2codegen.export import export
+from ns2codegen.train import train
+from ns2host import cm4_count, firmware_report, target
+from ns2host.cbuild import REPO, flags
+from ns2host.target import NBR_DT
+
+TICK_US, BUDGET_FRACTION = 2000.0, 0.2
+
+
+def macs(dims):
+    return sum(a * b for a, b in zip(dims[:-1], dims[1:]))
+
+
+def measure_library(elf: Path, cfg: Config) -> dict:
+    cm = cm4_count.Cm4(elf)
+    rng = np.random.default_rng(0)
+    out = {}
+    phi_macs, rho_macs = macs(cfg.phi_dims()), macs(cfg.rho_dims())
+    for name, fn in (("float", "ns2_predict_f32"), ("fixed", "ns2_predict_q15")):
+        runs = {}
+        for n in (0, 1, 4, 15, 16):
+            cm.reset_scratch()
+            p = cm.write(np.float32([0.1, -0.2, 0.8]).tobytes())
+            v = cm.write(np.float32([0.2, 0.0, -0.1]).tobytes())
+            info = cm.write(bytes(16))
+            nb = np.zeros(max(n, 1), NBR_DT)
+            nb["type"] = rng.integers(0, cfg.num_robot_types, len(nb))
+            nb["rel"] = np.column_stack([rng.uniform(-0.2, 0.2, (len(nb), 2)), rng.uniform(0.1, 1.0, len(nb)),
+                                         rng.normal(0, 0.3, (len(nb), 3))])
+            a = cm.write(nb.tobytes())
+            _, _, run = cm.call(fn, 0, p, v, a, n, info)
+            used = int.from_bytes(cm.read(info + 4, 2), "little")
+            assert used == n, f"{used} of {n} neighbours used"
+            runs[n] = run
+        per_phi = (runs[16].instructions - runs[1].instructions) / 15
+        per_phi_cyc = (runs[16].cycles - runs[1].cycles) / 15
+        kernel = sum(c for f, c in runs[16].by_function.items() if f.startswith("dense"))
+        out[name] = {
+            "prediction": {f"{n}_neighbors": {"instructions": r.instructions, "cycles": r.cycles,
+                                              "us_at_168MHz": round(r.microseconds, 1)} for n, r in runs.items()},
+            "per_phi": {"instructions": round(per_phi), "cycles": round(per_phi_cyc),
+                        "us_at_168MHz": round(per_phi_cyc / 168, 2)},
+            "per_rho_and_call_overhead": {"instructions": round(runs[0].instructions - per_phi),
+                                          "cycles": round(runs[0].cycles - per_phi_cyc)},
+            "instructions_per_mac_phi": round(per_phi / phi_macs, 3),
+            "kernel_instructions_per_mac": round(kernel / (17 * phi_macs + rho_macs), 3),
+            "instruction_mix_16_neighbors": dict(runs[16].mix.most_common(10)),
+        }
+    return out
+
+
+def measure_emlearn(cfg: Config, work: Path) -> dict | None:
+    try:
+        import emlearn
+        from sklearn.neural_network import MLPRegressor
+    except ImportError:
+        return None
+    import warnings
+
+    rng = np.random.default_rng(0)
+    headers = {}
+    for name, dims in (("eml_phi", cfg.phi_dims()), ("eml_rho", cfg.rho_dims())):
+        m = MLPRegressor(hidden_layer_sizes=tuple(dims[1:-1]), max_iter=2)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            m.fit(rng.normal(size=(64, dims[0])), rng.normal(size=(64, dims[-1])) if dims[-1] > 1
+                  else rng.normal(size=64))
+        emlearn.convert(m).save(file=str(work / f"{name}.h"), name=name)
+        headers[name] = dims
+    f = flags()
+    elf = work / "emlearn.elf"
+    eml_inc = Path(emlearn.__file__).parent
+    subprocess.run([target.ARM_CC, *f["NS2_ARM_FLAGS"], "-std=c99", *f["NS2_OPT_FLAGS"], "-ffp-contract=off",
+                    f"-I{work}", f"-I{eml_inc}", "-ffunction-sections", "-fdata-sections",
+                    "--specs=rdimon.specs", "-nostartfiles", f"-T{REPO / 'firmware/target/stm32f405.ld'}",
+                    "-Wl,--gc-sections", str(REPO / "benchmarks/emlearn_main.c"),
+                    str(REPO / "firmware/target/startup_cm4.c"), "-lm", "-o", str(elf)],
+                   check=True, capture_output=True)
+    cm = cm4_count.Cm4(elf)
+    res = {}
+    for name, dims in headers.items():
+        cm.reset_scratch()
+        x = cm.write(np.float32(rng.normal(size=dims[0])).tobytes())
+        y = cm.write(bytes(4 * dims[-1]))
+        _, _, run = cm.call(f"{name}_regress", x, dims[0], y, dims[-1])
+        res[name[4:]] = {"instructions": run.instructions, "cycles": run.cycles,
+                         "instructions_per_mac": round(run.instructions / macs(dims), 3)}
+    res["emlearn_version"] = emlearn.__version__ if hasattr(emlearn, "__version__") else "?"
+    return res
+
+
+def default_export(work: Path) -> Path:
+    cfg = Config.load()
+    ds = downwash_dataset(cfg, 500, seed=0)
+    model, rep = train(cfg, ds, epochs=1, seed=0)
+    ck = work / "model.pt"
+    save_checkpoint(ck, model, cfg, {"seed": 0, "data_hash": ds.content_hash(), "report": rep})
+    export(ck, work / "gen")
+    return work / "gen"
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--gen", default=None, help="export folder (default: a freshly trained default model)")
+    args = ap.parse_args()
+    if not target.have_toolchain():
+        sys.exit("arm-none-eabi-gcc missing: run scripts/install-deps.sh")
+    with tempfile.TemporaryDirectory() as tmp:
+        work = Path(tmp)
+        gen = Path(args.gen) if args.gen else default_export(work)
+        cfg = load_checkpoint(work / "model.pt").cfg if not args.gen else Config.load()
+        elf = target.build_image(gen)
+        lib = measure_library(elf, cfg)
+        eml = measure_emlearn(cfg, work)
+        mem = firmware_report.report(gen)
+    result = {"cost_model": "ns2host/cm4_count.py (Cortex-M4 TRM cycle counts, no wait states)",
+              "macs": {"phi": macs(cfg.phi_dims()), "rho": macs(cfg.rho_dims())}, **lib}
+    if eml:
+        result["emlearn"] = eml
+        result["emlearn_vs_ns2"] = {
+            "phi_instructions_ratio_float": round(eml["phi"]["instructions"] / lib["float"]["per_phi"]["instructions"], 2),
+            "phi_instructions_ratio_fixed": round(eml["phi"]["instructions"] / lib["fixed"]["per_phi"]["instructions"], 2),
+            "phi_cycles_ratio_float": round(eml["phi"]["cycles"] / lib["float"]["per_phi"]["cycles"], 2),
+            "phi_cycles_ratio_fixed": round(eml["phi"]["cycles"] / lib["fixed"]["per_phi"]["cycles"], 2)}
+    budget = TICK_US * BUDGET_FRACTION
+    result["budget_2ms_tick"] = {
+        "budget_us": budget,
+        "prediction_15_neighbors_plus_env_us": {k: lib[k]["prediction"]["15_neighbors"]["us_at_168MHz"]
+                                                for k in ("float", "fixed")},
+        "controller_step_us": None,
+        "note": "the controller step is not in the library yet (simulator/controller issue)",
+    }
+    result["memory"] = {k: mem[k] for k in ("ns2_predict_f32", "ns2_predict_q15")}
+    print(json.dumps(result, indent=2))
+
+
+if __name__ == "__main__":
+    main()
