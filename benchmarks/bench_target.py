@@ -95,7 +95,7 @@ def measure_emlearn(cfg: Config, work: Path) -> dict | None:
     eml_inc = Path(emlearn.__file__).parent
     subprocess.run([target.ARM_CC, *f["NS2_ARM_FLAGS"], "-std=c99", *f["NS2_OPT_FLAGS"], "-ffp-contract=off",
                     f"-I{work}", f"-I{eml_inc}", "-ffunction-sections", "-fdata-sections",
-                    "--specs=rdimon.specs", "-nostartfiles", f"-T{REPO / 'firmware/target/stm32f405.ld'}",
+                    "-DNS2_SEMIHOSTING", "--specs=rdimon.specs", "-nostartfiles", f"-T{REPO / 'firmware/target/stm32f405.ld'}",
                     "-Wl,--gc-sections", str(REPO / "benchmarks/emlearn_main.c"),
                     str(REPO / "firmware/target/startup_cm4.c"), "-lm", "-o", str(elf)],
                    check=True, capture_output=True)

@@ -7,4 +7,5 @@ NS2_WARN_FLAGS := -Wall -Wextra -Werror -Wconversion -Wdouble-promotion -Wshadow
 NS2_OPT_FLAGS := -O2
 NS2_ARM_FLAGS := -mcpu=cortex-m4 -mthumb -mfpu=fpv4-sp-d16 -mfloat-abi=hard
 NS2_SOURCES := firmware/src/ns2_select.c firmware/src/ns2_f32.c firmware/src/ns2_q15.c
-NS2_INCLUDES := firmware/include firmware/src
+NS2_INCLUDES := firmware/include firmware/src firmware/hil
+NS2_HIL_SOURCES := firmware/hil/ns2_hil.c

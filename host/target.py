@@ -44,7 +44,8 @@ def have_qemu() -> bool:
 
 
 def build_image(gen_dir: Path, program: str = "qemu_vectors.c", opt: str | None = None,
-                extra_sources: tuple[str, ...] = (), defines: tuple[str, ...] = ()) -> Path:
+                extra_sources: tuple[str, ...] = (), defines: tuple[str, ...] = (),
+                semihosting: bool = True) -> Path:
     """Cross-compile ``firmware/target/<program>`` + the library into an ELF (cached)."""
     f = flags()
     gen_dir = Path(gen_dir).resolve()
@@ -56,7 +57,7 @@ def build_image(gen_dir: Path, program: str = "qemu_vectors.c", opt: str | None 
             sorted((REPO / "firmware" / "src").glob("*.h")) + [gen_dir / g for g in GENERATED] + \
             [TARGET_DIR / "stm32f405.ld"]:
         h.update(p.name.encode() + p.read_bytes())
-    h.update(repr((sorted(f.items()), opt_flags, ARM_CC, defines)).encode())
+    h.update(repr((sorted(f.items()), opt_flags, ARM_CC, defines, semihosting)).encode())
     out = BUILD_ROOT.parent / "arm" / f"{Path(program).stem}-{h.hexdigest()[:16]}.elf"
     if out.is_file():
         return out
@@ -66,13 +67,20 @@ def build_image(gen_dir: Path, program: str = "qemu_vectors.c", opt: str | None 
         su = Path(tmp)
         cmd = [ARM_CC, *f["NS2_ARM_FLAGS"], *f["NS2_STD_FLAGS"], *opt_flags, *f["NS2_WARN_FLAGS"], *inc,
                *[f"-D{d}" for d in defines], "-ffunction-sections", "-fdata-sections", "-g",
-               "--specs=rdimon.specs", "-nostartfiles", f"-T{TARGET_DIR / 'stm32f405.ld'}",
+               *(["-DNS2_SEMIHOSTING", "--specs=rdimon.specs"] if semihosting else ["--specs=nosys.specs"]),
+               "-nostartfiles", f"-T{TARGET_DIR / 'stm32f405.ld'}",
                "-Wl,--gc-sections", *map(str, sources), "-lm", "-o", str(su / out.name)]
         r = subprocess.run(cmd, capture_output=True, text=True)
         if r.returncode != 0:
             raise BuildError(f"{' '.join(cmd)}\n{r.stdout}{r.stderr}")
         os.replace(su / out.name, out)
     return out
+
+
+def build_hil_image(gen_dir: Path, opt: str | None = None) -> Path:
+    """The serial HIL image (no semihosting: it runs on a board as well)."""
+    return build_image(gen_dir, program="hil_usart.c", opt=opt,
+                       extra_sources=tuple(flags()["NS2_HIL_SOURCES"]), semihosting=False)
 
 
 def encode_queries(q) -> bytes:

@@ -119,5 +119,48 @@ def export(checkpoint, out_dir):
                f"{err['box']['max_abs_g']:.3g} g (box), {err['typical']['max_abs_g']:.3g} g (typical)")
 
 
+@main.command()
+@click.option("--port", default=None, help="serial port of a board running the HIL image")
+@click.option("--qemu", is_flag=True, help="build the HIL image and run it in qemu-system-arm (netduinoplus2)")
+@click.option("--gen", "gen_dir", type=click.Path(file_okay=False), default="firmware/generated", show_default=True)
+@click.option("--queries", type=click.IntRange(min=1), default=1000, show_default=True)
+@click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--timeout", type=click.FloatRange(min=0.01), default=1.0, show_default=True)
+def hil(port, qemu, gen_dir, queries, seed, timeout):
+    """Serial hardware-in-the-loop: run random queries on the target, compare bit for bit."""
+    from ns2host import hil as hil_mod
+    from ns2host import target
+    from ns2host.cbuild import CModel
+
+    from .checkpoint import CheckpointError
+    from .queries import random_queries
+
+    if bool(port) == bool(qemu):
+        raise click.UsageError("give exactly one of --port or --qemu")
+    cfg_path = Path(gen_dir) / "ns2_model_manifest.json"
+    if not cfg_path.is_file():
+        raise CheckpointError(f"{cfg_path} missing: run `ns2 export` first")
+    cmodel = CModel(gen_dir)
+    cfg = Config.load()
+    q = random_queries(cfg, queries, seed=seed, wild=0.05, max_given=min(20, hil_mod.MAX_NEIGHBORS))
+    proc = None
+    if qemu:
+        proc, port = hil_mod.start_qemu(target.build_hil_image(Path(gen_dir)))
+    try:
+        client = hil_mod.HilClient(port, timeout=timeout)
+        try:
+            report = hil_mod.run(client, q, cmodel)
+        except hil_mod.HilError as e:
+            raise click.ClickException(f"HIL target on {port}: {e}") from e
+        finally:
+            client.close()
+    finally:
+        if proc is not None:
+            proc.kill()
+    click.echo(json.dumps(report, indent=2))
+    if report["mismatches"]:
+        raise click.ClickException(f"{report['mismatches']} of {queries} results differ from the host")
+
+
 if __name__ == "__main__":
     main()

@@ -1,7 +1,8 @@
 /*
  * startup_cm4.c - minimal Cortex-M4F start-up for the ns2 test images (QEMU
  * netduinoplus2 / STM32F405): vector table, .data/.bss set-up, FPU enable
- * (CPACR CP10/CP11 full access), then main() and a semihosting exit.
+ * (CPACR CP10/CP11 full access), then main() and, in images built with
+ * NS2_SEMIHOSTING (QEMU test images), semihosting I/O and exit.
  */
 #include <stdint.h>
 
@@ -31,12 +32,16 @@ __attribute__((section(".isr_vector"), used)) static const uintptr_t vectors[16]
 
 void ns2_semihost_exit(int code)
 {
+#ifdef NS2_SEMIHOSTING
     /* SYS_EXIT (0x18) with ADP_Stopped_ApplicationExit; QEMU exits with the status
      * when the reason is ApplicationExit and the subcode is passed (extended form
      * is not needed: non-zero codes use RunTimeErrorUnknown). */
     register uint32_t r0 __asm__("r0") = 0x18u;
     register uint32_t r1 __asm__("r1") = code == 0 ? 0x20026u : 0x20024u;
     __asm__ volatile("bkpt 0xAB" : : "r"(r0), "r"(r1) : "memory");
+#else
+    (void)code; /* no debugger attached on a board: stop here */
+#endif
     for (;;) {
     }
 }
@@ -57,7 +62,9 @@ void ns2_reset_handler(void)
     }
     CPACR |= (0xFu << 20);
     __asm__ volatile("dsb\n\tisb" ::: "memory");
+#ifdef NS2_SEMIHOSTING
     initialise_monitor_handles();
+#endif
     ns2_semihost_exit(main());
 }
 
