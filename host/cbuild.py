@@ -43,6 +43,13 @@ float ns2_predict_q15_g(uint8_t robot_type, const float p[3], const float v[3],
                         const ns2_neighbor_t *neighbors, uint16_t n_neighbors, ns2_info_t *info);
 uint16_t ns2_select_neighbors(uint8_t robot_type, const ns2_neighbor_t *neighbors,
                               uint16_t n_neighbors, uint16_t *idx, ns2_info_t *info);
+#define NS2_PEERS_MAX ...
+typedef struct { uint8_t id; uint8_t type; uint8_t samples; uint32_t t_ms; float p[3]; float v[3]; } ns2_peer_t;
+typedef struct { ns2_peer_t peer[...]; uint8_t count; float alpha; } ns2_peers_t;
+void ns2_peers_init(ns2_peers_t *s, float alpha);
+int32_t ns2_peers_update(ns2_peers_t *s, uint8_t id, uint8_t type, uint32_t t_ms, const float p[3]);
+uint16_t ns2_peers_neighbors(const ns2_peers_t *s, uint8_t self_id, const float p[3], const float v[3],
+                             uint32_t now_ms, uint32_t max_age_ms, ns2_neighbor_t *out, uint16_t max);
 void ns2_host_predict_batch(int fixed, uint32_t n_queries, const uint8_t *robot_type,
                             const float *p, const float *v, const uint32_t *offsets,
                             const ns2_neighbor_t *neighbors, float *out_f, int16_t *out_q,
@@ -119,7 +126,7 @@ def load(gen_dir: str | Path):
             objs = compile_objects(gen_dir, tmp, host_cc(), ["-fPIC"], f)
             ffi = FFI()
             ffi.cdef(CDEF)
-            ffi.set_source(name, '#include "ns2_deepset.h"\n#include "ns2_host.h"\n',
+            ffi.set_source(name, '#include "ns2_deepset.h"\n#include "ns2_peers.h"\n#include "ns2_host.h"\n',
                            include_dirs=[str(REPO / i) for i in f["NS2_INCLUDES"]] + [str(gen_dir), str(REPO / "host")],
                            extra_objects=[str(o) for o in objs],
                            extra_compile_args=["-std=c99", "-O2", "-ffp-contract=off"])

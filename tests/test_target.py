@@ -61,3 +61,25 @@ def test_target_reports_failure(exported, tmp_path):
     q.n[:] = 70
     with pytest.raises(target.TargetError, match="exited with"):
         target.run_vectors(elf, q)
+
+
+@pytest.mark.parametrize("cc", ["gcc", "arm-none-eabi-gcc"])
+def test_crazyflie_app_glue_compiles(exported, tmp_path, cc):
+    """firmware/app against the declaration-only firmware headers, as the firmware
+    builds it (-Os, gnu99), warnings as errors, for the host and the Cortex-M4F."""
+    import subprocess
+
+    from ns2host.cbuild import REPO, flags
+
+    f = flags()
+    arch = f["NS2_ARM_FLAGS"] if cc.startswith("arm") else []
+    for src in ("ns2_app.c", "ns2_lib.c"):
+        r = subprocess.run([cc, *arch, "-std=gnu99", "-Os", "-ffp-contract=off", *f["NS2_WARN_FLAGS"],
+                            "-Wno-pedantic", "-Wno-strict-prototypes",
+                            f"-I{REPO / 'firmware/app/test_stubs'}", *[f"-I{REPO / i}" for i in f["NS2_INCLUDES"]],
+                            f"-I{exported.gen_dir}", "-c", str(REPO / "firmware/app/src" / src),
+                            "-o", str(tmp_path / (src + ".o"))], capture_output=True, text=True)
+        assert r.returncode == 0, r.stderr
+    for name in ("Makefile", "Kbuild", "app-config", "src/Kbuild"):
+        assert (REPO / "firmware/app" / name).is_file()
+    assert "-ffp-contract=off" in (REPO / "firmware/app/Makefile").read_text()
