@@ -50,6 +50,19 @@ void ns2_peers_init(ns2_peers_t *s, float alpha);
 int32_t ns2_peers_update(ns2_peers_t *s, uint8_t id, uint8_t type, uint32_t t_ms, const float p[3]);
 uint16_t ns2_peers_neighbors(const ns2_peers_t *s, uint8_t self_id, const float p[3], const float v[3],
                              uint32_t now_ms, uint32_t max_age_ms, ns2_neighbor_t *out, uint16_t max);
+typedef struct { float mass_kg; float inertia[3]; float arm_m; float kappa_m; float lambda; float f_max_N;
+                 float psi2[5]; } ns2_vehicle_t;
+typedef struct { float Lp[3]; float Kv[3]; float Gv[3]; float Lq[3]; float Kw[3]; float Gw[3]; float Kwd[3];
+                 float int_v_max; float int_w_max; float fa_max_N; float min_thrust_N; float d_filter; } ns2_gains_t;
+typedef struct { float p[3]; float v[3]; float q[4]; float w[3]; } ns2_ctrl_state_t;
+typedef struct { float p[3]; float v[3]; float a[3]; float yaw; float w[3]; } ns2_setpoint_t;
+typedef struct { ns2_vehicle_t veh; ns2_gains_t g; ns2_setpoint_t sp; float int_v[3]; float int_w[3]; float R_d[9];
+                 float T_d; float T_d_dot; float u[4]; float pwm[4]; uint32_t status; ...; } ns2_ctrl_t;
+void ns2_ctrl_init(ns2_ctrl_t *c, const ns2_vehicle_t *veh, const ns2_gains_t *g);
+void ns2_ctrl_position(ns2_ctrl_t *c, const ns2_ctrl_state_t *s, const ns2_setpoint_t *sp,
+                       const float fa_hat[3], float dt);
+void ns2_ctrl_attitude(ns2_ctrl_t *c, const ns2_ctrl_state_t *s, float dt, float battery_V);
+void ns2_ctrl_wrench(const ns2_vehicle_t *veh, const float u[4], float eta[4]);
 void ns2_host_predict_batch(int fixed, uint32_t n_queries, const uint8_t *robot_type,
                             const float *p, const float *v, const uint32_t *offsets,
                             const ns2_neighbor_t *neighbors, float *out_f, int16_t *out_q,
@@ -126,7 +139,7 @@ def load(gen_dir: str | Path):
             objs = compile_objects(gen_dir, tmp, host_cc(), ["-fPIC"], f)
             ffi = FFI()
             ffi.cdef(CDEF)
-            ffi.set_source(name, '#include "ns2_deepset.h"\n#include "ns2_peers.h"\n#include "ns2_host.h"\n',
+            ffi.set_source(name, '#include "ns2_deepset.h"\n#include "ns2_peers.h"\n#include "ns2_controller.h"\n#include "ns2_host.h"\n',
                            include_dirs=[str(REPO / i) for i in f["NS2_INCLUDES"]] + [str(gen_dir), str(REPO / "host")],
                            extra_objects=[str(o) for o in objs],
                            extra_compile_args=["-std=c99", "-O2", "-ffp-contract=off"])

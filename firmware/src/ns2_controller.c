@@ -1,0 +1,274 @@
+/*
+ * ns2_controller.c - see ns2_controller.h (equation numbers of Neural-Swarm2).
+ * Plain C99, no dynamic memory, no recursion.
+ */
+#include <math.h>
+#include <stddef.h>
+#include <string.h>
+
+#include "ns2_controller.h"
+
+#define NS2_G 9.81f
+
+static int finite_n(const float *x, int n)
+{
+    for (int i = 0; i < n; ++i) {
+        if (!isfinite(x[i])) {
+            return 0;
+        }
+    }
+    return 1;
+}
+
+static float clampf(float x, float lo, float hi)
+{
+    return x < lo ? lo : (x > hi ? hi : x);
+}
+
+static void cross(const float a[3], const float b[3], float out[3])
+{
+    out[0] = a[1] * b[2] - a[2] * b[1];
+    out[1] = a[2] * b[0] - a[0] * b[2];
+    out[2] = a[0] * b[1] - a[1] * b[0];
+}
+
+static float norm3(const float a[3])
+{
+    return sqrtf(a[0] * a[0] + a[1] * a[1] + a[2] * a[2]);
+}
+
+/* Unit quaternion [w x y z] (normalized here) to row-major R (body to world). */
+static void quat_to_R(const float q_in[4], float R[9])
+{
+    float n = sqrtf(q_in[0] * q_in[0] + q_in[1] * q_in[1] + q_in[2] * q_in[2] + q_in[3] * q_in[3]);
+    n = n > 0.0f ? n : 1.0f;
+    const float w = q_in[0] / n, x = q_in[1] / n, y = q_in[2] / n, z = q_in[3] / n;
+    R[0] = 1.0f - 2.0f * (y * y + z * z);
+    R[1] = 2.0f * (x * y - w * z);
+    R[2] = 2.0f * (x * z + w * y);
+    R[3] = 2.0f * (x * y + w * z);
+    R[4] = 1.0f - 2.0f * (x * x + z * z);
+    R[5] = 2.0f * (y * z - w * x);
+    R[6] = 2.0f * (x * z - w * y);
+    R[7] = 2.0f * (y * z + w * x);
+    R[8] = 1.0f - 2.0f * (x * x + y * y);
+}
+
+/* Rotation matrix to quaternion [w x y z] with w >= 0 (constrained error quaternion). */
+static void R_to_quat(const float R[9], float q[4])
+{
+    const float tr = R[0] + R[4] + R[8];
+    if (tr > 0.0f) {
+        const float s = 2.0f * sqrtf(tr + 1.0f);
+        q[0] = 0.25f * s;
+        q[1] = (R[7] - R[5]) / s;
+        q[2] = (R[2] - R[6]) / s;
+        q[3] = (R[3] - R[1]) / s;
+    } else if (R[0] > R[4] && R[0] > R[8]) {
+        const float s = 2.0f * sqrtf(1.0f + R[0] - R[4] - R[8]);
+        q[0] = (R[7] - R[5]) / s;
+        q[1] = 0.25f * s;
+        q[2] = (R[1] + R[3]) / s;
+        q[3] = (R[2] + R[6]) / s;
+    } else if (R[4] > R[8]) {
+        const float s = 2.0f * sqrtf(1.0f + R[4] - R[0] - R[8]);
+        q[0] = (R[2] - R[6]) / s;
+        q[1] = (R[1] + R[3]) / s;
+        q[2] = 0.25f * s;
+        q[3] = (R[5] + R[7]) / s;
+    } else {
+        const float s = 2.0f * sqrtf(1.0f + R[8] - R[0] - R[4]);
+        q[0] = (R[3] - R[1]) / s;
+        q[1] = (R[2] + R[6]) / s;
+        q[2] = (R[5] + R[7]) / s;
+        q[3] = 0.25f * s;
+    }
+    if (q[0] < 0.0f) {
+        for (int i = 0; i < 4; ++i) {
+            q[i] = -q[i];
+        }
+    }
+}
+
+static void motors_off(ns2_ctrl_t *c)
+{
+    for (int i = 0; i < 4; ++i) {
+        c->u[i] = 0.0f;
+        c->pwm[i] = 0.0f;
+    }
+}
+
+void ns2_ctrl_init(ns2_ctrl_t *c, const ns2_vehicle_t *veh, const ns2_gains_t *g)
+{
+    memset(c, 0, sizeof *c);
+    c->veh = *veh;
+    c->g = *g;
+    c->R_d[0] = c->R_d[4] = c->R_d[8] = 1.0f;
+    c->T_d = veh->mass_kg * NS2_G;
+}
+
+void ns2_ctrl_wrench(const ns2_vehicle_t *veh, const float u[4], float eta[4])
+{
+    const float a = veh->arm_m * 0.70710678f;
+    eta[0] = u[0] + u[1] + u[2] + u[3];
+    eta[1] = a * (-u[0] - u[1] + u[2] + u[3]);
+    eta[2] = a * (-u[0] + u[1] + u[2] - u[3]);
+    eta[3] = veh->kappa_m * (-u[0] + u[1] - u[2] + u[3]);
+}
+
+/* eq. (pos_ctrl) with (v_ref); sets T_d, T_d_dot and R_d. */
+void ns2_ctrl_position(ns2_ctrl_t *c, const ns2_ctrl_state_t *s, const ns2_setpoint_t *sp,
+                       const float fa_hat[3], float dt)
+{
+    const ns2_gains_t *g = &c->g;
+    const float m = c->veh.mass_kg;
+    c->status = 0;
+    if (!finite_n(s->p, 3) || !finite_n(s->v, 3) || !finite_n(s->q, 4) || !finite_n(s->w, 3) ||
+        !(dt > 0.0f)) {
+        c->status |= NS2_CTRL_BAD_STATE;
+        motors_off(c);
+        return;
+    }
+    if (sp != NULL && finite_n(sp->p, 3) && finite_n(sp->v, 3) && finite_n(sp->a, 3) &&
+        isfinite(sp->yaw) && finite_n(sp->w, 3)) {
+        c->sp = *sp;
+    } else {
+        c->status |= NS2_CTRL_BAD_SETPOINT;
+    }
+    float fa[3] = {0.0f, 0.0f, 0.0f};
+    if (fa_hat != NULL && finite_n(fa_hat, 3)) {
+        const float n = norm3(fa_hat);
+        const float k = n > g->fa_max_N ? g->fa_max_N / n : 1.0f;
+        if (k < 1.0f) {
+            c->status |= NS2_CTRL_FA_LIMITED;
+        }
+        for (int i = 0; i < 3; ++i) {
+            fa[i] = fa_hat[i] * k;
+        }
+    }
+    float f_d[3];
+    for (int i = 0; i < 3; ++i) {
+        const float pe = s->p[i] - c->sp.p[i];
+        const float v_r = c->sp.v[i] - g->Lp[i] * pe;
+        const float v_r_dot = c->sp.a[i] - g->Lp[i] * (s->v[i] - c->sp.v[i]);
+        const float ve = s->v[i] - v_r;
+        c->int_v[i] = clampf(c->int_v[i] + ve * dt, -g->int_v_max, g->int_v_max);
+        f_d[i] = m * v_r_dot - fa[i] - (g->Kv[i] + m * g->Gv[i]) * ve - g->Kv[i] * g->Gv[i] * c->int_v[i];
+    }
+    f_d[2] += m * NS2_G;
+    if (f_d[2] < g->min_thrust_N) {
+        f_d[2] = g->min_thrust_N;
+    }
+    float R[9];
+    quat_to_R(s->q, R);
+    const float T_new = f_d[0] * R[2] + f_d[1] * R[5] + f_d[2] * R[8]; /* f_d . R e3 */
+    if (c->has_prev_pos) {
+        const float raw = (T_new - c->T_d) / dt;
+        c->T_d_dot += g->d_filter * (raw - c->T_d_dot);
+    }
+    c->T_d = T_new;
+    c->has_prev_pos = 1;
+    /* desired attitude: z_d along f_d, x_d towards the yaw setpoint */
+    const float fn = norm3(f_d);
+    const float z_d[3] = {f_d[0] / fn, f_d[1] / fn, f_d[2] / fn};
+    const float x_c[3] = {cosf(c->sp.yaw), sinf(c->sp.yaw), 0.0f};
+    float y_d[3], x_d[3];
+    cross(z_d, x_c, y_d);
+    const float yn = norm3(y_d); /* > 0: z_d has a positive z component */
+    for (int i = 0; i < 3; ++i) {
+        y_d[i] /= yn;
+    }
+    cross(y_d, z_d, x_d);
+    for (int i = 0; i < 3; ++i) {
+        c->R_d[3 * i + 0] = x_d[i];
+        c->R_d[3 * i + 1] = y_d[i];
+        c->R_d[3 * i + 2] = z_d[i];
+    }
+}
+
+/* Motor forces from eta_c with thrust priority; returns 1 when torques were scaled. */
+static int mix(const ns2_vehicle_t *veh, const float eta[4], float u[4])
+{
+    static const float sx[4] = {-1.0f, -1.0f, 1.0f, 1.0f};
+    static const float sy[4] = {-1.0f, 1.0f, 1.0f, -1.0f};
+    static const float sz[4] = {-1.0f, 1.0f, -1.0f, 1.0f};
+    const float a = veh->arm_m * 0.70710678f;
+    const float f_max = veh->f_max_N;
+    const float uT = clampf(eta[0], 0.0f, 4.0f * f_max) * 0.25f;
+    float alpha = 1.0f;
+    float ut[4];
+    for (int i = 0; i < 4; ++i) {
+        ut[i] = 0.25f * (sx[i] * eta[1] / a + sy[i] * eta[2] / a + sz[i] * eta[3] / veh->kappa_m);
+        if (ut[i] > 0.0f && uT + ut[i] > f_max) {
+            alpha = fminf(alpha, (f_max - uT) / ut[i]);
+        } else if (ut[i] < 0.0f && uT + ut[i] < 0.0f) {
+            alpha = fminf(alpha, uT / -ut[i]);
+        }
+    }
+    for (int i = 0; i < 4; ++i) {
+        u[i] = clampf(uT + alpha * ut[i], 0.0f, f_max);
+    }
+    return alpha < 1.0f || eta[0] > 4.0f * f_max || eta[0] < 0.0f;
+}
+
+static float pwm_of(const ns2_vehicle_t *veh, float u_N, float battery_V)
+{
+    if (!(u_N > 0.0f)) {
+        return 0.0f;
+    }
+    const float f = u_N * (1000.0f / NS2_G); /* grams */
+    const float v = battery_V / 4.2f;
+    const float *k = veh->psi2;
+    return clampf(k[0] + k[1] * f + k[2] * v + k[3] * f * f + k[4] * f * v, 0.0f, 1.0f);
+}
+
+/* eqs. (omega_ref), (att_ctrl), (delay_ctrl). */
+void ns2_ctrl_attitude(ns2_ctrl_t *c, const ns2_ctrl_state_t *s, float dt, float battery_V)
+{
+    const ns2_gains_t *g = &c->g;
+    const float *J = c->veh.inertia;
+    if (!finite_n(s->q, 4) || !finite_n(s->w, 3) || !(dt > 0.0f) || !isfinite(battery_V) ||
+        (c->status & NS2_CTRL_BAD_STATE)) {
+        c->status |= NS2_CTRL_BAD_STATE;
+        motors_off(c);
+        return;
+    }
+    float R[9], Re[9], qe[4];
+    quat_to_R(s->q, R);
+    for (int i = 0; i < 3; ++i) { /* R~ = R_d^T R */
+        for (int j = 0; j < 3; ++j) {
+            Re[3 * i + j] = c->R_d[i] * R[j] + c->R_d[3 + i] * R[3 + j] + c->R_d[6 + i] * R[6 + j];
+        }
+    }
+    R_to_quat(Re, qe);
+    float w_r[3], we[3], Jw[3], Jw_x_wr[3], tau[3];
+    for (int i = 0; i < 3; ++i) { /* w_r = R~^T w_d - Lq q~v */
+        w_r[i] = Re[i] * c->sp.w[0] + Re[3 + i] * c->sp.w[1] + Re[6 + i] * c->sp.w[2] - g->Lq[i] * qe[1 + i];
+    }
+    for (int i = 0; i < 3; ++i) {
+        if (c->has_prev_att) {
+            c->w_r_dot[i] += g->d_filter * ((w_r[i] - c->w_r_prev[i]) / dt - c->w_r_dot[i]);
+        }
+        c->w_r_prev[i] = w_r[i];
+        we[i] = s->w[i] - w_r[i];
+        c->int_w[i] = clampf(c->int_w[i] + we[i] * dt, -g->int_w_max, g->int_w_max);
+        if (c->has_prev_att) {
+            c->we_dot[i] += g->d_filter * ((we[i] - c->we_prev[i]) / dt - c->we_dot[i]);
+        }
+        c->we_prev[i] = we[i];
+        Jw[i] = J[i] * s->w[i];
+    }
+    c->has_prev_att = 1;
+    cross(Jw, w_r, Jw_x_wr);
+    for (int i = 0; i < 3; ++i) {
+        tau[i] = J[i] * c->w_r_dot[i] - Jw_x_wr[i] - g->Kw[i] * we[i] - g->Gw[i] * c->int_w[i] -
+                 g->Kwd[i] * c->we_dot[i];
+    }
+    const float eta_c[4] = {c->T_d + c->T_d_dot / c->veh.lambda, tau[0], tau[1], tau[2]};
+    if (mix(&c->veh, eta_c, c->u)) {
+        c->status |= NS2_CTRL_SATURATED;
+    }
+    for (int i = 0; i < 4; ++i) {
+        c->pwm[i] = pwm_of(&c->veh, c->u[i], battery_V);
+    }
+}

@@ -1,0 +1,51 @@
+"""Vehicle parameters as plain data, from the config's [[robot_types]] entries."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ns2codegen.config import Config
+
+G = 9.81
+V_NORM = 4.2  # battery voltage normalization of the psi polynomials (V / 4.2)
+
+
+@dataclass(frozen=True)
+class Vehicle:
+    name: str
+    mass: float            # kg
+    inertia: np.ndarray    # kg m^2, principal axes
+    arm: float             # m, center to motor
+    kappa: float           # m, yaw torque per thrust
+    lam: float             # 1/s, motor delay constant (eq. delay_model)
+    f_max: float           # N per motor
+    psi1: np.ndarray       # force (g) from (PWM, V/4.2): 1, p, v, p^2, p v
+    psi2: np.ndarray       # PWM from (force g, V/4.2): 1, f, v, f^2, f v
+
+    @property
+    def B0(self) -> np.ndarray:
+        """eta = B0 u, u = motor forces (N), eta = [T, tau_x, tau_y, tau_z]; Crazyflie X
+        layout, motors at arm/sqrt(2) * [(+,-), (-,-), (-,+), (+,+)]."""
+        a = self.arm / np.sqrt(2.0)
+        return np.array([[1, 1, 1, 1],
+                         [-a, -a, a, a],
+                         [-a, a, a, -a],
+                         [-self.kappa, self.kappa, -self.kappa, self.kappa]], dtype=float)
+
+    def force_from_pwm(self, pwm: np.ndarray, battery_V: float) -> np.ndarray:
+        """psi_1 (Table cfprops) in newtons; 0 for a stopped motor."""
+        p, v = np.asarray(pwm, float), battery_V / V_NORM
+        k = self.psi1
+        f_g = k[0] + k[1] * p + k[2] * v + k[3] * p * p + k[4] * p * v
+        return np.where(p > 0, np.clip(f_g, 0.0, None) * G / 1000.0, 0.0)
+
+
+def vehicle(cfg: Config, name: str) -> Vehicle:
+    t = cfg.vehicle(name)
+    for key in ("arm_length_m", "inertia_kgm2", "thrust_to_torque_m", "psi1", "psi2"):
+        if key not in t:
+            raise ValueError(f"robot type {name}: {key} is needed for simulation")
+    return Vehicle(name, t["mass_g"] / 1000.0, np.array(t["inertia_kgm2"], float), float(t["arm_length_m"]),
+                   float(t["thrust_to_torque_m"]), float(t["lambda"]), t["max_thrust_g"] / 4.0 * G / 1000.0,
+                   np.array(t["psi1"], float), np.array(t["psi2"], float))

@@ -1,0 +1,105 @@
+"""Simulator physics and the firmware controller in the loop (interactions off)."""
+import math
+
+import numpy as np
+import pytest
+
+from ns2host.sim.cloop import CLoopSwarm, figure_eight, hover_setpoints
+from ns2host.sim.dynamics import Dynamics, SwarmState
+from ns2host.sim.vehicle import G, vehicle
+
+
+@pytest.fixture(scope="module")
+def vehicles(cfg):
+    return [vehicle(cfg, "small"), vehicle(cfg, "large")]
+
+
+def test_hover_equilibrium(vehicles):
+    dyn = Dynamics(vehicles)
+    st = SwarmState.hover([[0, 0, 1], [1, 0, 2]], vehicles)
+    u_c = st.u.copy()
+    for _ in range(1000):
+        st = dyn.step(st, u_c, 0.002)
+    assert np.abs(st.p - [[0, 0, 1], [1, 0, 2]]).max() < 1e-9
+    assert np.abs(st.v).max() < 1e-9 and np.abs(st.w).max() < 1e-9
+
+
+def test_free_fall(vehicles):
+    dyn = Dynamics(vehicles)
+    st = SwarmState.hover([[0, 0, 10], [0, 0, 10]], vehicles)
+    st.u[:] = 0.0
+    for _ in range(500):
+        st = dyn.step(st, np.zeros((2, 4)), 0.002)
+    assert st.p[:, 2] == pytest.approx(10 - 0.5 * G * 1.0 ** 2, abs=1e-9)
+    assert st.v[:, 2] == pytest.approx(-G, abs=1e-9)
+
+
+def test_pure_yaw_torque_spins_about_z(vehicles):
+    small = vehicles[0]
+    dyn = Dynamics([small])
+    st = SwarmState.hover([[0, 0, 1]], [small])
+    d = 0.002  # N: motors 2 and 4 up, 1 and 3 down -> +tau_z, no net thrust change
+    u = st.u + np.array([[-d, d, -d, d]])
+    st.u = u.copy()
+    tau_z = 4 * d * small.kappa
+    for _ in range(50):
+        st = dyn.step(st, u, 0.002)
+    assert st.w[0, 2] == pytest.approx(tau_z / small.inertia[2] * 0.1, rel=1e-6)
+    assert abs(st.w[0, 0]) < 1e-9 and abs(st.w[0, 1]) < 1e-9
+    assert np.abs(st.p[0] - [0, 0, 1]).max() < 1e-9  # thrust unchanged: no translation
+
+
+def test_firmware_mixer_matches_simulator_B0(exported, vehicles):
+    ffi, lib = exported.cmodel().ffi, exported.cmodel().lib
+    rng = np.random.default_rng(0)
+    for veh in vehicles:
+        v = ffi.new("ns2_vehicle_t *")
+        v.arm_m, v.kappa_m = veh.arm, veh.kappa
+        for _ in range(10):
+            u = rng.uniform(0, 0.2, 4)
+            eta = ffi.new("float[4]")
+            lib.ns2_ctrl_wrench(v, list(u), eta)
+            np.testing.assert_allclose(list(eta), veh.B0 @ u, rtol=1e-5, atol=1e-9)
+
+
+@pytest.mark.parametrize("kind", ["small", "large"])
+def test_controller_tracks_a_figure_eight(cfg, exported, kind):
+    """Interactions off: after a 6 s transient the C controller keeps the robot
+    within 5 cm of a 1 m x 0.5 m figure-eight flown in 6 s (peak speed 0.7 m/s)."""
+    sw = CLoopSwarm(cfg, [kind], exported.gen_dir, [[0, 0, 1.0]])
+    log = sw.run(12.0, figure_eight([0, 0, 1.0]))
+    err = np.linalg.norm(log["p"][:, 0] - log["p_d"][:, 0], axis=1)
+    assert err[log["t"] > 6.0].max() < 0.05, err.max()
+    assert (log["status"] & 1).sum() == 0  # never a bad state
+
+
+def test_controller_safety(cfg, exported):
+    sw = CLoopSwarm(cfg, ["small"], exported.gen_dir, [[0, 0, 1.0]])
+    ffi, lib = sw.c.ffi, sw.c.lib
+    c = sw.ctrl[0]
+    st, sp = ffi.new("ns2_ctrl_state_t *"), ffi.new("ns2_setpoint_t *")
+    st.q = [1, 0, 0, 0]
+    st.p = [0, 0, 1]
+    sp.p = [0, 0, 1]
+    lib.ns2_ctrl_position(c, st, sp, ffi.NULL, 0.01)
+    lib.ns2_ctrl_attitude(c, st, 0.002, 3.9)
+    assert c.status == 0 and min(c.pwm) > 0.1
+    sp.p = [math.nan, 0, 1]  # bad setpoint: the last valid one is kept
+    lib.ns2_ctrl_position(c, st, sp, ffi.NULL, 0.01)
+    assert c.status & 2 and list(c.sp.p) == [0, 0, 1]
+    big = ffi.new("float[3]", [0, 0, 10.0])  # learned force far beyond fa_max: limited
+    lib.ns2_ctrl_position(c, st, ffi.NULL, big, 0.01)
+    assert c.status & 4
+    st.w = [math.inf, 0, 0]  # bad state: motors off
+    lib.ns2_ctrl_position(c, st, sp, ffi.NULL, 0.01)
+    lib.ns2_ctrl_attitude(c, st, 0.002, 3.9)
+    assert c.status & 1 and list(c.pwm) == [0, 0, 0, 0] and list(c.u) == [0, 0, 0, 0]
+    for i in range(4):
+        assert 0.0 <= c.pwm[i] <= 1.0
+
+
+def test_hover_holds(cfg, exported):
+    sw = CLoopSwarm(cfg, ["small", "large"], exported.gen_dir, [[0, 0, 1.0], [1.0, 0, 1.0]])
+    log = sw.run(4.0, hover_setpoints([[0, 0, 1.0], [1.0, 0, 1.0]]))
+    late = log["t"] > 2.0
+    assert np.abs(log["p"][late] - log["p_d"][late]).max() < 0.03
