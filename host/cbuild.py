@@ -24,6 +24,8 @@ import numpy as np
 REPO = Path(__file__).resolve().parent.parent
 BUILD_ROOT = Path(os.environ.get("NS2_BUILD_DIR", REPO / "build")) / "host"
 GENERATED = ("ns2_model_config.h", "ns2_model_float.h", "ns2_model_fixed.h")
+# host-only helpers, plus the controller vector loop shared with the QEMU image
+HOST_SOURCES = ["host/ns2_host.c", "firmware/target/ns2_ctrl_vectors.c"]
 
 CDEF = """
 typedef struct { uint8_t type; float rel[6]; } ns2_neighbor_t;
@@ -63,6 +65,10 @@ void ns2_ctrl_position(ns2_ctrl_t *c, const ns2_ctrl_state_t *s, const ns2_setpo
                        const float fa_hat[3], float dt);
 void ns2_ctrl_attitude(ns2_ctrl_t *c, const ns2_ctrl_state_t *s, float dt, float battery_V);
 void ns2_ctrl_wrench(const ns2_vehicle_t *veh, const float u[4], float eta[4]);
+typedef struct { ns2_ctrl_state_t s; ns2_setpoint_t sp; float fa[3]; float dt_pos, dt_att, battery_V;
+                 uint32_t flags; } ns2_step_in_t;
+typedef struct { float u[4]; float pwm[4]; float T_d, T_d_dot; uint32_t status; } ns2_step_out_t;
+void ns2_ctrl_run_steps(ns2_ctrl_t *c, const ns2_step_in_t *in, ns2_step_out_t *out, uint32_t n);
 void ns2_host_predict_batch(int fixed, uint32_t n_queries, const uint8_t *robot_type,
                             const float *p, const float *v, const uint32_t *offsets,
                             const ns2_neighbor_t *neighbors, float *out_f, int16_t *out_q,
@@ -93,7 +99,8 @@ def host_cc() -> str:
 def _key(gen_dir: Path, f: dict) -> str:
     h = hashlib.sha256()
     files = [REPO / s for s in f["NS2_SOURCES"]] + sorted((REPO / "firmware" / "include").glob("*.h")) \
-        + sorted((REPO / "firmware" / "src").glob("*.h")) + [REPO / "host" / "ns2_host.c", REPO / "host" / "ns2_host.h"] \
+        + sorted((REPO / "firmware" / "src").glob("*.h")) + [REPO / s for s in HOST_SOURCES] \
+        + [REPO / "host" / "ns2_host.h", REPO / "firmware" / "target" / "ns2_ctrl_vectors.h"] \
         + [gen_dir / g for g in GENERATED]
     for p in files:
         h.update(p.name.encode())
@@ -108,10 +115,10 @@ def compile_objects(gen_dir: Path, out: Path, cc: str, extra: list[str], f: dict
     """Compile the firmware sources with the library's strict flags."""
     inc = [f"-I{REPO / i}" for i in f["NS2_INCLUDES"]] + [f"-I{gen_dir}"]
     objs = []
-    for src in f["NS2_SOURCES"] + ["host/ns2_host.c"]:
+    for src in f["NS2_SOURCES"] + HOST_SOURCES:
         obj = out / (Path(src).stem + ".o")
         cmd = [cc, *f["NS2_STD_FLAGS"], *f["NS2_OPT_FLAGS"], *f["NS2_WARN_FLAGS"], *extra, *inc,
-               f"-I{REPO / 'host'}", "-c", str(REPO / src), "-o", str(obj)]
+               f"-I{REPO / 'host'}", f"-I{REPO / 'firmware' / 'target'}", "-c", str(REPO / src), "-o", str(obj)]
         r = subprocess.run(cmd, capture_output=True, text=True)
         if r.returncode != 0:
             raise BuildError(f"{' '.join(cmd)}\n{r.stdout}{r.stderr}")
@@ -139,8 +146,9 @@ def load(gen_dir: str | Path):
             objs = compile_objects(gen_dir, tmp, host_cc(), ["-fPIC"], f)
             ffi = FFI()
             ffi.cdef(CDEF)
-            ffi.set_source(name, '#include "ns2_deepset.h"\n#include "ns2_peers.h"\n#include "ns2_controller.h"\n#include "ns2_host.h"\n',
-                           include_dirs=[str(REPO / i) for i in f["NS2_INCLUDES"]] + [str(gen_dir), str(REPO / "host")],
+            ffi.set_source(name, '#include "ns2_deepset.h"\n#include "ns2_peers.h"\n#include "ns2_controller.h"\n#include "ns2_ctrl_vectors.h"\n#include "ns2_host.h"\n',
+                           include_dirs=[str(REPO / i) for i in f["NS2_INCLUDES"]] + [str(gen_dir), str(REPO / "host"),
+                                         str(REPO / "firmware" / "target")],
                            extra_objects=[str(o) for o in objs],
                            extra_compile_args=["-std=c99", "-O2", "-ffp-contract=off"])
             ffi.compile(tmpdir=str(tmp), verbose=False)

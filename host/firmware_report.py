@@ -20,7 +20,7 @@ from pathlib import Path
 from .cbuild import REPO, flags
 from .target import ARM_CC
 
-ENTRY_POINTS = ("ns2_predict_f32", "ns2_predict_q15")
+ENTRY_POINTS = ("ns2_predict_f32", "ns2_predict_q15", "ns2_ctrl_position", "ns2_ctrl_attitude")
 
 
 def _parse_ci(text: str, nodes: dict, edges: dict) -> None:
@@ -73,7 +73,8 @@ def report(gen_dir: Path, opt: str | None = None) -> dict:
                            "rodata": sum(v for k, v in sec.items() if k.startswith(".rodata")),
                            "data": sec.get(".data", 0), "bss": sec.get(".bss", 0)}
     result = {"opt": " ".join(opt_flags), "objects": sizes}
-    for entry, objs in (("ns2_predict_f32", ("ns2_select", "ns2_f32")), ("ns2_predict_q15", ("ns2_select", "ns2_q15"))):
+    for entry, objs in (("ns2_predict_f32", ("ns2_select", "ns2_f32")), ("ns2_predict_q15", ("ns2_select", "ns2_q15")),
+                        ("ns2_ctrl_position", ("ns2_controller",)), ("ns2_ctrl_attitude", ("ns2_controller",))):
         flash = sum(sizes[o]["text"] + sizes[o]["rodata"] + sizes[o]["data"] for o in objs)
         ram = sum(sizes[o]["data"] + sizes[o]["bss"] for o in objs)
         stack, chain, unknown = worst_stack(entry, nodes, edges)

@@ -54,7 +54,8 @@ def build_image(gen_dir: Path, program: str = "qemu_vectors.c", opt: str | None 
         [TARGET_DIR / "startup_cm4.c", TARGET_DIR / program]
     h = hashlib.sha256()
     for p in sources + sorted((REPO / "firmware" / "include").glob("*.h")) + \
-            sorted((REPO / "firmware" / "src").glob("*.h")) + [gen_dir / g for g in GENERATED] + \
+            sorted((REPO / "firmware" / "src").glob("*.h")) + sorted(TARGET_DIR.glob("*.h")) + \
+            sorted((REPO / "firmware" / "hil").glob("*.h")) + [gen_dir / g for g in GENERATED] + \
             [TARGET_DIR / "stm32f405.ld"]:
         h.update(p.name.encode() + p.read_bytes())
     h.update(repr((sorted(f.items()), opt_flags, ARM_CC, defines, semihosting)).encode())
@@ -62,7 +63,7 @@ def build_image(gen_dir: Path, program: str = "qemu_vectors.c", opt: str | None 
     if out.is_file():
         return out
     out.parent.mkdir(parents=True, exist_ok=True)
-    inc = [f"-I{REPO / i}" for i in f["NS2_INCLUDES"]] + [f"-I{gen_dir}"]
+    inc = [f"-I{REPO / i}" for i in f["NS2_INCLUDES"]] + [f"-I{gen_dir}", f"-I{TARGET_DIR}"]
     with tempfile.TemporaryDirectory() as tmp:
         su = Path(tmp)
         cmd = [ARM_CC, *f["NS2_ARM_FLAGS"], *f["NS2_STD_FLAGS"], *opt_flags, *f["NS2_WARN_FLAGS"], *inc,
@@ -75,6 +76,29 @@ def build_image(gen_dir: Path, program: str = "qemu_vectors.c", opt: str | None 
             raise BuildError(f"{' '.join(cmd)}\n{r.stdout}{r.stderr}")
         os.replace(su / out.name, out)
     return out
+
+
+def build_controller_image(gen_dir: Path, opt: str | None = None) -> Path:
+    """The controller-step vector image (semihosting)."""
+    return build_image(gen_dir, program="qemu_controller.c", opt=opt,
+                       extra_sources=("firmware/target/ns2_ctrl_vectors.c",))
+
+
+def run_controller_vectors(elf: Path, vehicle: bytes, gains: bytes, steps: bytes, step_size: int,
+                           out_size: int, timeout: float = 300.0) -> bytes:
+    """Run controller steps on the emulated STM32F405; returns the raw ns2_step_out_t records."""
+    count = len(steps) // step_size
+    with tempfile.TemporaryDirectory() as tmp:
+        (Path(tmp) / "ns2_in.bin").write_bytes(b"NS2C" + np.uint32(count).tobytes() + vehicle + gains + steps)
+        cmd = [QEMU, "-M", "netduinoplus2", "-nographic", "-monitor", "none", "-serial", "null",
+               "-semihosting-config", "enable=on,target=native", "-kernel", str(elf)]
+        r = subprocess.run(cmd, cwd=tmp, capture_output=True, text=True, timeout=timeout)
+        if r.returncode != 0:
+            raise TargetError(f"target exited with {r.returncode}: {r.stdout}{r.stderr}")
+        data = (Path(tmp) / "ns2_out.bin").read_bytes()
+    if len(data) != count * out_size:
+        raise TargetError(f"expected {count} controller results, got {len(data) / out_size}")
+    return data
 
 
 def build_hil_image(gen_dir: Path, opt: str | None = None) -> Path:

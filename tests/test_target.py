@@ -83,3 +83,58 @@ def test_crazyflie_app_glue_compiles(exported, tmp_path, cc):
     for name in ("Makefile", "Kbuild", "app-config", "src/Kbuild"):
         assert (REPO / "firmware/app" / name).is_file()
     assert "-ffp-contract=off" in (REPO / "firmware/app/Makefile").read_text()
+
+
+def _controller_steps(ffi, n, seed):
+    """n controller steps: states around a hover setpoint, attitudes up to 0.6 rad,
+    random rates, yaw setpoints all around, learned forces, 2 % NaN/Inf states and
+    setpoints, position updates every 5th step, some without a learned term."""
+    rng = np.random.default_rng(seed)
+    steps = ffi.new("ns2_step_in_t[]", n)
+    for k in range(n):
+        st = steps[k]
+        axis = rng.normal(size=3)
+        ang = rng.uniform(0, 0.6)
+        q = [np.cos(ang / 2), *(np.sin(ang / 2) * axis / np.linalg.norm(axis))]
+        st.s.p = list(rng.normal([0, 0, 1], 0.2))
+        st.s.v = list(rng.normal(0, 0.5, 3))
+        st.s.q = q
+        st.s.w = list(rng.normal(0, 1.0, 3))
+        st.sp.p = list(rng.normal([0, 0, 1], 0.1))
+        st.sp.v = list(rng.normal(0, 0.3, 3))
+        st.sp.a = list(rng.normal(0, 0.5, 3))
+        st.sp.yaw = float(rng.uniform(-np.pi, np.pi))
+        st.fa = list(rng.normal(0, 0.05, 3))
+        st.dt_pos, st.dt_att, st.battery_V = 0.01, 0.002, float(rng.uniform(3.5, 4.2))
+        st.flags = (1 if k % 5 == 0 else 0) | (2 if rng.uniform() < 0.2 else 0)
+        if rng.uniform() < 0.02:
+            st.s.w = [float("nan"), 0.0, 0.0]
+        if rng.uniform() < 0.02:
+            st.sp.p = [float("inf"), 0.0, 1.0]
+    return steps
+
+
+@pytest.mark.parametrize("kind", ["small", "large"])
+def test_controller_steps_bit_exact_on_stm32(exported, cfg, kind):
+    """5,000 controller steps on the emulated MCU equal the host build bit for bit."""
+    from ns2host.sim.cloop import CLoopSwarm
+
+    sw = CLoopSwarm(cfg, [kind], exported.gen_dir, [[0, 0, 1.0]])
+    ffi, lib = sw.c.ffi, sw.c.lib
+    n = 5000
+    steps = _controller_steps(ffi, n, seed=12)
+    c = sw.ctrl[0]
+    veh, gains = bytes(ffi.buffer(ffi.addressof(c.veh))), bytes(ffi.buffer(ffi.addressof(c.g)))
+    host_out = ffi.new("ns2_step_out_t[]", n)
+    fresh = ffi.new("ns2_ctrl_t *")
+    lib.ns2_ctrl_init(fresh, ffi.addressof(c.veh), ffi.addressof(c.g))
+    lib.ns2_ctrl_run_steps(fresh, steps, host_out, n)
+    elf = target.build_controller_image(exported.gen_dir)
+    data = target.run_controller_vectors(elf, veh, gains, bytes(ffi.buffer(steps)),
+                                         ffi.sizeof("ns2_step_in_t"), ffi.sizeof("ns2_step_out_t"))
+    host = bytes(ffi.buffer(host_out))
+    assert data == host
+    out = np.frombuffer(host, np.uint8).reshape(n, -1)[:, :40].copy().view(np.float32)
+    assert np.isfinite(out).all() and (out[:, 4:8] >= 0).all() and (out[:, 4:8] <= 1).all()
+    status = np.frombuffer(host, np.uint8).reshape(n, -1)[:, 40:44].copy().view(np.uint32)[:, 0]
+    assert (status & 1).any() and (status & 2).any() and ((status & 3) == 0).any()

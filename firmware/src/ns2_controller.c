@@ -25,6 +25,22 @@ static float clampf(float x, float lo, float hi)
     return x < lo ? lo : (x > hi ? hi : x);
 }
 
+/* sin and cos of x (rad) from fixed float polynomials, so that the host and the
+ * STM32 builds agree bit for bit (libm's sinf/cosf differ between C libraries).
+ * Quadrant reduction with pi/2 split in two parts; Taylor polynomials on
+ * |r| <= pi/4 (error < 1e-6 for |x| < 20 rad). */
+static void sincos_det(float x, float *s, float *c)
+{
+    const float k = roundf(x * 0.63661977f);
+    const float r = (x - k * 1.5707963f) - k * 7.5497899e-8f;
+    const float r2 = r * r;
+    const float sr = r * (1.0f + r2 * (-1.6666667e-1f + r2 * (8.3333333e-3f + r2 * (-1.9841270e-4f + r2 * 2.7557319e-6f))));
+    const float cr = 1.0f + r2 * (-0.5f + r2 * (4.1666667e-2f + r2 * (-1.3888889e-3f + r2 * 2.4801587e-5f)));
+    const int q = (int)(k - 4.0f * floorf(k * 0.25f)); /* k mod 4 in 0..3 */
+    *s = q == 0 ? sr : (q == 1 ? cr : (q == 2 ? -sr : -cr));
+    *c = q == 0 ? cr : (q == 1 ? -sr : (q == 2 ? -cr : sr));
+}
+
 static void cross(const float a[3], const float b[3], float out[3])
 {
     out[0] = a[1] * b[2] - a[2] * b[1];
@@ -171,7 +187,9 @@ void ns2_ctrl_position(ns2_ctrl_t *c, const ns2_ctrl_state_t *s, const ns2_setpo
     /* desired attitude: z_d along f_d, x_d towards the yaw setpoint */
     const float fn = norm3(f_d);
     const float z_d[3] = {f_d[0] / fn, f_d[1] / fn, f_d[2] / fn};
-    const float x_c[3] = {cosf(c->sp.yaw), sinf(c->sp.yaw), 0.0f};
+    float sy, cy;
+    sincos_det(c->sp.yaw, &sy, &cy);
+    const float x_c[3] = {cy, sy, 0.0f};
     float y_d[3], x_d[3];
     cross(z_d, x_c, y_d);
     const float yn = norm3(y_d); /* > 0: z_d has a positive z component */
