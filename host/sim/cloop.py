@@ -13,6 +13,7 @@ import numpy as np
 from ns2codegen.config import Config
 
 from ..cbuild import CModel
+from .aero import calibrated
 from .dynamics import Dynamics, SwarmState
 from .vehicle import G, Vehicle, vehicle
 
@@ -54,7 +55,9 @@ class Log:
 
 class CLoopSwarm:
     def __init__(self, cfg: Config, types: list[str], gen_dir, positions, learned: str | None = None,
-                 interaction: Callable | None = None, battery_V: float = 3.9, substeps: int = 2):
+                 aero: bool = False, battery_V: float = 3.9, substeps: int = 2):
+        """learned: None (baseline, f_a = 0), "float" or "fixed"; aero: ground-truth
+        interactions (host/sim/aero.py) on or off."""
         self.cfg = cfg
         self.types = types
         self.type_idx = np.array([cfg.robot_types.index(t) for t in types])
@@ -63,7 +66,7 @@ class CLoopSwarm:
         self.state = SwarmState.hover(positions, self.vehicles)
         self.c = CModel(gen_dir)
         self.learned = learned
-        self.interaction = interaction
+        self.aero = calibrated(self.vehicles, vehicle(cfg, cfg.robot_types[0])) if aero else None
         self.battery_V = battery_V
         self.substeps = substeps
         ffi, lib = self.c.ffi, self.c.lib
@@ -127,7 +130,8 @@ class CLoopSwarm:
                 lib.ns2_ctrl_attitude(self.ctrl[i], self.cs, dt, self.battery_V)
                 pwm[i] = list(self.ctrl[i].pwm)
             u_c = np.array([veh.force_from_pwm(pwm[i], self.battery_V) for i, veh in enumerate(self.vehicles)])
-            f_a = self.interaction(self.state, self.type_idx) if self.interaction else np.zeros((n, 3))
+            st = self.state
+            f_a = self.aero(st.p, st.v, st.u.sum(axis=1)) if self.aero else np.zeros((n, 3))
             for _ in range(self.substeps):
                 self.state = self.dyn.step(self.state, u_c, dt / self.substeps, f_a=f_a)
             if k % log_every == 0:

@@ -20,6 +20,7 @@ class Vehicle:
     kappa: float           # m, yaw torque per thrust
     lam: float             # 1/s, motor delay constant (eq. delay_model)
     f_max: float           # N per motor
+    diameter: float        # m, overall (Table cfprops)
     psi1: np.ndarray       # force (g) from (PWM, V/4.2): 1, p, v, p^2, p v
     psi2: np.ndarray       # PWM from (force g, V/4.2): 1, f, v, f^2, f v
 
@@ -48,4 +49,4 @@ def vehicle(cfg: Config, name: str) -> Vehicle:
             raise ValueError(f"robot type {name}: {key} is needed for simulation")
     return Vehicle(name, t["mass_g"] / 1000.0, np.array(t["inertia_kgm2"], float), float(t["arm_length_m"]),
                    float(t["thrust_to_torque_m"]), float(t["lambda"]), t["max_thrust_g"] / 4.0 * G / 1000.0,
-                   np.array(t["psi1"], float), np.array(t["psi2"], float))
+                   float(t.get("diameter_m", 0.12)), np.array(t["psi1"], float), np.array(t["psi2"], float))
