@@ -10,6 +10,7 @@ flash, RAM and worst-case stack from the cross build.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import subprocess
 import sys
@@ -116,7 +117,8 @@ def measure_emlearn(cfg: Config, work: Path) -> dict | None:
             warnings.simplefilter("ignore")
             m.fit(rng.normal(size=(64, dims[0])), rng.normal(size=(64, dims[-1])) if dims[-1] > 1
                   else rng.normal(size=64))
-        emlearn.convert(m).save(file=str(work / f"{name}.h"), name=name)
+        with contextlib.chdir(work):  # emlearn compiles helpers in ./tmp
+            emlearn.convert(m).save(file=str(work / f"{name}.h"), name=name)
         headers[name] = dims
     f = flags()
     elf = work / "emlearn.elf"
