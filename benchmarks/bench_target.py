@@ -81,11 +81,11 @@ def measure_controller(gen: Path, cfg: Config) -> dict:
 
     sw = CLoopSwarm(cfg, ["small"], gen, [[0, 0, 1.0]])
     ffi = sw.c.ffi
-    c = sw.ctrl[0]
+    c = ffi.addressof(sw.ctrl, 0)
     cm = cm4_count.Cm4(target.build_controller_image(gen))
     ctrl = cm.write(bytes(ffi.sizeof("ns2_ctrl_t")))
-    cm.call("ns2_ctrl_init", ctrl, cm.write(bytes(ffi.buffer(ffi.addressof(c.veh)))),
-            cm.write(bytes(ffi.buffer(ffi.addressof(c.g)))))
+    cm.call("ns2_ctrl_init", ctrl, cm.write(bytes(ffi.buffer(ffi.addressof(c[0], "veh")))),
+            cm.write(bytes(ffi.buffer(ffi.addressof(c[0], "g")))))
     st = ffi.new("ns2_ctrl_state_t *", {"p": [0.01, -0.02, 1.0], "v": [0.1, 0, 0], "q": [0.999, 0.02, -0.03, 0.01],
                                          "w": [0.1, -0.2, 0.05]})
     sp = ffi.new("ns2_setpoint_t *", {"p": [0, 0, 1.0], "yaw": 0.3})

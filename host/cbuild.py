@@ -73,6 +73,9 @@ void ns2_host_predict_batch(int fixed, uint32_t n_queries, const uint8_t *robot_
                             const float *p, const float *v, const uint32_t *offsets,
                             const ns2_neighbor_t *neighbors, float *out_f, int16_t *out_q,
                             ns2_info_t *infos);
+void ns2_host_ctrl_tick(ns2_ctrl_t *ctrls, uint32_t n, const ns2_ctrl_state_t *states,
+                        const ns2_setpoint_t *setpoints, const float *fa, int do_pos, float dt_pos,
+                        float dt_att, float battery_V, float *pwm_out);
 double ns2_host_ns_per_call(int fixed, uint32_t reps, uint8_t robot_type, const float p[3],
                             const float v[3], const ns2_neighbor_t *neighbors, uint16_t n);
 """

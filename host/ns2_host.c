@@ -44,3 +44,18 @@ double ns2_host_ns_per_call(int fixed, uint32_t reps, uint8_t robot_type, const 
     (void)sink_q;
     return (now_ns() - t0) / (double)(reps ? reps : 1u);
 }
+
+void ns2_host_ctrl_tick(ns2_ctrl_t *ctrls, uint32_t n, const ns2_ctrl_state_t *states,
+                        const ns2_setpoint_t *setpoints, const float *fa, int do_pos, float dt_pos,
+                        float dt_att, float battery_V, float *pwm_out)
+{
+    for (uint32_t i = 0; i < n; ++i) {
+        if (do_pos) {
+            ns2_ctrl_position(&ctrls[i], &states[i], &setpoints[i], fa ? &fa[3 * i] : (const float *)0, dt_pos);
+        }
+        ns2_ctrl_attitude(&ctrls[i], &states[i], dt_att, battery_V);
+        for (int m = 0; m < 4; ++m) {
+            pwm_out[4 * i + (uint32_t)m] = ctrls[i].pwm[m];
+        }
+    }
+}

@@ -123,11 +123,11 @@ def test_controller_steps_bit_exact_on_stm32(exported, cfg, kind):
     ffi, lib = sw.c.ffi, sw.c.lib
     n = 5000
     steps = _controller_steps(ffi, n, seed=12)
-    c = sw.ctrl[0]
-    veh, gains = bytes(ffi.buffer(ffi.addressof(c.veh))), bytes(ffi.buffer(ffi.addressof(c.g)))
+    c = ffi.addressof(sw.ctrl, 0)
+    veh, gains = bytes(ffi.buffer(ffi.addressof(c[0], "veh"))), bytes(ffi.buffer(ffi.addressof(c[0], "g")))
     host_out = ffi.new("ns2_step_out_t[]", n)
     fresh = ffi.new("ns2_ctrl_t *")
-    lib.ns2_ctrl_init(fresh, ffi.addressof(c.veh), ffi.addressof(c.g))
+    lib.ns2_ctrl_init(fresh, ffi.addressof(c[0], "veh"), ffi.addressof(c[0], "g"))
     lib.ns2_ctrl_run_steps(fresh, steps, host_out, n)
     elf = target.build_controller_image(exported.gen_dir)
     data = target.run_controller_vectors(elf, veh, gains, bytes(ffi.buffer(steps)),

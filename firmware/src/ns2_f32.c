@@ -30,6 +30,16 @@
  * BIC r, r, r, ASR #31, which maps every negative value and -0 to +0 and keeps
  * positive values: the same as the C ReLU for all non-NaN values, and the
  * exporter proves that no activation can overflow to Inf or NaN. */
+/* acc s0..s3 += W (in registers W0..W3, overwritten) * input X: VMUL then VADD per row */
+#define NS2_F32_MAC4(X, W0, W1, W2, W3)                                                       \
+    "vmul.f32 " W0 ", " W0 ", " X "\n\t"                                                     \
+    "vmul.f32 " W1 ", " W1 ", " X "\n\t"                                                     \
+    "vmul.f32 " W2 ", " W2 ", " X "\n\t"                                                     \
+    "vmul.f32 " W3 ", " W3 ", " X "\n\t"                                                     \
+    "vadd.f32 s0, s0, " W0 "\n\t"                                                            \
+    "vadd.f32 s1, s1, " W1 "\n\t"                                                            \
+    "vadd.f32 s2, s2, " W2 "\n\t"                                                            \
+    "vadd.f32 s3, s3, " W3 "\n\t"
 #define NS2_F32_KERNEL(NAME, RELU_STORE)                                                      \
     __attribute__((noinline)) static void dense_f32_##NAME(const float *x, const float *w,     \
                                                            float *y, uint32_t n_blocks,        \
@@ -45,22 +55,8 @@
                          "2:\n\t"                                                             \
                          "vldmia %[xp]!, {s4-s5}\n\t"                                         \
                          "vldmia %[wp]!, {s8-s15}\n\t"                                        \
-                         "vmul.f32 s8, s8, s4\n\t"                                            \
-                         "vmul.f32 s9, s9, s4\n\t"                                            \
-                         "vmul.f32 s10, s10, s4\n\t"                                          \
-                         "vmul.f32 s11, s11, s4\n\t"                                          \
-                         "vadd.f32 s0, s0, s8\n\t"                                            \
-                         "vadd.f32 s1, s1, s9\n\t"                                            \
-                         "vadd.f32 s2, s2, s10\n\t"                                           \
-                         "vadd.f32 s3, s3, s11\n\t"                                           \
-                         "vmul.f32 s12, s12, s5\n\t"                                          \
-                         "vmul.f32 s13, s13, s5\n\t"                                          \
-                         "vmul.f32 s14, s14, s5\n\t"                                          \
-                         "vmul.f32 s15, s15, s5\n\t"                                          \
-                         "vadd.f32 s0, s0, s12\n\t"                                           \
-                         "vadd.f32 s1, s1, s13\n\t"                                           \
-                         "vadd.f32 s2, s2, s14\n\t"                                           \
-                         "vadd.f32 s3, s3, s15\n\t"                                           \
+                         NS2_F32_MAC4("s4", "s8", "s9", "s10", "s11")                         \
+                         NS2_F32_MAC4("s5", "s12", "s13", "s14", "s15")                       \
                          "subs %[cnt], %[cnt], #1\n\t"                                        \
                          "bne 2b\n\t"                                                         \
                          "3:\n\t"                                                             \
@@ -68,14 +64,7 @@
                          "beq 4f\n\t"                                                         \
                          "vldmia %[xp]!, {s4}\n\t"                                            \
                          "vldmia %[wp]!, {s8-s11}\n\t"                                        \
-                         "vmul.f32 s8, s8, s4\n\t"                                            \
-                         "vmul.f32 s9, s9, s4\n\t"                                            \
-                         "vmul.f32 s10, s10, s4\n\t"                                          \
-                         "vmul.f32 s11, s11, s4\n\t"                                          \
-                         "vadd.f32 s0, s0, s8\n\t"                                            \
-                         "vadd.f32 s1, s1, s9\n\t"                                            \
-                         "vadd.f32 s2, s2, s10\n\t"                                           \
-                         "vadd.f32 s3, s3, s11\n\t"                                           \
+                         NS2_F32_MAC4("s4", "s8", "s9", "s10", "s11")                         \
                          "4:\n\t"                                                             \
                          "sub %[xp], %[xp], %[back]\n\t"                                      \
                          RELU_STORE                                                           \

@@ -38,15 +38,23 @@ class Setpoints:
     yaw: np.ndarray
 
 
+LOG_HZ = 100  # what a Crazyflie logs to its uSD card, about every 10 ms
+
+
 @dataclass
-class Log:
+class FlightLog:
+    """What the drones log (t, p, v, q, w, pwm, battery; [T, N, ...]) plus, kept
+    apart, the simulator's ground truth (f_a) and the setpoints, for evaluation only."""
     t: list = field(default_factory=list)
     p: list = field(default_factory=list)
     v: list = field(default_factory=list)
-    p_d: list = field(default_factory=list)
-    fa_true: list = field(default_factory=list)
-    fa_hat: list = field(default_factory=list)
+    q: list = field(default_factory=list)
+    w: list = field(default_factory=list)
     pwm: list = field(default_factory=list)
+    battery_V: list = field(default_factory=list)
+    truth_fa: list = field(default_factory=list)
+    p_d: list = field(default_factory=list)
+    fa_hat: list = field(default_factory=list)
     status: list = field(default_factory=list)
 
     def arrays(self) -> dict:
@@ -70,8 +78,9 @@ class CLoopSwarm:
         self.battery_V = battery_V
         self.substeps = substeps
         ffi, lib = self.c.ffi, self.c.lib
-        self.ctrl = []
-        for veh in self.vehicles:
+        n = len(types)
+        self.ctrl = ffi.new("ns2_ctrl_t[]", n)
+        for i, veh in enumerate(self.vehicles):
             v = ffi.new("ns2_vehicle_t *")
             v.mass_kg, v.inertia, v.arm_m, v.kappa_m = veh.mass, list(veh.inertia), veh.arm, veh.kappa
             setattr(v, "lambda", veh.lam)  # 'lambda' is a Python keyword
@@ -79,17 +88,12 @@ class CLoopSwarm:
             g = ffi.new("ns2_gains_t *")
             for k, val in default_gains(veh).items():
                 setattr(g, k, val)
-            c = ffi.new("ns2_ctrl_t *")
-            lib.ns2_ctrl_init(c, v, g)
-            self.ctrl.append(c)
-        self.cs = ffi.new("ns2_ctrl_state_t *")
-        self.sp = ffi.new("ns2_setpoint_t *")
-        self.fa = ffi.new("float[3]")
-        self.fa_hat = np.zeros((len(types), 3))
-
-    def _load_state(self, i: int) -> None:
-        st, cs = self.state, self.cs
-        cs.p, cs.v, cs.q, cs.w = list(st.p[i]), list(st.v[i]), list(st.q[i]), list(st.w[i])
+            lib.ns2_ctrl_init(ffi.addressof(self.ctrl, i), v, g)
+        assert ffi.sizeof("ns2_ctrl_state_t") == 13 * 4 and ffi.sizeof("ns2_setpoint_t") == 13 * 4
+        self.states = np.zeros((n, 13), np.float32)   # ns2_ctrl_state_t: p, v, q, w
+        self.sps = np.zeros((n, 13), np.float32)      # ns2_setpoint_t: p, v, a, yaw, w
+        self.fa_hat = np.zeros((n, 3))
+        self.pwm = np.zeros((n, 4), np.float32)
 
     def _predict(self) -> None:
         """Each robot predicts f_a,z from its own neighbour set (decentralized)."""
@@ -108,56 +112,61 @@ class CLoopSwarm:
         scale = 2.0 ** -self.c.lib.NS2_Q_OUT_FRAC if self.learned == "fixed" else 1.0
         self.fa_hat[:, 2] = out.astype(float) * scale * G / 1000.0  # grams -> N
 
-    def run(self, duration: float, setpoints: Callable[[float], Setpoints], log_every: int = 5) -> dict:
-        lib, n = self.c.lib, len(self.types)
+    def run(self, duration: float, setpoints: Callable, log_hz: int = LOG_HZ) -> dict:
+        """Fly for ``duration`` s; ``setpoints(t, state)`` gives the Setpoints."""
+        ffi, lib, n = self.c.ffi, self.c.lib, len(self.types)
         dt = 1.0 / ATT_HZ
         steps = int(round(duration * ATT_HZ))
-        log = Log()
+        every = ATT_HZ // POS_HZ
+        log = FlightLog()
+        ptr = lambda ctype, a: ffi.cast(ctype, ffi.from_buffer(a))  # noqa: E731
+        fa32 = np.zeros((n, 3), np.float32)
         for k in range(steps):
             t = k * dt
-            if k % (ATT_HZ // POS_HZ) == 0:
-                self._predict()
-                sp = setpoints(t)
-                for i in range(n):
-                    self._load_state(i)
-                    self.sp.p, self.sp.v, self.sp.a = list(sp.p[i]), list(sp.v[i]), list(sp.a[i])
-                    self.sp.yaw, self.sp.w = float(sp.yaw[i]), [0.0, 0.0, 0.0]
-                    self.fa[0:3] = list(self.fa_hat[i])
-                    lib.ns2_ctrl_position(self.ctrl[i], self.cs, self.sp, self.fa, 1.0 / POS_HZ)
-            pwm = np.zeros((n, 4))
-            for i in range(n):
-                self._load_state(i)
-                lib.ns2_ctrl_attitude(self.ctrl[i], self.cs, dt, self.battery_V)
-                pwm[i] = list(self.ctrl[i].pwm)
-            u_c = np.array([veh.force_from_pwm(pwm[i], self.battery_V) for i, veh in enumerate(self.vehicles)])
             st = self.state
+            self.states[:] = np.concatenate([st.p, st.v, st.q, st.w], axis=1)
+            do_pos = k % every == 0
+            if do_pos:
+                self._predict()
+                sp = setpoints(t, st)
+                self.sps[:, 0:3], self.sps[:, 3:6], self.sps[:, 6:9] = sp.p, sp.v, sp.a
+                self.sps[:, 9], self.sps[:, 10:13] = sp.yaw, 0.0
+                fa32[:] = self.fa_hat
+            lib.ns2_host_ctrl_tick(self.ctrl, n, ptr("ns2_ctrl_state_t *", self.states),
+                                   ptr("ns2_setpoint_t *", self.sps),
+                                   ptr("float *", fa32) if self.learned else ffi.NULL, int(do_pos),
+                                   1.0 / POS_HZ, dt, self.battery_V, ptr("float *", self.pwm))
+            u_c = np.array([veh.force_from_pwm(self.pwm[i], self.battery_V) for i, veh in enumerate(self.vehicles)])
             f_a = self.aero(st.p, st.v, st.u.sum(axis=1)) if self.aero else np.zeros((n, 3))
+            if k % (ATT_HZ // log_hz) == 0:
+                log.t.append(t)
+                log.p.append(st.p.copy())
+                log.v.append(st.v.copy())
+                log.q.append(st.q.copy())
+                log.w.append(st.w.copy())
+                log.pwm.append(self.pwm.astype(float))
+                log.battery_V.append(np.full(n, self.battery_V))
+                log.truth_fa.append(f_a.copy())
+                log.p_d.append(self.sps[:, 0:3].astype(float))
+                log.fa_hat.append(self.fa_hat.copy())
+                log.status.append([self.ctrl[i].status for i in range(n)])
             for _ in range(self.substeps):
                 self.state = self.dyn.step(self.state, u_c, dt / self.substeps, f_a=f_a)
-            if k % log_every == 0:
-                log.t.append(t)
-                log.p.append(self.state.p.copy())
-                log.v.append(self.state.v.copy())
-                log.p_d.append(setpoints(t).p.copy())
-                log.fa_true.append(f_a.copy())
-                log.fa_hat.append(self.fa_hat.copy())
-                log.pwm.append(pwm)
-                log.status.append([c.status for c in self.ctrl])
         return log.arrays()
 
 
-def hover_setpoints(p0: np.ndarray) -> Callable[[float], Setpoints]:
+def hover_setpoints(p0: np.ndarray) -> Callable:
     p0 = np.asarray(p0, float)
     z = np.zeros_like(p0)
-    return lambda t: Setpoints(p0, z, z, np.zeros(len(p0)))
+    return lambda t, state=None: Setpoints(p0, z, z, np.zeros(len(p0)))
 
 
-def figure_eight(center, ax: float = 0.5, ay: float = 0.25, period: float = 6.0) -> Callable[[float], Setpoints]:
+def figure_eight(center, ax: float = 0.5, ay: float = 0.25, period: float = 6.0) -> Callable:
     """Lemniscate x = ax sin(wt), y = ay sin(2wt) around center (single robot)."""
     c = np.asarray(center, float)
     w = 2 * np.pi / period
 
-    def sp(t):
+    def sp(t, state=None):
         p = c + [ax * np.sin(w * t), ay * np.sin(2 * w * t), 0.0]
         v = np.array([ax * w * np.cos(w * t), 2 * ay * w * np.cos(2 * w * t), 0.0])
         a = np.array([-ax * w * w * np.sin(w * t), -4 * ay * w * w * np.sin(2 * w * t), 0.0])
