@@ -58,18 +58,30 @@ class Dynamics:
         self.B0 = np.array([veh.B0 for veh in vehicles])  # [N, 4, 4]
 
     def derivative(self, x: np.ndarray, u_c: np.ndarray, f_a: np.ndarray, tau_a: np.ndarray) -> np.ndarray:
-        s = SwarmState.unpack(x)
-        eta = np.einsum("nij,nj->ni", self.B0, s.u)
-        R = quat_to_R(s.q / np.linalg.norm(s.q, axis=1, keepdims=True))
-        v_dot = np.array([0.0, 0.0, -G]) + (R[:, :, 2] * eta[:, 0:1] + f_a) / self.m
-        w, q = s.w, s.q
-        q_dot = 0.5 * np.stack([-q[:, 1] * w[:, 0] - q[:, 2] * w[:, 1] - q[:, 3] * w[:, 2],
-                                q[:, 0] * w[:, 0] + q[:, 2] * w[:, 2] - q[:, 3] * w[:, 1],
-                                q[:, 0] * w[:, 1] + q[:, 3] * w[:, 0] - q[:, 1] * w[:, 2],
-                                q[:, 0] * w[:, 2] + q[:, 1] * w[:, 1] - q[:, 2] * w[:, 0]], -1)
-        w_dot = (np.cross(self.J * w, w) + eta[:, 1:4] + tau_a) / self.J
-        u_dot = self.lam * (u_c - s.u)
-        return np.concatenate([s.v, v_dot, q_dot, w_dot, u_dot], axis=1)
+        """x_dot for packed states [N, 17] (written out component-wise: the arrays are
+        small, so fewer numpy calls make the simulator fast)."""
+        qw, qx, qy, qz = x[:, 6], x[:, 7], x[:, 8], x[:, 9]
+        wx, wy, wz = x[:, 10], x[:, 11], x[:, 12]
+        u = x[:, 13:17]
+        eta = np.einsum("nij,nj->ni", self.B0, u)
+        inv_n2 = 1.0 / (qw * qw + qx * qx + qy * qy + qz * qz)   # R of the normalized quaternion
+        thrust = eta[:, 0] / self.m[:, 0]
+        d = np.empty_like(x)
+        d[:, 0:3] = x[:, 3:6]
+        d[:, 3] = 2.0 * (qx * qz + qw * qy) * inv_n2 * thrust + f_a[:, 0] / self.m[:, 0]
+        d[:, 4] = 2.0 * (qy * qz - qw * qx) * inv_n2 * thrust + f_a[:, 1] / self.m[:, 0]
+        d[:, 5] = (1.0 - 2.0 * (qx * qx + qy * qy) * inv_n2) * thrust + f_a[:, 2] / self.m[:, 0] - G
+        d[:, 6] = -0.5 * (qx * wx + qy * wy + qz * wz)
+        d[:, 7] = 0.5 * (qw * wx + qy * wz - qz * wy)
+        d[:, 8] = 0.5 * (qw * wy + qz * wx - qx * wz)
+        d[:, 9] = 0.5 * (qw * wz + qx * wy - qy * wx)
+        Jx, Jy, Jz = self.J[:, 0], self.J[:, 1], self.J[:, 2]
+        # J w_dot = (J w) x w + tau_u + tau_a
+        d[:, 10] = ((Jy * wy) * wz - (Jz * wz) * wy + eta[:, 1] + tau_a[:, 0]) / Jx
+        d[:, 11] = ((Jz * wz) * wx - (Jx * wx) * wz + eta[:, 2] + tau_a[:, 1]) / Jy
+        d[:, 12] = ((Jx * wx) * wy - (Jy * wy) * wx + eta[:, 3] + tau_a[:, 2]) / Jz
+        d[:, 13:17] = self.lam * (u_c - u)
+        return d
 
     def step(self, st: SwarmState, u_c: np.ndarray, dt: float, f_a=None, tau_a=None) -> SwarmState:
         """One RK4 step of length dt; f_a, tau_a (world force, body torque) held constant."""

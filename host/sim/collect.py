@@ -1,0 +1,56 @@
+"""Data collection in the simulator, as in the paper: teams of 1-3 robots of every
+type mix fly random walks (with ground contact height included) and swaps; the
+drones' logs (with sensor noise) become a training set through the same path as
+real logs (ns2codegen.data.from_logs), never through the ground truth."""
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+
+from ns2codegen.config import Config
+from ns2codegen.data.dataset import Dataset
+from ns2codegen.data.from_logs import Flight, flights_to_dataset
+
+from .cloop import CLoopSwarm
+from .scenarios import random_walk, swap
+
+POS_NOISE_M = 0.001      # motion capture
+VEL_NOISE_MPS = 0.002    # state estimate
+
+
+def teams(cfg: Config, max_size: int = 3) -> list[tuple[str, ...]]:
+    """Every multiset of 1..max_size robot types (for two types: S, L, SS, SL, LL,
+    SSS, SSL, SLL, LLL), which yields all 12 scenarios of Table data_collection."""
+    out = []
+    for n in range(1, max_size + 1):
+        out += list(itertools.combinations_with_replacement(cfg.robot_types, n))
+    return out
+
+
+def fly(cfg: Config, team, gen_dir, kind: str, duration: float, seed: int, learned=None,
+        rng: np.random.Generator | None = None) -> Flight:
+    n = len(team)
+    if kind == "swap":
+        heights = 0.4 + 0.25 * np.arange(n)
+        sp, start = swap(n, heights, radius=0.4, duration=2.5, rest=0.5, seed=seed)
+    else:
+        sp, start = random_walk(n, seed=seed)
+    sw = CLoopSwarm(cfg, list(team), gen_dir, start, aero=True, learned=learned)
+    log = sw.run(duration, sp)
+    rng = rng or np.random.default_rng(seed)
+    return Flight(list(team), log["t"], log["p"] + rng.normal(0, POS_NOISE_M, log["p"].shape),
+                  log["v"] + rng.normal(0, VEL_NOISE_MPS, log["v"].shape), log["q"], log["pwm"],
+                  log["battery_V"])
+
+
+def collect(cfg: Config, gen_dir, seconds_per_team: float, seed: int = 0, learned=None,
+            team_list=None) -> Dataset:
+    """Half random walk, half swaps per team (single robots only random walk)."""
+    flights = []
+    for k, team in enumerate(team_list or teams(cfg)):
+        kinds = ["random"] if len(team) == 1 else ["random", "swap"]
+        for j, kind in enumerate(kinds):
+            flights.append(fly(cfg, team, gen_dir, kind, seconds_per_team / len(kinds),
+                               seed=seed * 1000 + 10 * k + j, learned=learned))
+    return flights_to_dataset(cfg, flights)
