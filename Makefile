@@ -12,7 +12,7 @@ GEN := firmware/generated
 DEFAULT := build/default
 CHECKPOINT ?= $(DEFAULT)/model.pt
 
-.PHONY: all deps export test bench firmware clean
+.PHONY: all deps export test bench firmware sim clean
 
 all: export
 
@@ -50,6 +50,26 @@ firmware: deps $(GEN)/ns2_model_config.h
 
 $(GEN)/ns2_model_config.h:
 	$(MAKE) export
+
+# Simulated flights -> data -> model, two curriculum rounds, then the swap
+# experiments (table and plots in build/sim/results).  SIM_SECONDS per team.
+SIM := build/sim
+SIM_SECONDS ?= 120
+$(SIM)/round1.npz: | deps $(GEN)/ns2_model_config.h
+	@mkdir -p $(SIM)
+	$(NS2) sim collect --seconds-per-team $(SIM_SECONDS) --seed 1 --out $@
+$(SIM)/model1.pt: $(SIM)/round1.npz
+	$(NS2) train --data $< --out $@ --quiet
+$(SIM)/gen1/ns2_model_config.h: $(SIM)/model1.pt
+	$(NS2) export $< --out $(SIM)/gen1
+$(SIM)/round2.npz: $(SIM)/gen1/ns2_model_config.h
+	$(NS2) sim collect --gen $(SIM)/gen1 --learned fixed --seconds-per-team $(SIM_SECONDS) --seed 2 --out $@
+$(SIM)/model2.pt: $(SIM)/round1.npz $(SIM)/round2.npz
+	$(NS2) train --data $(SIM)/round1.npz --data $(SIM)/round2.npz --out $@ --quiet
+$(SIM)/gen2/ns2_model_config.h: $(SIM)/model2.pt
+	$(NS2) export $< --out $(SIM)/gen2
+sim: $(SIM)/gen2/ns2_model_config.h
+	$(NS2) sim swaps --gen $(SIM)/gen2 --out $(SIM)/results
 
 clean:
 	rm -rf build

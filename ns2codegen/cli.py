@@ -66,7 +66,8 @@ def _parent_ok(path) -> None:
 
 
 @main.command()
-@click.option("--data", "data_path", type=click.Path(dir_okay=False), required=True)
+@click.option("--data", "data_paths", type=click.Path(dir_okay=False), required=True, multiple=True,
+              help="data set (.npz); repeat to train on several (e.g. curriculum rounds)")
 @click.option("--config", "config_path", type=click.Path(dir_okay=False), default=None)
 @click.option("--out", type=click.Path(dir_okay=False), required=True)
 @click.option("--epochs", type=click.IntRange(min=1), default=None)
@@ -76,7 +77,7 @@ def _parent_ok(path) -> None:
 @click.option("--hidden", type=click.IntRange(min=1), default=None, help="H (overrides config)")
 @click.option("--layers", type=click.IntRange(min=2), default=None, help="L (overrides config)")
 @click.option("--quiet", is_flag=True)
-def train(data_path, config_path, out, epochs, seed, batch_size, lr, hidden, layers, quiet):
+def train(data_paths, config_path, out, epochs, seed, batch_size, lr, hidden, layers, quiet):
     """Train the heterogeneous deep set; writes a checkpoint and prints the report."""
     from tqdm import tqdm
 
@@ -88,7 +89,7 @@ def train(data_path, config_path, out, epochs, seed, batch_size, lr, hidden, lay
     overrides = {k: v for k, v in (("hidden", hidden), ("layers", layers)) if v is not None}
     if overrides:
         cfg = cfg.with_overrides(**overrides)
-    ds = Dataset.load(data_path)
+    ds = Dataset.concat([Dataset.load(p) for p in data_paths])
     _parent_ok(out)
     n_epochs = epochs or cfg.train["epochs"]
     with tqdm(total=int(len(ds) * (1 - cfg.train["validation_fraction"])) * n_epochs, unit="sample",
@@ -96,7 +97,7 @@ def train(data_path, config_path, out, epochs, seed, batch_size, lr, hidden, lay
         model, report = run(cfg, ds, epochs=epochs, seed=seed, batch_size=batch_size, lr=lr,
                             progress=bar.update)
     save_checkpoint(out, model, cfg, {"seed": report["seed"], "data_hash": ds.content_hash(),
-                                      "data_file": Path(data_path).name, "report": report})
+                                      "data_files": [Path(p).name for p in data_paths], "report": report})
     v = report["validation"]
     click.echo(json.dumps({"checkpoint": out, "validation_mse": v["mse"], "label_variance": v["label_var"],
                            "mse_per_scenario": v["mse_per_scenario"],
@@ -160,6 +161,44 @@ def hil(port, qemu, gen_dir, queries, seed, timeout):
     click.echo(json.dumps(report, indent=2))
     if report["mismatches"]:
         raise click.ClickException(f"{report['mismatches']} of {queries} results differ from the host")
+
+
+@main.group()
+def sim():
+    """Swarm simulator with the firmware controller in the loop."""
+
+
+@sim.command("collect")
+@click.option("--gen", "gen_dir", type=click.Path(file_okay=False), default="firmware/generated", show_default=True)
+@click.option("--seconds-per-team", type=click.FloatRange(min=1.0), default=60.0, show_default=True)
+@click.option("--learned", type=click.Choice(["none", "float", "fixed"]), default="none", show_default=True,
+              help="fly with the model of --gen as feed-forward (curriculum learning)")
+@click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--out", type=click.Path(dir_okay=False), required=True)
+def sim_collect(gen_dir, seconds_per_team, learned, seed, out):
+    """Fly every team of 1-3 robots (random walks and swaps) and build a data set from the logs."""
+    from ns2host.sim.collect import collect, teams
+
+    cfg = Config.load()
+    _parent_ok(out)
+    ds = collect(cfg, gen_dir, seconds_per_team, seed=seed, learned=None if learned == "none" else learned)
+    ds.save(out)
+    click.echo(f"wrote {out}: {len(ds)} samples from {len(teams(cfg))} teams, scenarios {ds.scenario_names}")
+
+
+@sim.command("swaps")
+@click.option("--gen", "gen_dir", type=click.Path(file_okay=False), required=True,
+              help="export folder of a model trained on simulated flights")
+@click.option("--out", "out_dir", type=click.Path(file_okay=False), required=True)
+@click.option("--swaps", type=click.IntRange(min=1), default=6, show_default=True)
+@click.option("--learned", type=click.Choice(["float", "fixed"]), default="fixed", show_default=True)
+def sim_swaps(gen_dir, out_dir, swaps, learned):
+    """Swap experiments S2S, L2S, SS2L, SL2S, LL2S: baseline vs learned; table and plots."""
+    from ns2host.sim.experiments import swap_experiments
+
+    res = swap_experiments(Config.load(), gen_dir, out_dir, swaps=swaps, learned=learned)
+    click.echo((Path(out_dir) / "swaps.md").read_text())
+    click.echo(json.dumps({k: round(v["improvement"], 2) for k, v in res.items()}))
 
 
 if __name__ == "__main__":

@@ -111,6 +111,29 @@ class Dataset:
                        offsets, self.nbr_type[rows], self.nbr_state[rows],
                        self.neighbor_types, self.scenario_names, dict(self.extra))
 
+    @staticmethod
+    def concat(parts: list["Dataset"]) -> "Dataset":
+        """One data set from several with the same neighbour types; scenarios are
+        merged by name and times shifted so that flights follow each other."""
+        if not parts:
+            raise DatasetError("nothing to concatenate")
+        types = parts[0].neighbor_types
+        if any(p.neighbor_types != types for p in parts):
+            raise DatasetError("data sets with different neighbour types")
+        names: list[str] = []
+        for p in parts:
+            names += [n for n in p.scenario_names if n not in names]
+        offsets, scen, times, shift = [np.zeros(1, np.int64)], [], [], 0.0
+        for p in parts:
+            offsets.append(p.nbr_offsets[1:] + offsets[-1][-1])
+            scen.append(np.array([names.index(n) for n in p.scenario_names], np.int64)[p.scenario])
+            times.append(p.time_s + shift)
+            shift += float(p.time_s.max() + 1.0) if len(p) else 0.0
+        cat = lambda name: np.concatenate([getattr(p, name) for p in parts])  # noqa: E731
+        return Dataset(cat("robot_type"), cat("label_g"), np.concatenate(scen), np.concatenate(times),
+                       np.concatenate(offsets), cat("nbr_type"), cat("nbr_state"), types, names,
+                       {"parts": [p.extra for p in parts]}).validated()
+
     # ------------------------------------------------------------------
     def save(self, path: str | Path) -> None:
         path = Path(path)
