@@ -42,6 +42,7 @@ test: deps
 bench: deps
 	@$(PYTHON) benchmarks/bench_core.py
 	@$(PYTHON) benchmarks/bench_target.py
+	@$(PYTHON) benchmarks/bench_sim.py
 
 # Cortex-M4F cross build of the library: flash, RAM, worst-case stack (JSON)
 firmware: deps $(GEN)/ns2_model_config.h

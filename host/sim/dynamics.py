@@ -40,15 +40,6 @@ class SwarmState:
         return SwarmState(x[:, 0:3], x[:, 3:6], x[:, 6:10], x[:, 10:13], x[:, 13:17])
 
 
-def quat_to_R(q: np.ndarray) -> np.ndarray:
-    """[N, 4] unit quaternions -> [N, 3, 3] rotation matrices (body to world)."""
-    w, x, y, z = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
-    return np.stack([
-        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-        np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-        np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1)], 1)
-
-
 class Dynamics:
     def __init__(self, vehicles: list[Vehicle]):
         self.vehicles = vehicles

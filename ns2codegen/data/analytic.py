@@ -16,31 +16,20 @@ import itertools
 import numpy as np
 
 from ..config import Config
-from .dataset import Dataset
+from .dataset import Dataset, scenario_name
 
 G_SMALL_UNDER_SMALL = 9.0  # g, downwash 0.3 m under a small robot (paper, Fig. "vis")
 GROUND_AT_5CM = 5.0        # g, ground effect on a small robot at z = 0.05 m
 
 
-def _short_names(names: list[str]) -> list[str]:
-    short = [n[0].upper() for n in names]
-    return short if len(set(short)) == len(short) else names
-
-
 def scenario_mixes(cfg: Config, max_neighbors: int = 2) -> list[tuple[int, tuple[int, ...], str]]:
     """[(robot type, neighbour robot types, name)] in the paper's order."""
-    short = _short_names(cfg.robot_types)
+    names = cfg.robot_types
     out = []
     for r in range(cfg.num_robot_types):
         for n in range(max_neighbors + 1):
             for mix in itertools.combinations_with_replacement(range(cfg.num_robot_types), n):
-                if n == 0:
-                    name = short[r]
-                elif n == 1:
-                    name = f"{short[mix[0]]}->{short[r]}"
-                else:
-                    name = "{" + ",".join(short[m] for m in mix) + "}->" + short[r]
-                out.append((r, mix, name))
+                out.append((r, mix, scenario_name(names, names[r], [names[m] for m in mix])))
     return out
 
 

@@ -168,6 +168,19 @@ class Dataset:
             raise DatasetError(f"cannot read data set {path}: {e}") from e
 
 
+def scenario_name(robot_types: list[str], receiver: str, others: list[str]) -> str:
+    """Table "data_collection" naming: "S", "L->S", "{S,L}->S" (first letters when
+    they are unique among the robot types, full names otherwise)."""
+    short = [n[0].upper() for n in robot_types]
+    short = dict(zip(robot_types, short if len(set(short)) == len(short) else robot_types))
+    others = sorted(others, key=robot_types.index)
+    if not others:
+        return short[receiver]
+    if len(others) == 1:
+        return f"{short[others[0]]}->{short[receiver]}"
+    return "{" + ",".join(short[o] for o in others) + "}->" + short[receiver]
+
+
 def split_by_pieces(ds: Dataset, pieces: int = 50, val_fraction: float = 0.2, seed: int = 0) -> np.ndarray:
     """Boolean validation mask: each scenario's time span cut into ``pieces`` equal pieces,
     ``val_fraction`` of the pieces (seeded) held out (paper, "Learning Results")."""

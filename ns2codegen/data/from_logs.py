@@ -15,8 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..config import Config
-from .analytic import _short_names
-from .dataset import Dataset
+from .dataset import Dataset, scenario_name
 from .labels import G, residual_force
 
 
@@ -29,17 +28,6 @@ class Flight:
     q: np.ndarray           # [T, N, 4]
     pwm: np.ndarray         # [T, N, 4] normalized
     battery_V: np.ndarray   # [T, N]
-
-
-def scenario_name(cfg: Config, receiver: str, others: list[str]) -> str:
-    """Table "data_collection" naming, e.g. "S", "L->S", "{S,L}->S"."""
-    short = dict(zip(cfg.robot_types, _short_names(cfg.robot_types)))
-    others = sorted(others, key=cfg.robot_types.index)
-    if not others:
-        return short[receiver]
-    if len(others) == 1:
-        return f"{short[others[0]]}->{short[receiver]}"
-    return "{" + ",".join(short[o] for o in others) + "}->" + short[receiver]
 
 
 def flights_to_dataset(cfg: Config, flights: list[Flight], scenario_names: list[str] | None = None) -> Dataset:
@@ -57,7 +45,7 @@ def flights_to_dataset(cfg: Config, flights: list[Flight], scenario_names: list[
         ok = ~np.isnan(fa[:, 0, 2])
         steps = np.flatnonzero(ok)
         for i in range(n):
-            name = scenario_name(cfg, fl.types[i], [fl.types[j] for j in range(n) if j != i])
+            name = scenario_name(cfg.robot_types, fl.types[i], [fl.types[j] for j in range(n) if j != i])
             if name not in names:
                 names.append(name)
             base = n_samples
