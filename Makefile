@@ -71,6 +71,7 @@ $(SIM)/gen2/ns2_model_config.h: $(SIM)/model2.pt
 	$(NS2) export $< --out $(SIM)/gen2
 sim: $(SIM)/gen2/ns2_model_config.h
 	$(NS2) sim swaps --gen $(SIM)/gen2 --out $(SIM)/results
+	$(NS2) sim rings --gen $(SIM)/gen2 --out $(SIM)/results
 
 clean:
 	rm -rf build

@@ -201,5 +201,18 @@ def sim_swaps(gen_dir, out_dir, swaps, learned):
     click.echo(json.dumps({k: round(v["improvement"], 2) for k, v in res.items()}))
 
 
+@sim.command("rings")
+@click.option("--gen", "gen_dir", type=click.Path(file_okay=False), required=True)
+@click.option("--out", "out_dir", type=click.Path(file_okay=False), required=True)
+@click.option("--duration", type=click.FloatRange(min=4.0), default=16.0, show_default=True)
+@click.option("--learned", type=click.Choice(["float", "fixed"]), default="fixed", show_default=True)
+def sim_rings(gen_dir, out_dir, duration, learned):
+    """5-robot intertwined rings and the 16-robot three rings: baseline vs learned."""
+    from ns2host.sim.experiments import ring_experiments
+
+    ring_experiments(Config.load(), gen_dir, out_dir, duration=duration, learned=learned)
+    click.echo((Path(out_dir) / "rings.md").read_text())
+
+
 if __name__ == "__main__":
     main()

@@ -11,6 +11,7 @@ from typing import Callable
 import numpy as np
 
 from ns2codegen.config import Config
+from ns2codegen.data.labels import psi1_newtons
 
 from ..cbuild import CModel
 from .aero import calibrated
@@ -94,6 +95,7 @@ class CLoopSwarm:
         self.sps = np.zeros((n, 13), np.float32)      # ns2_setpoint_t: p, v, a, yaw, w
         self.fa_hat = np.zeros((n, 3))
         self.pwm = np.zeros((n, 4), np.float32)
+        self._psi1 = np.array([veh.psi1 for veh in self.vehicles])
 
     def _predict(self) -> None:
         """Each robot predicts f_a,z from its own neighbour set (decentralized)."""
@@ -136,7 +138,7 @@ class CLoopSwarm:
                                    ptr("ns2_setpoint_t *", self.sps),
                                    ptr("float *", fa32) if self.learned else ffi.NULL, int(do_pos),
                                    1.0 / POS_HZ, dt, self.battery_V, ptr("float *", self.pwm))
-            u_c = np.array([veh.force_from_pwm(self.pwm[i], self.battery_V) for i, veh in enumerate(self.vehicles)])
+            u_c = psi1_newtons(self._psi1, self.pwm, np.full(n, self.battery_V))
             f_a = self.aero(st.p, st.v, st.u.sum(axis=1)) if self.aero else np.zeros((n, 3))
             if k % (ATT_HZ // log_hz) == 0:
                 log.t.append(t)

@@ -14,7 +14,7 @@ import numpy as np
 from ns2codegen.config import Config
 
 from .cloop import CLoopSwarm
-from .scenarios import swap
+from .scenarios import rings, swap
 from .vehicle import G
 
 # case -> (robots from the bottom up); the bottom robot is the one measured
@@ -125,4 +125,41 @@ def swap_experiments(cfg: Config, gen_dir, out_dir, swaps: int = 6, cases=None, 
     fig.savefig(out / "fa_over_time.png", dpi=110)
     plt.close(fig)
     heat_maps(cfg, gen_dir, out)
+    return results
+
+
+# name -> (robot types per ring, ring heights)
+RING_CASES = {
+    "5-robot rings": ([("small", "small", "small"), ("large", "large")], (0.5, 0.8)),
+    "16-robot three rings": ([("small",) * 6, ("large", "small", "large", "small", "small"),
+                              ("small",) * 5], (0.45, 0.75, 1.05)),
+}
+
+
+def ring_experiments(cfg: Config, gen_dir, out_dir, duration: float = 16.0, learned: str = "fixed") -> dict:
+    """Worst-case z error of every robot, BL vs NN, mean and max per type."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    results = {}
+    for name, (groups, heights) in RING_CASES.items():
+        team = [t for g in groups for t in g]
+        res = {}
+        for mode in (None, learned):
+            sp, start = rings([len(g) for g in groups], heights, radius=0.5, period=8.0)
+            log = CLoopSwarm(cfg, team, gen_dir, start, aero=True, learned=mode).run(duration, sp)
+            late = log["t"] > 2.0
+            worst = np.abs(log["p"][late, :, 2] - log["p_d"][late, :, 2]).max(axis=0)
+            res["BL" if mode is None else "NN"] = {
+                kind: {"mean_worst_z_error_m": float(worst[[t == kind for t in team]].mean()),
+                       "max_worst_z_error_m": float(worst[[t == kind for t in team]].max())}
+                for kind in sorted(set(team))}
+        results[name] = res
+    (out / "rings.json").write_text(json.dumps(results, indent=2) + "\n")
+    lines = ["| experiment | robot type | BL mean / max worst z error (cm) | NN (cm) |", "|---|---|---|---|"]
+    for name, res in results.items():
+        for kind in res["BL"]:
+            b, n = res["BL"][kind], res["NN"][kind]
+            lines.append(f"| {name} | {kind} | {100 * b['mean_worst_z_error_m']:.1f} / {100 * b['max_worst_z_error_m']:.1f}"
+                         f" | {100 * n['mean_worst_z_error_m']:.1f} / {100 * n['max_worst_z_error_m']:.1f} |")
+    (out / "rings.md").write_text("\n".join(lines) + "\n")
     return results

@@ -73,3 +73,26 @@ def random_walk(n: int, cube=((-1.0, 1.0), (-1.0, 1.0), (0.05, 1.2)), goal_perio
         return Setpoints(state["p_d"].copy(), v, np.zeros((n, 3)), np.zeros(n))
 
     return sp, start
+
+
+def rings(counts, heights, radius: float = 0.5, period: float = 8.0, seed: int = 0):
+    """Robots on horizontal circles (one per height), neighbouring rings turning in
+    opposite directions, so robots of different rings pass over each other
+    (the paper's intertwined rings: 5 robots on 2 rings, 16 robots on 3 rings)."""
+    rng = np.random.default_rng(seed)
+    ring = np.concatenate([np.full(c, k) for k, c in enumerate(counts)])
+    phase0 = np.concatenate([rng.uniform(0, 2 * np.pi) + 2 * np.pi * np.arange(c) / c for c in counts])
+    direction = np.where(ring % 2 == 0, 1.0, -1.0)
+    h = np.asarray(heights, float)[ring]
+    w = 2 * np.pi / period
+    n = len(ring)
+
+    def sp(t, state=None):
+        ang = phase0 + direction * w * t
+        p = np.column_stack([radius * np.cos(ang), radius * np.sin(ang), h])
+        v = np.column_stack([-radius * w * direction * np.sin(ang), radius * w * direction * np.cos(ang),
+                             np.zeros(n)])
+        a = np.column_stack([-radius * w * w * np.cos(ang), -radius * w * w * np.sin(ang), np.zeros(n)])
+        return Setpoints(p, v, a, np.zeros(n))
+
+    return sp, sp(0.0).p

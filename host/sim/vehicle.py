@@ -8,7 +8,6 @@ import numpy as np
 from ns2codegen.config import Config
 
 G = 9.81
-V_NORM = 4.2  # battery voltage normalization of the psi polynomials (V / 4.2)
 
 
 @dataclass(frozen=True)
@@ -33,13 +32,6 @@ class Vehicle:
                          [-a, -a, a, a],
                          [-a, a, a, -a],
                          [-self.kappa, self.kappa, -self.kappa, self.kappa]], dtype=float)
-
-    def force_from_pwm(self, pwm: np.ndarray, battery_V: float) -> np.ndarray:
-        """psi_1 (Table cfprops) in newtons; 0 for a stopped motor."""
-        p, v = np.asarray(pwm, float), battery_V / V_NORM
-        k = self.psi1
-        f_g = k[0] + k[1] * p + k[2] * v + k[3] * p * p + k[4] * p * v
-        return np.where(p > 0, np.clip(f_g, 0.0, None) * G / 1000.0, 0.0)
 
 
 def vehicle(cfg: Config, name: str) -> Vehicle:

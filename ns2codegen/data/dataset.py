@@ -182,8 +182,11 @@ def scenario_name(robot_types: list[str], receiver: str, others: list[str]) -> s
 
 
 def split_by_pieces(ds: Dataset, pieces: int = 50, val_fraction: float = 0.2, seed: int = 0) -> np.ndarray:
-    """Boolean validation mask: each scenario's time span cut into ``pieces`` equal pieces,
-    ``val_fraction`` of the pieces (seeded) held out (paper, "Learning Results")."""
+    """Boolean validation mask: each scenario's samples, in time order, cut into
+    ``pieces`` contiguous pieces of equal size (the paper's "equally split the total
+    trajectory into 50 shorter pieces"; counting samples rather than seconds keeps
+    pieces meaningful when a scenario's flights are not back to back), and
+    ``val_fraction`` of the pieces (seeded) held out."""
     rng = np.random.default_rng(seed)
     val = np.zeros(len(ds), dtype=bool)
     n_val = max(1, int(round(pieces * val_fraction)))
@@ -191,10 +194,8 @@ def split_by_pieces(ds: Dataset, pieces: int = 50, val_fraction: float = 0.2, se
         idx = np.flatnonzero(ds.scenario == s)
         if idx.size == 0:
             continue
-        t = ds.time_s[idx]
-        t0, t1 = t.min(), t.max()
-        span = (t1 - t0) if t1 > t0 else 1.0
-        piece = np.minimum(((t - t0) / span * pieces).astype(np.int64), pieces - 1)
+        idx = idx[np.argsort(ds.time_s[idx], kind="stable")]
+        piece = np.arange(idx.size) * pieces // idx.size
         held = rng.choice(pieces, size=n_val, replace=False)
         val[idx[np.isin(piece, held)]] = True
     return val

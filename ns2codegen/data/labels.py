@@ -27,12 +27,20 @@ def five_point_derivative(x: np.ndarray, h: float) -> np.ndarray:
     return d
 
 
+def psi1_newtons(psi1, pwm, battery_V) -> np.ndarray:
+    """Motor force (N) from normalized PWM and battery voltage through psi_1 (Table
+    cfprops, grams, in PWM and V / 4.2); 0 for a stopped motor.  psi1 [..., 5],
+    pwm [..., 4], battery_V [...] broadcast over the leading axes."""
+    k = np.asarray(psi1, float)
+    p = np.asarray(pwm, float)
+    v = (np.asarray(battery_V, float) / V_NORM)[..., None]
+    f_g = k[..., 0:1] + k[..., 1:2] * p + k[..., 2:3] * v + k[..., 3:4] * p * p + k[..., 4:5] * p * v
+    return np.where(p > 0, np.clip(f_g, 0.0, None) * G / 1000.0, 0.0)
+
+
 def motor_forces(pwm: np.ndarray, battery_V: np.ndarray, psi1, lam: float, h: float) -> np.ndarray:
     """[T, 4] motor forces (N) from logged PWM [T, 4] and voltage [T] with the delay."""
-    k = np.asarray(psi1, float)
-    v = (battery_V / V_NORM)[:, None]
-    f_g = k[0] + k[1] * pwm + k[2] * v + k[3] * pwm * pwm + k[4] * pwm * v
-    u_c = np.where(pwm > 0, np.clip(f_g, 0.0, None) * G / 1000.0, 0.0)
+    u_c = psi1_newtons(np.asarray(psi1, float)[None, :], pwm, battery_V)
     a = np.exp(-lam * h)
     u = np.empty_like(u_c)
     u[0] = u_c[0]  # logs start in steady state (hover)
