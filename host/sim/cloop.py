@@ -16,7 +16,7 @@ from ns2codegen.data.labels import psi1_newtons
 from ..cbuild import CModel
 from .aero import calibrated
 from .dynamics import Dynamics, SwarmState
-from .vehicle import G, Vehicle, vehicle
+from .vehicle import G, Vehicle, base_type, vehicle
 
 ATT_HZ, POS_HZ = 500, 100
 
@@ -69,7 +69,7 @@ class CLoopSwarm:
         interactions (host/sim/aero.py) on or off."""
         self.cfg = cfg
         self.types = types
-        self.type_idx = np.array([cfg.robot_types.index(t) for t in types])
+        self.type_idx = np.array([cfg.robot_types.index(base_type(t)) for t in types])
         self.vehicles = [vehicle(cfg, t) for t in types]
         self.dyn = Dynamics(self.vehicles)
         self.state = SwarmState.hover(positions, self.vehicles)

@@ -24,6 +24,7 @@ SWAP_CASES = {
     "SS2L": ("large", "small", "small"),
     "SL2S": ("small", "small", "large"),
     "LL2S": ("small", "large", "large"),
+    "LL2S*": ("small*", "large", "large"),  # the small robot with stronger motors
 }
 SWAP_S, REST_S, SPACING_M, BOTTOM_M = 2.5, 0.5, 0.3, 0.5
 

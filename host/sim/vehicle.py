@@ -34,7 +34,23 @@ class Vehicle:
                          [-self.kappa, self.kappa, -self.kappa, self.kappa]], dtype=float)
 
 
+STRONG = 1.35  # the "S*" variant: motors with 35 % more force at the same PWM
+
+
+def base_type(name: str) -> str:
+    """Robot type of a simulated vehicle name ("small*" is a small robot)."""
+    return name.rstrip("*")
+
+
 def vehicle(cfg: Config, name: str) -> Vehicle:
+    """Parameters of robot type ``name``; "<type>*" is the type with stronger motors
+    (psi_1 and the maximum force scaled by STRONG, psi_2 its inverse accordingly)."""
+    if name.endswith("*"):
+        v = vehicle(cfg, base_type(name))
+        k = STRONG
+        p2 = v.psi2
+        return Vehicle(name, v.mass, v.inertia, v.arm, v.kappa, v.lam, v.f_max * k, v.diameter, v.psi1 * k,
+                       np.array([p2[0], p2[1] / k, p2[2], p2[3] / k ** 2, p2[4] / k]))
     t = cfg.vehicle(name)
     for key in ("arm_length_m", "inertia_kgm2", "thrust_to_torque_m", "psi1", "psi2"):
         if key not in t:
