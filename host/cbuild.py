@@ -129,32 +129,16 @@ def compile_objects(gen_dir: Path, out: Path, cc: str, extra: list[str], f: dict
     return objs
 
 
-@lru_cache(maxsize=None)
-def load(gen_dir: str | Path):
-    """Build (or reuse) the host library for the headers in ``gen_dir``; returns (ffi, lib)."""
-    from cffi import FFI
-
-    gen_dir = Path(gen_dir).resolve()
-    for g in GENERATED:
-        if not (gen_dir / g).is_file():
-            raise BuildError(f"{gen_dir / g} missing: run `ns2 export` first")
-    f = flags()
-    key = _key(gen_dir, f)
-    name = f"_ns2_host_{key}"
+def _module(key: str, prefix: str, build) -> tuple:
+    """Build a cffi module once into BUILD_ROOT/<key> (``build(tmp, name)`` compiles it)
+    and import it; concurrent builders race safely on the final rename."""
+    name = f"{prefix}_{key}"
     final = BUILD_ROOT / key
     if not final.is_dir():
         BUILD_ROOT.mkdir(parents=True, exist_ok=True)
         tmp = Path(tempfile.mkdtemp(dir=BUILD_ROOT, prefix=".tmp-"))
         try:
-            objs = compile_objects(gen_dir, tmp, host_cc(), ["-fPIC"], f)
-            ffi = FFI()
-            ffi.cdef(CDEF)
-            ffi.set_source(name, '#include "ns2_deepset.h"\n#include "ns2_peers.h"\n#include "ns2_controller.h"\n#include "ns2_ctrl_vectors.h"\n#include "ns2_host.h"\n',
-                           include_dirs=[str(REPO / i) for i in f["NS2_INCLUDES"]] + [str(gen_dir), str(REPO / "host"),
-                                         str(REPO / "firmware" / "target")],
-                           extra_objects=[str(o) for o in objs],
-                           extra_compile_args=["-std=c99", "-O2", "-ffp-contract=off"])
-            ffi.compile(tmpdir=str(tmp), verbose=False)
+            build(tmp, name)
             try:
                 os.rename(tmp, final)
             except OSError:  # built concurrently by another process
@@ -168,6 +152,62 @@ def load(gen_dir: str | Path):
     sys.modules[name] = mod
     spec.loader.exec_module(mod)
     return mod.ffi, mod.lib
+
+
+@lru_cache(maxsize=None)
+def load(gen_dir: str | Path):
+    """Build (or reuse) the host library for the headers in ``gen_dir``; returns (ffi, lib)."""
+    from cffi import FFI
+
+    gen_dir = Path(gen_dir).resolve()
+    for g in GENERATED:
+        if not (gen_dir / g).is_file():
+            raise BuildError(f"{gen_dir / g} missing: run `ns2 export` first")
+    f = flags()
+
+    def build(tmp: Path, name: str) -> None:
+        objs = compile_objects(gen_dir, tmp, host_cc(), ["-fPIC"], f)
+        ffi = FFI()
+        ffi.cdef(CDEF)
+        ffi.set_source(name, "".join(f'#include "{h}"\n' for h in (
+                           "ns2_deepset.h", "ns2_peers.h", "ns2_controller.h", "ns2_ctrl_vectors.h", "ns2_host.h")),
+                       include_dirs=[str(REPO / i) for i in f["NS2_INCLUDES"]] + [str(gen_dir), str(REPO / "host"),
+                                     str(REPO / "firmware" / "target")],
+                       extra_objects=[str(o) for o in objs],
+                       extra_compile_args=["-std=c99", "-O2", "-ffp-contract=off"])
+        ffi.compile(tmpdir=str(tmp), verbose=False)
+
+    return _module(_key(gen_dir, f), "_ns2_host", build)
+
+
+SIM_CDEF = """
+void ns2_sim_rk4(uint32_t n, double *x, const double *par, const double *u_c, const double *f_a,
+                 const double *tau_a, double dt);
+"""
+
+
+@lru_cache(maxsize=None)
+def load_sim():
+    """The simulator's C kernel (host/ns2_sim.c, no model needed); returns (ffi, lib)."""
+    from cffi import FFI
+
+    src = REPO / "host" / "ns2_sim.c"
+    key = "sim_" + hashlib.sha256(src.read_bytes() + SIM_CDEF.encode() + host_cc().encode()).hexdigest()[:16]
+    f = flags()
+
+    def build(tmp: Path, name: str) -> None:
+        obj = tmp / "ns2_sim.o"
+        cmd = [host_cc(), "-std=c99", "-O2", *f["NS2_WARN_FLAGS"], "-fPIC", "-c", str(src), "-o", str(obj)]
+        r = subprocess.run(cmd, capture_output=True, text=True)
+        if r.returncode != 0:
+            raise BuildError(f"{' '.join(cmd)}\n{r.stdout}{r.stderr}")
+        ffi = FFI()
+        ffi.cdef(SIM_CDEF)
+        ffi.set_source(name, "#include <stdint.h>\n" + SIM_CDEF, extra_objects=[str(obj)],
+                       extra_compile_args=["-std=c99", "-O2"], libraries=["m"])
+        ffi.compile(tmpdir=str(tmp), verbose=False)
+
+    return _module(key, "_ns2_sim", build)
 
 
 class CModel:

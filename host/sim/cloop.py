@@ -64,7 +64,7 @@ class FlightLog:
 
 class CLoopSwarm:
     def __init__(self, cfg: Config, types: list[str], gen_dir, positions, learned: str | None = None,
-                 aero: bool = False, battery_V: float = 3.9, substeps: int = 2):
+                 aero: bool = False, battery_V: float = 3.9, substeps: int = 1):
         """learned: None (baseline, f_a = 0), "float" or "fixed"; aero: ground-truth
         interactions (host/sim/aero.py) on or off."""
         self.cfg = cfg

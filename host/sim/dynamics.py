@@ -1,11 +1,13 @@
-"""Rigid-body quadrotor dynamics with motor delay, eq. (dynamics), for N robots at once:
+"""Rigid-body quadrotor dynamics with motor delay, eq. (dynamics), for N robots at once
+(the RK4 step is the C kernel host/ns2_sim.c, called once per step for all robots):
 
   p_dot = v                       m v_dot = m g + R f_u + f_a,   f_u = [0; 0; T]
   q_dot = 1/2 q (x) [0; w]        J w_dot = J w x w + tau_u + tau_a
   eta = [T; tau_u] = B0 u         u_dot = lambda (u_c - u)
 
 State per robot: p (3), v (3), q (4, [w x y z], body to world), w (3), u (4, motor
-forces in N).  Integrated with classic RK4; f_a, tau_a and u_c are held over a step.
+forces in N).  Classic RK4; f_a, tau_a and u_c are held over a step; the quaternion is
+renormalized after each step.
 """
 from __future__ import annotations
 
@@ -41,50 +43,24 @@ class SwarmState:
 
 
 class Dynamics:
-    def __init__(self, vehicles: list[Vehicle]):
-        self.vehicles = vehicles
-        self.m = np.array([veh.mass for veh in vehicles])[:, None]
-        self.J = np.array([veh.inertia for veh in vehicles])
-        self.lam = np.array([veh.lam for veh in vehicles])[:, None]
-        self.B0 = np.array([veh.B0 for veh in vehicles])  # [N, 4, 4]
+    """RK4 of eq. (dynamics) for N robots; the step runs in C (host/ns2_sim.c)."""
 
-    def derivative(self, x: np.ndarray, u_c: np.ndarray, f_a: np.ndarray, tau_a: np.ndarray) -> np.ndarray:
-        """x_dot for packed states [N, 17] (written out component-wise: the arrays are
-        small, so fewer numpy calls make the simulator fast)."""
-        qw, qx, qy, qz = x[:, 6], x[:, 7], x[:, 8], x[:, 9]
-        wx, wy, wz = x[:, 10], x[:, 11], x[:, 12]
-        u = x[:, 13:17]
-        eta = np.einsum("nij,nj->ni", self.B0, u)
-        inv_n2 = 1.0 / (qw * qw + qx * qx + qy * qy + qz * qz)   # R of the normalized quaternion
-        thrust = eta[:, 0] / self.m[:, 0]
-        d = np.empty_like(x)
-        d[:, 0:3] = x[:, 3:6]
-        d[:, 3] = 2.0 * (qx * qz + qw * qy) * inv_n2 * thrust + f_a[:, 0] / self.m[:, 0]
-        d[:, 4] = 2.0 * (qy * qz - qw * qx) * inv_n2 * thrust + f_a[:, 1] / self.m[:, 0]
-        d[:, 5] = (1.0 - 2.0 * (qx * qx + qy * qy) * inv_n2) * thrust + f_a[:, 2] / self.m[:, 0] - G
-        d[:, 6] = -0.5 * (qx * wx + qy * wy + qz * wz)
-        d[:, 7] = 0.5 * (qw * wx + qy * wz - qz * wy)
-        d[:, 8] = 0.5 * (qw * wy + qz * wx - qx * wz)
-        d[:, 9] = 0.5 * (qw * wz + qx * wy - qy * wx)
-        Jx, Jy, Jz = self.J[:, 0], self.J[:, 1], self.J[:, 2]
-        # J w_dot = (J w) x w + tau_u + tau_a
-        d[:, 10] = ((Jy * wy) * wz - (Jz * wz) * wy + eta[:, 1] + tau_a[:, 0]) / Jx
-        d[:, 11] = ((Jz * wz) * wx - (Jx * wx) * wz + eta[:, 2] + tau_a[:, 1]) / Jy
-        d[:, 12] = ((Jx * wx) * wy - (Jy * wy) * wx + eta[:, 3] + tau_a[:, 2]) / Jz
-        d[:, 13:17] = self.lam * (u_c - u)
-        return d
+    def __init__(self, vehicles: list[Vehicle]):
+        from ..cbuild import load_sim
+
+        self.ffi, self.lib = load_sim()
+        self.vehicles = vehicles
+        self.par = np.ascontiguousarray(np.array(
+            [[v.mass, *v.inertia, v.lam, *v.B0.ravel()] for v in vehicles], float))
 
     def step(self, st: SwarmState, u_c: np.ndarray, dt: float, f_a=None, tau_a=None) -> SwarmState:
-        """One RK4 step of length dt; f_a, tau_a (world force, body torque) held constant."""
+        """One RK4 step of length dt; f_a (world force), tau_a (body torque) and the
+        motor command u_c (N) held constant."""
         n = len(self.vehicles)
-        f_a = np.zeros((n, 3)) if f_a is None else f_a
-        tau_a = np.zeros((n, 3)) if tau_a is None else tau_a
-        x = st.pack()
-        k1 = self.derivative(x, u_c, f_a, tau_a)
-        k2 = self.derivative(x + 0.5 * dt * k1, u_c, f_a, tau_a)
-        k3 = self.derivative(x + 0.5 * dt * k2, u_c, f_a, tau_a)
-        k4 = self.derivative(x + dt * k3, u_c, f_a, tau_a)
-        x = x + dt / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
-        out = SwarmState.unpack(x.copy())
-        out.q /= np.linalg.norm(out.q, axis=1, keepdims=True)
-        return out
+        x = np.ascontiguousarray(st.pack(), float)
+        f_a = np.zeros((n, 3)) if f_a is None else np.ascontiguousarray(f_a, float)
+        tau_a = np.zeros((n, 3)) if tau_a is None else np.ascontiguousarray(tau_a, float)
+        u_c = np.ascontiguousarray(u_c, float)
+        buf = lambda a: self.ffi.cast("double *", self.ffi.from_buffer(a))  # noqa: E731
+        self.lib.ns2_sim_rk4(n, buf(x), buf(self.par), buf(u_c), buf(f_a), buf(tau_a), dt)
+        return SwarmState.unpack(x)
