@@ -6,7 +6,7 @@ import tempfile
 from pathlib import Path
 
 
-def _file_mode() -> int:
+def file_mode() -> int:
     """Mode of a newly created file under the current umask (mkstemp makes 0600)."""
     umask = os.umask(0)
     os.umask(umask)
@@ -24,7 +24,7 @@ def atomic_write_bytes(path: Path, data: bytes) -> None:
     except OSError as e:
         raise OutputError(f"cannot write to {path.parent}: {e.strerror or e}") from e
     try:
-        os.chmod(tmp, _file_mode())
+        os.chmod(tmp, file_mode())
         with os.fdopen(fd, "wb") as f:
             f.write(data)
             f.flush()
@@ -52,7 +52,7 @@ def atomic_write_files(folder: Path, files: dict[str, str]) -> None:
         for name, text in files.items():
             fd, tmp = tempfile.mkstemp(dir=folder, prefix="." + name, suffix=".tmp")
             staged.append((tmp, folder / name))
-            os.chmod(tmp, _file_mode())
+            os.chmod(tmp, file_mode())
             with os.fdopen(fd, "w", encoding="utf-8", newline="\n") as f:
                 f.write(text)
                 f.flush()

@@ -25,6 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ..fileio import file_mode
+
 FORMAT = "ns2codegen-dataset-v1"
 
 
@@ -141,6 +143,7 @@ class Dataset:
                            "scenario_names": self.scenario_names, "extra": self.extra})
         fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp.npz")
         os.close(fd)
+        os.chmod(tmp, file_mode())
         try:
             np.savez_compressed(tmp, meta=np.array(meta), robot_type=self.robot_type, label_g=self.label_g,
                                 scenario=self.scenario, time_s=self.time_s, nbr_offsets=self.nbr_offsets,
