@@ -12,7 +12,7 @@ GEN := firmware/generated
 DEFAULT := build/default
 CHECKPOINT ?= $(DEFAULT)/model.pt
 
-.PHONY: all deps export test bench firmware sim clean
+.PHONY: all deps export test bench firmware sim paper-data clean
 
 all: export
 
@@ -72,6 +72,13 @@ $(SIM)/gen2/ns2_model_config.h: $(SIM)/model2.pt
 sim: $(SIM)/gen2/ns2_model_config.h
 	$(NS2) sim swaps --gen $(SIM)/gen2 --out $(SIM)/results
 	$(NS2) sim rings --gen $(SIM)/gen2 --out $(SIM)/results
+
+# The paper-sized simulated data set (1.4 M samples), the 5 networks trained on it,
+# the H/L ablation (about half an hour on 2 cores; JSON in build/paper_data.json)
+paper-data: deps
+	@mkdir -p build
+	$(PYTHON) benchmarks/paper_data.py > build/paper_data.json.tmp && mv build/paper_data.json.tmp build/paper_data.json
+	@cat build/paper_data.json
 
 clean:
 	rm -rf build
