@@ -37,6 +37,7 @@ typedef struct { int32_t status; uint16_t n_used; uint16_t n_invalid; uint16_t n
 #define NS2_MAX_NEIGHBORS ...
 #define NS2_HIDDEN ...
 #define NS2_Q_OUT_FRAC ...
+#define NS2_ERR_JOB ...
 float ns2_predict_f32(uint8_t robot_type, const float p[3], const float v[3],
                       const ns2_neighbor_t *neighbors, uint16_t n_neighbors, ns2_info_t *info);
 int16_t ns2_predict_q15(uint8_t robot_type, const float p[3], const float v[3],
@@ -45,6 +46,13 @@ float ns2_predict_q15_g(uint8_t robot_type, const float p[3], const float v[3],
                         const ns2_neighbor_t *neighbors, uint16_t n_neighbors, ns2_info_t *info);
 uint16_t ns2_select_neighbors(uint8_t robot_type, const ns2_neighbor_t *neighbors,
                               uint16_t n_neighbors, uint16_t *idx, ns2_info_t *info);
+typedef struct { ns2_info_t info; uint8_t robot_type; uint8_t path; uint16_t n_inputs; uint16_t next; ...; } ns2_job_t;
+int32_t ns2_job_begin(ns2_job_t *job, uint8_t robot_type, const float p[3], const float v[3],
+                      const ns2_neighbor_t *neighbors, uint16_t n_neighbors);
+uint16_t ns2_job_step_f32(ns2_job_t *job, uint16_t max_phi);
+uint16_t ns2_job_step_q15(ns2_job_t *job, uint16_t max_phi);
+float ns2_job_finish_f32(ns2_job_t *job, ns2_info_t *info);
+int16_t ns2_job_finish_q15(ns2_job_t *job, ns2_info_t *info);
 #define NS2_PEERS_MAX ...
 typedef struct { uint8_t id; uint8_t type; uint8_t samples; uint32_t t_ms; float p[3]; float v[3]; } ns2_peer_t;
 typedef struct { ns2_peer_t peer[...]; uint8_t count; float alpha; } ns2_peers_t;
@@ -69,7 +77,7 @@ typedef struct { ns2_ctrl_state_t s; ns2_setpoint_t sp; float fa[3]; float dt_po
                  uint32_t flags; } ns2_step_in_t;
 typedef struct { float u[4]; float pwm[4]; float T_d, T_d_dot; uint32_t status; } ns2_step_out_t;
 void ns2_ctrl_run_steps(ns2_ctrl_t *c, const ns2_step_in_t *in, ns2_step_out_t *out, uint32_t n);
-void ns2_host_predict_batch(int fixed, uint32_t n_queries, const uint8_t *robot_type,
+void ns2_host_predict_batch(int fixed, uint16_t slice, uint32_t n_queries, const uint8_t *robot_type,
                             const float *p, const float *v, const uint32_t *offsets,
                             const ns2_neighbor_t *neighbors, float *out_f, int16_t *out_q,
                             ns2_info_t *infos);
@@ -232,8 +240,9 @@ class CModel:
     def _ptr(self, ctype: str, a: np.ndarray):
         return self.ffi.cast(ctype, self.ffi.from_buffer(a))
 
-    def predict(self, q, fixed: bool) -> tuple[np.ndarray, np.ndarray]:
-        """Run queries.Queries through the C; returns (outputs, info records)."""
+    def predict(self, q, fixed: bool, slice: int = 0) -> tuple[np.ndarray, np.ndarray]:
+        """Run queries.Queries through the C; returns (outputs, info records).
+        slice > 0: through the sliced API (ns2_job_*), slice phi evaluations per step."""
         given = q.given()
         counts = given.sum(1)
         offsets = np.zeros(len(q) + 1, np.uint32)
@@ -247,7 +256,7 @@ class CModel:
         out_f = np.zeros(len(q), np.float32)
         out_q = np.zeros(len(q), np.int16)
         infos = np.zeros(len(q), self.info_dtype)
-        self.lib.ns2_host_predict_batch(int(fixed), len(q), self._ptr("uint8_t *", rt), self._ptr("float *", p),
+        self.lib.ns2_host_predict_batch(int(fixed), slice, len(q), self._ptr("uint8_t *", rt), self._ptr("float *", p),
                                         self._ptr("float *", v), self._ptr("uint32_t *", offsets),
                                         self._ptr("ns2_neighbor_t *", nb), self._ptr("float *", out_f),
                                         self._ptr("int16_t *", out_q), self._ptr("ns2_info_t *", infos))

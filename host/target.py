@@ -32,7 +32,10 @@ QEMU = "qemu-system-arm"
 QUERY_DT = np.dtype([("robot_type", "u1"), ("pad", "u1"), ("n", "<u2"), ("p", "<f4", 3), ("v", "<f4", 3)])
 NBR_DT = np.dtype({"names": ["type", "rel"], "formats": ["u1", ("<f4", 6)], "offsets": [0, 4], "itemsize": 28})
 INFO_DT = [("status", "<i4"), ("n_used", "<u2"), ("n_invalid", "<u2"), ("n_outside", "<u2"), ("n_truncated", "<u2")]
-RESULT_DT = np.dtype([("f32", "<f4"), ("q15", "<i2"), ("pad", "<u2"), ("info_f32", INFO_DT), ("info_q15", INFO_DT)])
+# f32/q15: ns2_predict_*; *_sliced: the same query through ns2_job_* in slices of
+# 1 + (query index mod 5) phi evaluations
+RESULT_DT = np.dtype([("f32", "<f4"), ("q15", "<i2"), ("pad", "<u2"), ("info_f32", INFO_DT), ("info_q15", INFO_DT),
+                      ("f32_sliced", "<f4"), ("q15_sliced", "<i2"), ("pad2", "<u2")])
 
 
 def have_toolchain() -> bool:

@@ -189,3 +189,45 @@ def test_c_api_guards(exported, cmodel):
     assert y == lib.ns2_predict_f32(0, p, v, ffi.NULL, 0, info) and info.status == 0
     assert lib.ns2_predict_q15_g(0, p, v, ffi.NULL, 0, info) == \
         lib.ns2_predict_q15(0, p, v, ffi.NULL, 0, info) * 2.0 ** -lib.NS2_Q_OUT_FRAC
+
+
+@pytest.mark.parametrize("fixed", [False, True])
+def test_sliced_prediction_bit_exact_with_one_shot(cmodel, query_sets, fixed):
+    """ns2_job_* (the prediction spread over control ticks) gives the same bits and
+    counters as ns2_predict_*, for every slicing, on 25k queries with 0..max+4
+    neighbours, NaN/Inf and bad types included."""
+    q = query_sets[0]
+    one, info1 = cmodel.predict(q, fixed)
+    bits = (lambda a: a.view(np.uint16)) if fixed else _bits
+    for sl in (1, 3, 4, 17):
+        sliced, info = cmodel.predict(q, fixed, slice=sl)
+        mismatch = np.flatnonzero(bits(sliced) != bits(one))
+        assert mismatch.size == 0, f"slice {sl}: {mismatch.size} mismatches, first at {mismatch[:5]}"
+        assert np.array_equal(info, info1)
+    assert (info1["status"] != 0).any() and (info1["n_used"] >= 4).any()
+
+
+def test_sliced_api_guards(cmodel):
+    ffi, lib = cmodel.ffi, cmodel.lib
+    info = ffi.new("ns2_info_t *")
+    p = ffi.new("float[3]", [0.0, 0.0, 0.5])
+    v = ffi.new("float[3]", [0.0, 0.0, 0.0])
+    nb = ffi.new("ns2_neighbor_t[2]", [{"type": 0, "rel": [0.0, 0.0, 0.3, 0, 0, 0]},
+                                       {"type": 1, "rel": [0.05, 0.0, 0.4, 0, 0, 0]}])
+    job = ffi.new("ns2_job_t *")  # zeroed: never begun
+    assert lib.ns2_job_step_q15(job, 4) == 0
+    assert lib.ns2_job_finish_q15(job, info) == 0 and info.status == lib.NS2_ERR_JOB
+    assert lib.ns2_job_finish_f32(ffi.NULL, info) == 0.0 and info.status == lib.NS2_ERR_JOB
+    assert lib.ns2_job_begin(ffi.NULL, 0, p, v, nb, 2) == lib.NS2_ERR_JOB
+    # a begun job: 3 phi inputs (environment + 2), stepped 2 then finished
+    assert lib.ns2_job_begin(job, 0, p, v, nb, 2) == 0
+    assert lib.ns2_job_step_f32(job, 2) == 1
+    assert lib.ns2_job_step_q15(job, 1) == 0  # the other path: refused
+    f = lib.ns2_job_finish_f32(job, info)
+    assert info.status == 0 and info.n_used == 2
+    assert f == lib.ns2_predict_f32(0, p, v, nb, 2, ffi.NULL)
+    assert lib.ns2_job_finish_q15(job, info) == 0 and info.status == lib.NS2_ERR_JOB
+    # a failed begin keeps its own error through finish
+    assert lib.ns2_job_begin(job, 9, p, v, nb, 2) == -1
+    assert lib.ns2_job_step_q15(job, 4) == 0
+    assert lib.ns2_job_finish_q15(job, info) == 0 and info.status == -1

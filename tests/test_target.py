@@ -20,6 +20,8 @@ def _compare(exported, cmodel, q, res):
     assert np.array_equal(bits, f_ref.view(np.uint32)), np.flatnonzero(bits != f_ref.view(np.uint32))[:5]
     assert np.array_equal(bits, f_host.view(np.uint32))
     assert np.array_equal(res["q15"], q_ref) and np.array_equal(res["q15"], q_host)
+    assert np.array_equal(res["f32_sliced"].view(np.uint32), bits)  # ns2_job_*, sliced
+    assert np.array_equal(res["q15_sliced"], res["q15"])
     for key in ("status", "n_used", "n_invalid", "n_outside", "n_truncated"):
         assert np.array_equal(res["info_f32"][key], info[key]), key
         assert np.array_equal(res["info_q15"][key], info[key]), key

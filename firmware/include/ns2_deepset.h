@@ -36,6 +36,7 @@ extern "C" {
 #define NS2_ERR_ROBOT_TYPE (-1) /* robot_type >= NS2_NUM_ROBOT_TYPES */
 #define NS2_ERR_STATE (-2)      /* own position/velocity NULL or not finite */
 #define NS2_ERR_NULL (-3)       /* n_neighbors > 0 but neighbors == NULL */
+#define NS2_ERR_JOB (-4)        /* job NULL, not begun, or stepped by the other path */
 
 typedef struct {
     uint8_t type;   /* robot type of the neighbour, 0 .. NS2_NUM_ROBOT_TYPES-1 */
@@ -73,6 +74,46 @@ int16_t ns2_predict_q15(uint8_t robot_type, const float p[3], const float v[3],
 /* ns2_predict_q15 converted to grams (exact: q * 2^-NS2_Q_OUT_FRAC). */
 float ns2_predict_q15_g(uint8_t robot_type, const float p[3], const float v[3],
                         const ns2_neighbor_t *neighbors, uint16_t n_neighbors, ns2_info_t *info);
+
+/*
+ * Prediction in slices, to spread one prediction over several control ticks
+ * (e.g. the five 500 Hz attitude ticks of one 100 Hz position period):
+ *
+ *   ns2_job_begin(&job, type, p, v, nb, n);        selects and copies the inputs
+ *   ns2_job_step_q15(&job, 4);                      up to 4 phi evaluations per call
+ *   ...
+ *   int16_t fa = ns2_job_finish_q15(&job, &info);   remaining phi, then rho
+ *
+ * The neighbour array is only read by ns2_job_begin (the clamped phi inputs
+ * are copied into the job).  The result is bit for bit that of
+ * ns2_predict_q15/_f32 on the same arguments, however the work is sliced: the
+ * same operations run in the same order.  A job is stepped and finished by one
+ * path (_f32 or _q15); the other path's calls return NS2_ERR_JOB (result 0),
+ * as do the calls on a job that was never begun but zero-initialized (static).
+ * ns2_job_step_* returns the number of phi evaluations still to do (0 when the
+ * job failed, is finished or is not begun).
+ */
+typedef struct {
+    ns2_info_t info;
+    uint8_t robot_type;
+    uint8_t path;                                /* internal: not begun, f32, q15 or fresh */
+    uint16_t n_inputs;                           /* phi inputs: the environment + info.n_used */
+    uint16_t next;                               /* next phi input to evaluate */
+    uint8_t type[NS2_MAX_NEIGHBORS + 1];         /* neighbour type of each phi input */
+    float x[NS2_MAX_NEIGHBORS + 1][6];           /* clamped phi inputs, environment first */
+    float h_f32[NS2_HIDDEN];                     /* latent sum, float path */
+    int32_t h_q15[NS2_HIDDEN];                   /* latent sum, fixed-point path */
+} ns2_job_t;
+
+/* Returns info.status (NS2_OK or NS2_ERR_*); on error the job finishes with 0. */
+int32_t ns2_job_begin(ns2_job_t *job, uint8_t robot_type, const float p[3], const float v[3],
+                      const ns2_neighbor_t *neighbors, uint16_t n_neighbors);
+uint16_t ns2_job_step_f32(ns2_job_t *job, uint16_t max_phi);
+uint16_t ns2_job_step_q15(ns2_job_t *job, uint16_t max_phi);
+/* f_a,z in grams (float) or in Q NS2_Q_OUT_FRAC (fixed); info (may be NULL)
+ * receives the job's counters and status. */
+float ns2_job_finish_f32(ns2_job_t *job, ns2_info_t *info);
+int16_t ns2_job_finish_q15(ns2_job_t *job, ns2_info_t *info);
 
 #ifdef __cplusplus
 }

@@ -143,13 +143,28 @@ static const float *net_f32(const ns2_f32_net_t *net, const float *x, float buf[
     return in;
 }
 
+/* h = phi_t(x) (first input) or h += phi_t(x) */
+static void phi_add_f32(float h[NS2_HIDDEN], uint8_t t, const float x[6], int first)
+{
+    float buf[2][NS2_F32_BUF];
+    const float *phi = net_f32(&ns2_f32_phi[t], x, buf);
+    for (int k = 0; k < NS2_HIDDEN; ++k) {
+        h[k] = first ? phi[k] : h[k] + phi[k];
+    }
+}
+
+static float rho_f32(uint8_t robot_type, const float h[NS2_HIDDEN])
+{
+    float buf[2][NS2_F32_BUF];
+    return net_f32(&ns2_f32_rho[robot_type], h, buf)[0];
+}
+
 float ns2_predict_f32(uint8_t robot_type, const float p[3], const float v[3],
                       const ns2_neighbor_t *neighbors, uint16_t n_neighbors, ns2_info_t *info)
 {
     ns2_info_t local;
     ns2_info_t *inf = info != NULL ? info : &local;
     float x[6];
-    float buf[2][NS2_F32_BUF];
     float h[NS2_HIDDEN];
     uint16_t idx[NS2_MAX_NEIGHBORS];
     uint16_t n_used;
@@ -157,17 +172,35 @@ float ns2_predict_f32(uint8_t robot_type, const float p[3], const float v[3],
     if (ns2_prepare(robot_type, p, v, neighbors, n_neighbors, x, idx, &n_used, inf) != NS2_OK) {
         return 0.0f;
     }
-    const float *phi = net_f32(&ns2_f32_phi[NS2_ENV_TYPE], x, buf);
-    for (int k = 0; k < NS2_HIDDEN; ++k) {
-        h[k] = phi[k];
-    }
+    phi_add_f32(h, NS2_ENV_TYPE, x, 1);
     for (uint16_t j = 0; j < n_used; ++j) {
         const ns2_neighbor_t *nb = &neighbors[idx[j]];
         ns2_clamp_input(nb->type, nb->rel, x);
-        phi = net_f32(&ns2_f32_phi[nb->type], x, buf);
-        for (int k = 0; k < NS2_HIDDEN; ++k) {
-            h[k] += phi[k];
-        }
+        phi_add_f32(h, nb->type, x, 0);
     }
-    return net_f32(&ns2_f32_rho[robot_type], h, buf)[0];
+    return rho_f32(robot_type, h);
+}
+
+uint16_t ns2_job_step_f32(ns2_job_t *job, uint16_t max_phi)
+{
+    if (!ns2_job_claim(job, NS2_JOB_F32)) {
+        return 0;
+    }
+    for (uint16_t k = 0; k < max_phi && job->next < job->n_inputs; ++k) {
+        phi_add_f32(job->h_f32, job->type[job->next], job->x[job->next], job->next == 0u);
+        job->next++;
+    }
+    return (uint16_t)(job->n_inputs - job->next);
+}
+
+float ns2_job_finish_f32(ns2_job_t *job, ns2_info_t *info)
+{
+    float r = 0.0f;
+    const int claimed = ns2_job_claim(job, NS2_JOB_F32);
+    if (claimed) {
+        (void)ns2_job_step_f32(job, job->n_inputs);
+        r = rho_f32(job->robot_type, job->h_f32);
+    }
+    ns2_job_info(job, claimed, info);
+    return r;
 }

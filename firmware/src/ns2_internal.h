@@ -15,4 +15,19 @@ int32_t ns2_prepare(uint8_t robot_type, const float p[3], const float v[3],
                     float x_env[6], uint16_t idx[NS2_MAX_NEIGHBORS], uint16_t *n_used,
                     ns2_info_t *info);
 
+/* ns2_job_t.path: not begun or failed (a zeroed job is not begun); stepped by
+ * f32 / q15; begun but not stepped yet */
+#define NS2_JOB_NONE 0u
+#define NS2_JOB_F32 1u
+#define NS2_JOB_Q15 2u
+#define NS2_JOB_FRESH 3u
+
+/* 1 when the job may be stepped by path (NS2_JOB_F32/_Q15): begun without
+ * error and not stepped by the other path (the first step claims it). */
+int ns2_job_claim(ns2_job_t *job, uint8_t path);
+
+/* Copy the job's counters and status to info (may be NULL); status NS2_ERR_JOB
+ * for a NULL job, or for one that could not be claimed but has no error of its own. */
+void ns2_job_info(const ns2_job_t *job, int claimed, ns2_info_t *info);
+
 #endif /* NS2_INTERNAL_H */

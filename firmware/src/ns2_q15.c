@@ -233,36 +233,72 @@ static void accumulate(int32_t h[NS2_HIDDEN], const int32_t *phi, int first)
     }
 }
 
-int16_t ns2_predict_q15(uint8_t robot_type, const float p[3], const float v[3],
-                        const ns2_neighbor_t *neighbors, uint16_t n_neighbors, ns2_info_t *info)
+/* h = phi_t(x) (first input) or h += phi_t(x), x clamped (int32 sums: exact) */
+static void phi_add_q15(int32_t h[NS2_HIDDEN], uint8_t t, const float x[6], int first)
 {
-    ns2_info_t local;
-    ns2_info_t *inf = info != NULL ? info : &local;
-    float x[6];
     int32_t xq[4];
     int32_t buf[2][NS2_Q_WORDS];
-    int32_t h[NS2_HIDDEN];
-    int32_t hq[NS2_PAD4(NS2_HIDDEN) / 2];
-    uint16_t idx[NS2_MAX_NEIGHBORS];
-    uint16_t n_used;
+    quantize_input(x, ns2_q15_in_scale[t], xq);
+    accumulate(h, net_q15(&ns2_q15_phi[t], xq, buf), first);
+}
 
-    if (ns2_prepare(robot_type, p, v, neighbors, n_neighbors, x, idx, &n_used, inf) != NS2_OK) {
-        return 0;
-    }
-    quantize_input(x, ns2_q15_in_scale[NS2_ENV_TYPE], xq);
-    accumulate(h, net_q15(&ns2_q15_phi[NS2_ENV_TYPE], xq, buf), 1);
-    for (uint16_t j = 0; j < n_used; ++j) {
-        const ns2_neighbor_t *nb = &neighbors[idx[j]];
-        ns2_clamp_input(nb->type, nb->rel, x);
-        quantize_input(x, ns2_q15_in_scale[nb->type], xq);
-        accumulate(h, net_q15(&ns2_q15_phi[nb->type], xq, buf), 0);
-    }
+/* The latent sum brought to rho's input format, then rho. */
+static int16_t rho_q15(uint8_t robot_type, const int32_t h[NS2_HIDDEN])
+{
+    int32_t hq[NS2_PAD4(NS2_HIDDEN) / 2];
+    int32_t buf[2][NS2_Q_WORDS];
     for (int k = 0; k < NS2_PAD4(NS2_HIDDEN) / 2; ++k) {
         const int32_t h0 = 2 * k < NS2_HIDDEN ? round_shift_sat(h[2 * k], NS2_Q_SUM_SHIFT) : 0;
         const int32_t h1 = 2 * k + 1 < NS2_HIDDEN ? round_shift_sat(h[2 * k + 1], NS2_Q_SUM_SHIFT) : 0;
         hq[k] = pack16(h0, h1);
     }
     return (int16_t)lo16(net_q15(&ns2_q15_rho[robot_type], hq, buf)[0]);
+}
+
+int16_t ns2_predict_q15(uint8_t robot_type, const float p[3], const float v[3],
+                        const ns2_neighbor_t *neighbors, uint16_t n_neighbors, ns2_info_t *info)
+{
+    ns2_info_t local;
+    ns2_info_t *inf = info != NULL ? info : &local;
+    float x[6];
+    int32_t h[NS2_HIDDEN];
+    uint16_t idx[NS2_MAX_NEIGHBORS];
+    uint16_t n_used;
+
+    if (ns2_prepare(robot_type, p, v, neighbors, n_neighbors, x, idx, &n_used, inf) != NS2_OK) {
+        return 0;
+    }
+    phi_add_q15(h, NS2_ENV_TYPE, x, 1);
+    for (uint16_t j = 0; j < n_used; ++j) {
+        const ns2_neighbor_t *nb = &neighbors[idx[j]];
+        ns2_clamp_input(nb->type, nb->rel, x);
+        phi_add_q15(h, nb->type, x, 0);
+    }
+    return rho_q15(robot_type, h);
+}
+
+uint16_t ns2_job_step_q15(ns2_job_t *job, uint16_t max_phi)
+{
+    if (!ns2_job_claim(job, NS2_JOB_Q15)) {
+        return 0;
+    }
+    for (uint16_t k = 0; k < max_phi && job->next < job->n_inputs; ++k) {
+        phi_add_q15(job->h_q15, job->type[job->next], job->x[job->next], job->next == 0u);
+        job->next++;
+    }
+    return (uint16_t)(job->n_inputs - job->next);
+}
+
+int16_t ns2_job_finish_q15(ns2_job_t *job, ns2_info_t *info)
+{
+    int16_t r = 0;
+    const int claimed = ns2_job_claim(job, NS2_JOB_Q15);
+    if (claimed) {
+        (void)ns2_job_step_q15(job, job->n_inputs);
+        r = rho_q15(job->robot_type, job->h_q15);
+    }
+    ns2_job_info(job, claimed, info);
+    return r;
 }
 
 float ns2_predict_q15_g(uint8_t robot_type, const float p[3], const float v[3],

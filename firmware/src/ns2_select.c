@@ -92,3 +92,56 @@ int32_t ns2_prepare(uint8_t robot_type, const float p[3], const float v[3],
     }
     return info->status;
 }
+
+int32_t ns2_job_begin(ns2_job_t *job, uint8_t robot_type, const float p[3], const float v[3],
+                      const ns2_neighbor_t *neighbors, uint16_t n_neighbors)
+{
+    uint16_t idx[NS2_MAX_NEIGHBORS];
+    uint16_t n_used;
+    if (job == NULL) {
+        return NS2_ERR_JOB;
+    }
+    job->robot_type = robot_type;
+    job->next = 0;
+    job->n_inputs = 0;
+    job->path = NS2_JOB_NONE;
+    if (ns2_prepare(robot_type, p, v, neighbors, n_neighbors, job->x[0], idx, &n_used, &job->info) != NS2_OK) {
+        return job->info.status;
+    }
+    job->type[0] = NS2_ENV_TYPE;
+    for (uint16_t j = 0; j < n_used; ++j) {
+        const ns2_neighbor_t *nb = &neighbors[idx[j]];
+        job->type[j + 1u] = nb->type;
+        ns2_clamp_input(nb->type, nb->rel, job->x[j + 1u]);
+    }
+    job->n_inputs = (uint16_t)(n_used + 1u);
+    job->path = NS2_JOB_FRESH;
+    return NS2_OK;
+}
+
+int ns2_job_claim(ns2_job_t *job, uint8_t path)
+{
+    if (job == NULL || job->path == NS2_JOB_NONE) {
+        return 0;
+    }
+    if (job->path == NS2_JOB_FRESH) {
+        job->path = path;
+    }
+    return job->path == path;
+}
+
+void ns2_job_info(const ns2_job_t *job, int claimed, ns2_info_t *info)
+{
+    if (info == NULL) {
+        return;
+    }
+    if (job == NULL) {
+        const ns2_info_t none = {NS2_ERR_JOB, 0, 0, 0, 0};
+        *info = none;
+        return;
+    }
+    *info = job->info;
+    if (!claimed && info->status == NS2_OK) {
+        info->status = NS2_ERR_JOB; /* never begun, or stepped by the other path */
+    }
+}

@@ -1,7 +1,9 @@
 /*
  * qemu_vectors.c - test image: reads query vectors from ns2_in.bin through
  * semihosting, runs the float and fixed-point inference on the (emulated)
- * STM32F405 and writes the results to ns2_out.bin.  Formats: host/target.py.
+ * STM32F405, one-shot (ns2_predict_*) and in slices (ns2_job_*, 1 + k mod 5 phi
+ * evaluations per step for query k), and writes the results to ns2_out.bin.
+ * Formats: host/target.py.
  */
 #include <stdio.h>
 #include <string.h>
@@ -24,9 +26,27 @@ typedef struct {
     uint16_t pad;
     ns2_info_t info_f32;
     ns2_info_t info_q15;
+    float f32_sliced;
+    int16_t q15_sliced;
+    uint16_t pad2;
 } result_t;
 
 static ns2_neighbor_t neighbors[MAX_GIVEN];
+static ns2_job_t job;
+
+/* The sliced API with `slice` phi evaluations per step; the job is begun again
+ * for each path. */
+static void run_sliced(const query_t *q, uint16_t slice, result_t *r)
+{
+    (void)ns2_job_begin(&job, q->robot_type, q->p, q->v, neighbors, q->n);
+    while (ns2_job_step_f32(&job, slice) > 0u) {
+    }
+    r->f32_sliced = ns2_job_finish_f32(&job, NULL);
+    (void)ns2_job_begin(&job, q->robot_type, q->p, q->v, neighbors, q->n);
+    while (ns2_job_step_q15(&job, slice) > 0u) {
+    }
+    r->q15_sliced = ns2_job_finish_q15(&job, NULL);
+}
 
 int main(void)
 {
@@ -48,6 +68,7 @@ int main(void)
         memset(&r, 0, sizeof r);
         r.f32 = ns2_predict_f32(q.robot_type, q.p, q.v, neighbors, q.n, &r.info_f32);
         r.q15 = ns2_predict_q15(q.robot_type, q.p, q.v, neighbors, q.n, &r.info_q15);
+        run_sliced(&q, (uint16_t)(1u + k % 5u), &r);
         if (fwrite(&r, sizeof r, 1, out) != 1) {
             return 5;
         }
