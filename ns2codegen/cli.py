@@ -17,11 +17,15 @@ class _Errors(click.Group):
         from .checkpoint import CheckpointError
         from .data.dataset import DatasetError
         from .fileio import OutputError
+        from .logs.align import LogError
+        from .logs.usdlog import UsdLogError
         from .quantize import QuantizationError
+        from .sysid import SysidError
 
         try:
             return super().invoke(ctx)
-        except (ConfigError, CheckpointError, DatasetError, OutputError, QuantizationError) as e:
+        except (ConfigError, CheckpointError, DatasetError, OutputError, QuantizationError, LogError, UsdLogError,
+                SysidError) as e:
             raise click.ClickException(str(e)) from e
 
 
@@ -31,8 +35,13 @@ def main():
     """Neural-Swarm2 deep sets: training, export to C, verification."""
 
 
-def _config(path) -> Config:
-    return Config.load(path)
+def _config(path, vehicle_files=()) -> Config:
+    return Config.load(path).with_vehicle_files(vehicle_files)
+
+
+_vehicle_option = click.option(
+    "--vehicle", "vehicle_files", type=click.Path(dir_okay=False), multiple=True,
+    help="vehicle parameter file of `ns2 sysid` (replaces that robot type's parameters; repeatable)")
 
 
 @main.command("gen-data")
@@ -76,8 +85,9 @@ def _parent_ok(path) -> None:
 @click.option("--lr", type=click.FloatRange(min=0.0, min_open=True), default=None)
 @click.option("--hidden", type=click.IntRange(min=1), default=None, help="H (overrides config)")
 @click.option("--layers", type=click.IntRange(min=2), default=None, help="L (overrides config)")
+@_vehicle_option
 @click.option("--quiet", is_flag=True)
-def train(data_paths, config_path, out, epochs, seed, batch_size, lr, hidden, layers, quiet):
+def train(data_paths, config_path, out, epochs, seed, batch_size, lr, hidden, layers, vehicle_files, quiet):
     """Train the heterogeneous deep set; writes a checkpoint and prints the report."""
     from tqdm import tqdm
 
@@ -85,7 +95,7 @@ def train(data_paths, config_path, out, epochs, seed, batch_size, lr, hidden, la
     from .data.dataset import Dataset
     from .train import train as run
 
-    cfg = _config(config_path)
+    cfg = _config(config_path, vehicle_files)
     overrides = {k: v for k, v in (("hidden", hidden), ("layers", layers)) if v is not None}
     if overrides:
         cfg = cfg.with_overrides(**overrides)
@@ -118,6 +128,50 @@ def export(checkpoint, out_dir):
                f"{man['lipschitz']['per_neighbor_input']:.4g} g per unit input, overflow margin "
                f"{man['overflow_proof']['min_margin_bits']} bits, |fixed-float| max "
                f"{err['box']['max_abs_g']:.3g} g (box), {err['typical']['max_abs_g']:.3g} g (typical)")
+
+
+@main.command("sysid")
+@click.option("--type", "type_name", required=True, help="robot type the parameters are for (config name)")
+@click.option("--static", "static_csv", type=click.Path(dir_okay=False), required=True,
+              help="load-cell CSV: pwm, vbat_V, force_g [, force_max_g]")
+@click.option("--step", "step_csv", type=click.Path(dir_okay=False), default=None,
+              help="square-wave response CSV: time_s, pwm, vbat_V, force_g (fits lambda)")
+@click.option("--mass-g", type=click.FloatRange(min=0.0, min_open=True), default=None,
+              help="weighed mass of the vehicle (g); also gives max_thrust_g from psi_3")
+@click.option("--out", type=click.Path(dir_okay=False), required=True, help="vehicle parameter file (.toml)")
+def sysid(type_name, static_csv, step_csv, mass_g, out):
+    """Fit psi_1, psi_2, psi_3 and lambda (Table cfprops) from load-cell data; write the
+    vehicle parameter file and one plot per fit next to it."""
+    from . import sysid as sid
+
+    static = sid.read_csv(static_csv, ("pwm", "vbat_V", "force_g"), ("force_max_g",))
+    step = sid.read_csv(step_csv, ("time_s", "pwm", "vbat_V", "force_g")) if step_csv else None
+    res = sid.identify(type_name, static, step, mass_g=mass_g)
+    paths = sid.write_results(out, res, static, step)
+    click.echo(json.dumps({"vehicle": res["vehicle"], "fit": res["sysid"], "files": [str(p) for p in paths]},
+                          indent=2))
+
+
+@main.command("logs-to-data")
+@click.argument("folder", type=click.Path(file_okay=False))
+@click.option("--out", type=click.Path(dir_okay=False), required=True)
+@click.option("--config", "config_path", type=click.Path(dir_okay=False), default=None)
+@_vehicle_option
+@click.option("--allow-truncated", is_flag=True,
+              help="use logs without a valid CRC (power loss): keep their complete entries")
+@click.option("--z-min", type=float, default=0.02, show_default=True,
+              help="samples below this height (m) count as on the ground and are not used")
+def logs_to_data(folder, out, config_path, vehicle_files, allow_truncated, z_min):
+    """Crazyflie uSD logs of FOLDER (listed in FOLDER/flights.toml) -> data set (.npz):
+    clock alignment, common time base, labels f_a,z, neighbours by the interaction volume."""
+    from .logs.align import logs_to_dataset
+
+    cfg = _config(config_path, vehicle_files)
+    _parent_ok(out)
+    ds, reports = logs_to_dataset(cfg, folder, allow_truncated=allow_truncated, z_min=z_min)
+    ds.save(out)
+    click.echo(json.dumps({"out": out, "samples": len(ds), "scenarios": ds.scenario_names, "flights": reports},
+                          indent=2))
 
 
 @main.command()
@@ -212,6 +266,49 @@ def sim_rings(gen_dir, out_dir, duration, learned):
 
     ring_experiments(Config.load(), gen_dir, out_dir, duration=duration, learned=learned)
     click.echo((Path(out_dir) / "rings.md").read_text())
+
+
+@main.command("plan")
+@click.option("--checkpoint", type=click.Path(dir_okay=False), default=None,
+              help="deep set for the NN planner [default: build/plan/model.pt, trained on simulated flights if missing]")
+@click.option("--problem", "problem_path", type=click.Path(dir_okay=False), default=None,
+              help="plan one problem (JSON: robots, axes, limits) instead of the paper's experiments")
+@click.option("--baseline", is_flag=True, help="with --problem: plan with f_a = 0 (BL)")
+@click.option("--out", "out_dir", type=click.Path(file_okay=False), required=True)
+@click.option("--scenarios", default="SL,SS,LL,SSL,SLL", show_default=True)
+@click.option("--dims", type=click.Choice(["2", "3", "both"]), default="both", show_default=True)
+@click.option("--trials", type=click.IntRange(min=1), default=5, show_default=True)
+@click.option("--time-limit", type=click.FloatRange(min=1.0), default=60.0, show_default=True,
+              help="seconds for Stage 1 and again for Stage 2, per plan")
+def plan_cmd(checkpoint, problem_path, baseline, out_dir, scenarios, dims, trials, time_limit):
+    """Interaction-aware motion planning (AO-RRT + SCP): the paper's experiments, or one problem."""
+    from .planning import experiments as ex
+    from .planning.problem import PlanningError, RRTParams, SCPParams
+
+    cfg = Config.load()
+    rrt, scp_params = RRTParams(total_time_s=time_limit), SCPParams(time_limit_s=time_limit)
+    try:
+        if checkpoint is None and not (problem_path and baseline):
+            checkpoint = ex.default_checkpoint(cfg, Path("build/plan"), log=click.echo)
+        if problem_path:
+            report = ex.plan_problem_file(cfg, problem_path, None if baseline else checkpoint, out_dir, rrt, scp_params)
+            click.echo(json.dumps({k: report[k] for k in ("valid", "timings", "robots")}, indent=1))
+            if not report["valid"]:
+                raise click.ClickException(f"the plan violates a limit (see {out_dir}/plan.json)")
+            return
+        names = [s.strip() for s in scenarios.split(",") if s.strip()]
+        unknown = [s for s in names if s not in ex.SCENARIOS]
+        if unknown:
+            raise click.UsageError(f"unknown scenarios {unknown}; choose from {list(ex.SCENARIOS)}")
+        from .export import export as run_export
+
+        gen = Path(out_dir) / "gen"
+        run_export(checkpoint, gen)
+        ex.planning_experiments(cfg, checkpoint, gen, out_dir, names, (2, 3) if dims == "both" else (int(dims),),
+                                trials, rrt, scp_params, log=click.echo)
+        click.echo((Path(out_dir) / "plan.md").read_text())
+    except PlanningError as e:
+        raise click.ClickException(str(e)) from e
 
 
 if __name__ == "__main__":

@@ -116,6 +116,19 @@ class Config:
         raw["model"].update(model_overrides)
         return Config.from_dict(raw)
 
+    def with_vehicle_files(self, paths) -> "Config":
+        """The config with the [vehicle] table of each vehicle parameter file (written by
+        ``ns2 sysid``) replacing those parameters of the robot type it names."""
+        raw = copy.deepcopy(self.raw)
+        for path in paths:
+            veh = load_vehicle_file(path)
+            entry = next((t for t in raw["robot_types"] if t["name"] == veh["name"]), None)
+            if entry is None:
+                raise ConfigError(f"vehicle file {path}: robot type {veh['name']!r} is not in the config "
+                                  f"{[t['name'] for t in raw['robot_types']]}")
+            entry.update({k: v for k, v in veh.items() if k != "name"}, vehicle_file=Path(path).name)
+        return Config.from_dict(raw)
+
     # --- construction --------------------------------------------------------
     @staticmethod
     def from_dict(raw: dict) -> "Config":
@@ -125,15 +138,77 @@ class Config:
 
     @staticmethod
     def load(path: str | Path | None = None) -> "Config":
-        path = Path(path) if path is not None else DEFAULT_CONFIG
-        try:
-            with open(path, "rb") as f:
-                raw = tomllib.load(f)
-        except FileNotFoundError as e:
-            raise ConfigError(f"config file not found: {path}") from e
-        except tomllib.TOMLDecodeError as e:
-            raise ConfigError(f"config file {path} is not valid TOML: {e}") from e
-        return Config.from_dict(raw)
+        return Config.from_dict(read_toml(Path(path) if path is not None else DEFAULT_CONFIG, "config file"))
+
+
+def read_toml(path, what: str, error: type[Exception] = ConfigError) -> dict:
+    """Parsed TOML file; a missing or invalid file raises ``error`` naming ``what``."""
+    try:
+        with open(path, "rb") as f:
+            return tomllib.load(f)
+    except FileNotFoundError as e:
+        raise error(f"{what} not found: {path}") from e
+    except tomllib.TOMLDecodeError as e:
+        raise error(f"{what} {path} is not valid TOML: {e}") from e
+
+
+VEHICLE_KEYS = {"mass_g": 0, "max_thrust_g": 0, "diameter_m": 0, "lambda": 0, "psi1": 5, "psi2": 5, "psi3": 3,
+                "arm_length_m": 0, "inertia_kgm2": 3, "thrust_to_torque_m": 0}  # key: list length (0: number)
+
+
+def load_vehicle_file(path) -> dict:
+    """The [vehicle] table of a vehicle parameter file: ``name`` plus keys of VEHICLE_KEYS."""
+    veh = read_toml(path, "vehicle file").get("vehicle")
+    if not isinstance(veh, dict) or not isinstance(veh.get("name"), str):
+        raise ConfigError(f"vehicle file {path}: needs a [vehicle] table with a robot type name")
+    for key, value in veh.items():
+        if key == "name":
+            continue
+        if key not in VEHICLE_KEYS:
+            raise ConfigError(f"vehicle file {path}: unknown parameter {key!r} (known: {sorted(VEHICLE_KEYS)})")
+        n = VEHICLE_KEYS[key]
+        vals = value if n else [value]
+        if not (isinstance(vals, list) and len(vals) == max(n, 1)
+                and all(isinstance(x, (int, float)) and math.isfinite(x) for x in vals)):
+            raise ConfigError(f"vehicle file {path}: {key} must be " + (f"{n} finite numbers" if n else "a finite number"))
+    return veh
+
+
+def dump_toml(data: dict, comment: str = "") -> str:
+    """TOML text of plain data: numbers, strings, booleans, lists of them, tables and
+    arrays of tables whose values are those or lists of inline tables; ``comment``
+    lines go first."""
+    def key(k: str) -> str:
+        return k if re.fullmatch(r"[A-Za-z0-9_-]+", k) else json.dumps(k)
+
+    def val(v) -> str:
+        if isinstance(v, bool):
+            return "true" if v else "false"
+        if isinstance(v, (int, float)):
+            if not math.isfinite(v):
+                raise ValueError(f"cannot write the non-finite number {v} to TOML")
+            return repr(v)
+        if isinstance(v, str):
+            return json.dumps(v)
+        if isinstance(v, dict):
+            return "{" + ", ".join(f"{key(k)} = {val(x)}" for k, x in v.items()) + "}"
+        if isinstance(v, (list, tuple)):
+            return "[" + ", ".join(val(x) for x in v) + "]"
+        raise TypeError(f"cannot write {type(v).__name__} to TOML")
+
+    def body(d: dict) -> list[str]:
+        return [f"{key(k)} = {val(v)}" for k, v in d.items()]
+
+    is_tables = lambda v: isinstance(v, list) and v and all(isinstance(x, dict) for x in v)  # noqa: E731
+    scalars = {k: v for k, v in data.items() if not isinstance(v, dict) and not is_tables(v)}
+    lines = [f"# {c}".rstrip() for c in comment.splitlines()] + body(scalars)
+    for k, v in data.items():
+        if isinstance(v, dict):
+            lines += ["", f"[{key(k)}]"] + body(v)
+        elif is_tables(v):
+            for item in v:
+                lines += ["", f"[[{key(k)}]]"] + body(item)
+    return "\n".join(lines) + "\n"
 
 
 def _range_list(value, n: int, what: str) -> None:

@@ -38,15 +38,22 @@ def psi1_newtons(psi1, pwm, battery_V) -> np.ndarray:
     return np.where(p > 0, np.clip(f_g, 0.0, None) * G / 1000.0, 0.0)
 
 
+def first_order_delay(u_c: np.ndarray, a) -> np.ndarray:
+    """u of the delay model u_dot = lambda (u_c - u) (eq. delay_model) sampled at t_k,
+    exact for u_c[k] held on [t_k, t_k+1): u[k+1] = a u[k] + (1 - a) u_c[k] with
+    a = exp(-lambda h_k) (a scalar, or one per step); u[0] = u_c[0] (steady state)."""
+    a = np.broadcast_to(np.asarray(a, float), (max(len(u_c) - 1, 0),))
+    u = np.empty_like(u_c)
+    u[0] = u_c[0]
+    for k in range(len(u_c) - 1):
+        u[k + 1] = a[k] * u[k] + (1.0 - a[k]) * u_c[k]
+    return u
+
+
 def motor_forces(pwm: np.ndarray, battery_V: np.ndarray, psi1, lam: float, h: float) -> np.ndarray:
     """[T, 4] motor forces (N) from logged PWM [T, 4] and voltage [T] with the delay."""
     u_c = psi1_newtons(np.asarray(psi1, float)[None, :], pwm, battery_V)
-    a = np.exp(-lam * h)
-    u = np.empty_like(u_c)
-    u[0] = u_c[0]  # logs start in steady state (hover)
-    for i in range(1, len(u_c)):
-        u[i] = a * u[i - 1] + (1.0 - a) * u_c[i - 1]
-    return u
+    return first_order_delay(u_c, np.exp(-lam * h))  # logs start in steady state (hover)
 
 
 def quat_to_R(q: np.ndarray) -> np.ndarray:

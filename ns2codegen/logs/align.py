@@ -1,0 +1,208 @@
+"""uSD logs of a multi-robot flight -> one Flight on a common time base -> data set
+(paper, "Data Collection": 100 Hz logs, on-board microsecond clocks synchronized
+before take-off by a broadcast radio packet, clock drift negligible for < 2 min).
+
+A folder of logs is described by ``flights.toml``::
+
+    rate_hz = 100                     # common time base (optional, default 100)
+    [[flight]]
+    name = "L2S swap 1"
+    robots = [{file = "cf3/log00", type = "small"}, {file = "cf7/log00", type = "large"}]
+
+Every robot logs the ``fixedFrequency`` event with the variables of ``VARIABLES``
+(config.txt of the uSD deck: ``on:fixedFrequency``, 100, 2, then the names).
+
+Clock offset of robot i (its clock minus the common clock), estimated as
+  1. the timestamp of its ``SYNC_EVENT`` entry, logged when the broadcast
+     synchronization packet arrives (the paper's method; all robots receive the
+     broadcast within the radio latency, < 1 ms), else
+  2. its take-off: the broadcast take-off command starts all motors together, so
+     the offset is the time at which its mean motor PWM first crosses
+     ``PWM_ON``, linearly interpolated between the two log samples around the
+     crossing (error about the motors' ramp within one 10 ms log period).
+The common clock is 0 at the synchronization instant.  Each robot's samples are
+interpolated onto the grid k / rate_hz: linear for p, v, PWM and voltage,
+normalized linear (nlerp, sign-continuous) for the quaternion; no other filtering.
+A grid point is used only when every robot has log samples around it no more than
+``max_gap_s`` apart, has its motors running (mean PWM > PWM_ON; a single motor
+may touch 0 in a hard manoeuvre) and is above
+``z_min`` (on the ground the load cell is the floor: no valid label); the flight
+is cut into contiguous pieces at unusable points (pieces shorter than
+``MIN_PIECE`` samples are dropped).  Neighbour sets and labels then come from
+``ns2codegen.data.from_logs`` (interaction volume, five-point differentiation).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..config import Config, read_toml
+from ..data.dataset import Dataset
+from ..data.from_logs import Flight, flights_to_dataset
+from .usdlog import FIXED_FREQUENCY_NAME, UsdLog, UsdLogError, read
+
+VARIABLES = {
+    "p": ("stateEstimate.x", "stateEstimate.y", "stateEstimate.z"),          # m
+    "v": ("stateEstimate.vx", "stateEstimate.vy", "stateEstimate.vz"),       # m/s
+    "q": ("stateEstimate.qw", "stateEstimate.qx", "stateEstimate.qy", "stateEstimate.qz"),
+    "pwm": ("motor.m1", "motor.m2", "motor.m3", "motor.m4"),                 # 0..PWM_FULL
+    "battery_V": ("pm.vbat",),                                               # V
+}
+PWM_FULL = 65535.0
+SYNC_EVENT = "ns2Sync"
+PWM_ON = 0.05          # normalized PWM: motors running
+MIN_PIECE = 20         # samples
+
+
+class LogError(ValueError):
+    """Logs that cannot be turned into a flight (missing variables, no sync, ...)."""
+
+
+@dataclass
+class RobotLog:
+    """One robot's fixed-frequency samples on its own clock (s)."""
+    t: np.ndarray
+    p: np.ndarray
+    v: np.ndarray
+    q: np.ndarray
+    pwm: np.ndarray        # normalized 0..1
+    battery_V: np.ndarray
+    sync_s: float | None   # time of the first sync event on its clock, if logged
+
+    @staticmethod
+    def from_usd(log: UsdLog, sync_event: str = SYNC_EVENT) -> "RobotLog":
+        ev = log.event(FIXED_FREQUENCY_NAME)
+        missing = [n for names in VARIABLES.values() for n in names if n not in ev]
+        if missing:
+            raise LogError(f"the fixedFrequency event lacks the variables {missing}")
+        t = ev["timestamp_us"].astype(np.float64) * 1e-6
+        if len(t) < MIN_PIECE:
+            raise LogError(f"only {len(t)} fixedFrequency samples")
+        order = np.argsort(t, kind="stable")
+        if np.any(np.diff(t[order]) <= 0):
+            raise LogError("repeated timestamps in the fixedFrequency event")
+        cols = {k: np.stack([ev[n][order] for n in names], 1) for k, names in VARIABLES.items()}
+        sync = log.events.get(sync_event, {}).get("timestamp_us")
+        return RobotLog(t[order], cols["p"], cols["v"], cols["q"], cols["pwm"] / PWM_FULL, cols["battery_V"][:, 0],
+                        float(sync[0]) * 1e-6 if sync is not None and len(sync) else None)
+
+    def takeoff_s(self) -> float:
+        """Time at which the mean PWM first rises through PWM_ON (interpolated)."""
+        m = self.pwm.mean(axis=1)
+        up = np.flatnonzero((m[:-1] < PWM_ON) & (m[1:] >= PWM_ON))
+        if not len(up):
+            raise LogError("no motor start in the log (and no sync event): cannot synchronize its clock")
+        k = up[0]
+        return float(self.t[k] + (PWM_ON - m[k]) / (m[k + 1] - m[k]) * (self.t[k + 1] - self.t[k]))
+
+
+def clock_offsets(robots: list[RobotLog]) -> tuple[np.ndarray, str]:
+    """Offsets (s) of the robots' clocks from the common clock, and the method used."""
+    if all(r.sync_s is not None for r in robots):
+        return np.array([r.sync_s for r in robots]), "sync event"
+    if any(r.sync_s is not None for r in robots):
+        raise LogError("only some robots logged the sync event: fix the logging config of the others")
+    return np.array([r.takeoff_s() for r in robots]), "take-off"
+
+
+def _unwrap_quaternions(q: np.ndarray) -> np.ndarray:
+    """Flip signs so that consecutive quaternions lie in the same hemisphere."""
+    flip = np.concatenate([[False], np.einsum("ij,ij->i", q[1:], q[:-1]) < 0])
+    return q * np.where(np.logical_xor.accumulate(flip), -1.0, 1.0)[:, None]
+
+
+def resample(r: RobotLog, t_own: np.ndarray, max_gap_s: float) -> tuple[dict, np.ndarray]:
+    """Interpolate one robot's samples at its own clock times ``t_own``; returns the
+    arrays and the mask of times with log samples around them at most max_gap_s apart."""
+    k = np.clip(np.searchsorted(r.t, t_own, side="right"), 1, len(r.t) - 1)
+    ok = (t_own >= r.t[0]) & (t_own <= r.t[-1]) & (r.t[k] - r.t[k - 1] <= max_gap_s)
+    lerp = lambda x: np.stack([np.interp(t_own, r.t, c) for c in np.atleast_2d(x.T)], 1)  # noqa: E731
+    q = lerp(_unwrap_quaternions(r.q))
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    return {"p": lerp(r.p), "v": lerp(r.v), "q": q, "pwm": lerp(r.pwm), "battery_V": lerp(r.battery_V)[:, 0]}, ok
+
+
+def align(types: list[str], robots: list[RobotLog], rate_hz: float = 100.0, max_gap_s: float = 0.05,
+          z_min: float = 0.02) -> tuple[list[Flight], dict]:
+    """Common time base, usable pieces (see the module docstring); returns the
+    Flights and a report (offsets, method, samples kept)."""
+    offsets, method = clock_offsets(robots)
+    start = max(r.t[0] - o for r, o in zip(robots, offsets))
+    end = min(r.t[-1] - o for r, o in zip(robots, offsets))
+    if end <= start:
+        raise LogError("the robots' logs do not overlap in time after synchronization")
+    grid = np.arange(np.ceil(start * rate_hz - 1e-6), np.floor(end * rate_hz + 1e-6) + 1) / rate_hz
+    res, usable = [], np.ones(len(grid), bool)
+    for r, o in zip(robots, offsets):
+        x, ok = resample(r, grid + o, max_gap_s)
+        res.append(x)
+        usable &= ok & (x["pwm"].mean(axis=1) > PWM_ON) & (x["p"][:, 2] > z_min)
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], usable.astype(np.int8), [0]])))
+    flights = []
+    for a, b in zip(edges[::2], edges[1::2]):
+        if b - a < MIN_PIECE:
+            continue
+        st = {k: np.stack([x[k][a:b] for x in res], 1) for k in res[0]}
+        flights.append(Flight(list(types), grid[a:b], st["p"], st["v"], st["q"], st["pwm"], st["battery_V"]))
+    report = {"clock_offsets_s": offsets.tolist(), "sync": method, "grid_samples": int(len(grid)),
+              "used_samples": int(sum(len(f.t) for f in flights)), "pieces": len(flights)}
+    return flights, report
+
+
+def load_manifest(folder: str | Path) -> dict:
+    path = Path(folder) / "flights.toml"
+    man = read_toml(path, "flight list (the flights and each robot's log file and type)", LogError)
+    flights = man.get("flight")
+    if not isinstance(flights, list) or not flights:
+        raise LogError(f"{path}: no [[flight]] entries")
+    for k, fl in enumerate(flights):
+        robots = fl.get("robots")
+        if not isinstance(robots, list) or not robots or not all(
+                isinstance(r, dict) and isinstance(r.get("file"), str) and isinstance(r.get("type"), str)
+                for r in robots):
+            raise LogError(f"{path}: flight {k} needs robots = [{{file = ..., type = ...}}, ...]")
+    return man
+
+
+def logs_to_flights(cfg: Config, folder: str | Path, allow_truncated: bool = False, z_min: float = 0.02,
+                    max_gap_s: float = 0.05) -> tuple[list[Flight], list[dict]]:
+    """Every flight of ``folder/flights.toml`` -> its usable pieces; per-flight reports."""
+    folder = Path(folder)
+    man = load_manifest(folder)
+    rate = float(man.get("rate_hz", 100.0))
+    flights, reports = [], []
+    for k, fl in enumerate(man["flight"]):
+        name = fl.get("name", f"flight {k}")
+        types = [r["type"] for r in fl["robots"]]
+        unknown = [t for t in types if t not in cfg.robot_types]
+        if unknown:
+            raise LogError(f"flight {name!r}: robot types {unknown} are not in the config {cfg.robot_types}")
+        robots, notes = [], []
+        for r in fl["robots"]:
+            log = read(folder / r["file"], allow_truncated=allow_truncated)
+            if log.note:
+                notes.append(f"{r['file']}: {log.note}")
+            try:
+                robots.append(RobotLog.from_usd(log))
+            except (LogError, UsdLogError) as e:
+                raise LogError(f"{folder / r['file']}: {e}") from e
+        try:
+            pieces, rep = align(types, robots, rate, max_gap_s=max_gap_s, z_min=z_min)
+        except LogError as e:
+            raise LogError(f"flight {name!r}: {e}") from e
+        reports.append(dict(rep, name=name, notes=notes))
+        flights += pieces
+    if not flights:
+        raise LogError("no usable flight piece in the logs (motors off, on the ground or gaps everywhere)")
+    return flights, reports
+
+
+def logs_to_dataset(cfg: Config, folder: str | Path, **kw) -> tuple[Dataset, list[dict]]:
+    """Every flight of ``folder/flights.toml`` -> one data set (labels, neighbour sets);
+    keyword arguments as ``logs_to_flights``."""
+    flights, reports = logs_to_flights(cfg, folder, **kw)
+    ds = flights_to_dataset(cfg, flights)
+    ds.extra = dict(ds.extra, generator="usd-logs", source=str(folder), flights=[r["name"] for r in reports])
+    return ds, reports

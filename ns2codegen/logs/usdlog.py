@@ -1,0 +1,223 @@
+"""Reader and writer of the binary log files of the Crazyflie uSD-card deck.
+
+Format followed: the event-based log format **version 2** that bitcraze's
+crazyflie-firmware writes since its event-trigger logging (``usddeck.c``,
+firmware 2021.01 and later; the same layout its ``tools/usdlog/cfusdlog.py``
+decodes).  All integers little-endian:
+
+  header   uint8   magic 0xBC
+           uint16  version (2)
+           uint16  number of event types
+  per event type:
+           uint16  event id (0xFFFF: the fixed-frequency "event" of the config's
+                   ``on:fixedFrequency`` block)
+           char[]  event name, NUL-terminated
+           uint16  number of variables
+           per variable: char[] "<name>(<t>)", NUL-terminated, where <t> is the
+                   struct type character B b H h I i f e (uint8 ... float, fp16);
+                   an event's payload variables come first, then the logged
+                   variables of its config block
+  entries, until the last 4 bytes:
+           uint16  event id
+           uint64  timestamp, microseconds of the on-board clock (usecTimestamp)
+           the variables' values packed without padding in the declared order
+  trailer  uint32  CRC-32 (zlib/IEEE polynomial) of every byte before it
+
+The firmware writes the CRC only when logging stops; a file cut by a power loss
+has no CRC and may end inside an entry.  ``decode`` rejects such a file unless
+``allow_truncated=True``, which keeps the complete entries before the first
+undecodable byte and says so in ``UsdLog.note`` (documented skipping, never
+silent).  Unknown event ids and malformed headers are errors.
+
+This is our own implementation from the documented layout, not bitcraze's code.
+"""
+from __future__ import annotations
+
+import struct
+import zlib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..fileio import atomic_write_bytes
+
+MAGIC = 0xBC
+VERSION = 2
+FIXED_FREQUENCY_ID = 0xFFFF
+FIXED_FREQUENCY_NAME = "fixedFrequency"
+TYPE_CHARS = "BbHhIife"
+_ENTRY_HEAD = struct.Struct("<HQ")  # event id, timestamp (us)
+
+
+class UsdLogError(ValueError):
+    """The file is not a readable uSD log (bad header, corrupt, truncated)."""
+
+
+@dataclass(frozen=True)
+class EventType:
+    id: int
+    name: str
+    variables: tuple[tuple[str, str], ...]   # (name, struct type character)
+
+    @property
+    def struct(self) -> struct.Struct:
+        return struct.Struct("<" + "".join(t for _, t in self.variables))
+
+
+@dataclass
+class UsdLog:
+    version: int
+    types: dict[int, EventType]
+    events: dict[str, dict[str, np.ndarray]]   # event name -> "timestamp_us" and variables
+    crc_ok: bool
+    note: str = ""
+    entries: int = 0
+
+    def event(self, name: str) -> dict[str, np.ndarray]:
+        if name not in self.events:
+            raise UsdLogError(f"the log has no event {name!r} (it has {sorted(self.events)})")
+        return self.events[name]
+
+
+def _cstring(data: bytes, i: int, what: str) -> tuple[str, int]:
+    end = data.find(b"\0", i)
+    if end < 0:
+        raise UsdLogError(f"header truncated: {what} at byte {i} has no NUL terminator")
+    try:
+        return data[i:end].decode("ascii"), end + 1
+    except UnicodeDecodeError as e:
+        raise UsdLogError(f"header corrupt: {what} at byte {i} is not ASCII") from e
+
+
+def _u16(data: bytes, i: int, what: str) -> tuple[int, int]:
+    if i + 2 > len(data):
+        raise UsdLogError(f"header truncated while reading {what} at byte {i}")
+    return struct.unpack_from("<H", data, i)[0], i + 2
+
+
+def _header(data: bytes) -> tuple[int, dict[int, EventType], int]:
+    if len(data) < 5:
+        raise UsdLogError(f"file too short for a uSD log header ({len(data)} bytes)")
+    if data[0] != MAGIC:
+        raise UsdLogError(f"not a uSD log: magic byte 0x{data[0]:02X}, expected 0x{MAGIC:02X}")
+    version, n_types = struct.unpack_from("<HH", data, 1)
+    if version != VERSION:
+        raise UsdLogError(f"uSD log format version {version} is not supported (only version {VERSION})")
+    if n_types == 0:
+        raise UsdLogError("bad header: the log declares no event types")
+    i, types = 5, {}
+    for _ in range(n_types):
+        eid, i = _u16(data, i, "an event id")
+        name, i = _cstring(data, i, "an event name")
+        n_vars, i = _u16(data, i, f"the variable count of event {name!r}")
+        variables = []
+        for _ in range(n_vars):
+            desc, i = _cstring(data, i, f"a variable of event {name!r}")
+            if len(desc) < 4 or desc[-3] != "(" or desc[-1] != ")" or desc[-2] not in TYPE_CHARS:
+                raise UsdLogError(f"bad header: variable {desc!r} of event {name!r} is not '<name>(<t>)' "
+                                  f"with t in {TYPE_CHARS}")
+            variables.append((desc[:-3], desc[-2]))
+        if eid in types:
+            raise UsdLogError(f"bad header: event id {eid} declared twice")
+        if not name:
+            raise UsdLogError(f"bad header: event id {eid} has an empty name")
+        types[eid] = EventType(eid, name, tuple(variables))
+    return version, types, i
+
+
+def decode(data: bytes, allow_truncated: bool = False) -> UsdLog:
+    """Decode the bytes of a uSD log file (see the module docstring)."""
+    version, types, i = _header(data)
+    crc_ok = len(data) >= i + 4 and zlib.crc32(data[:-4]) == struct.unpack_from("<I", data, len(data) - 4)[0]
+    if not crc_ok and not allow_truncated:
+        raise UsdLogError("CRC-32 mismatch: the file is truncated (logging not stopped cleanly) or corrupt; "
+                          "allow_truncated keeps its complete entries")
+    end = len(data) - 4 if crc_ok else len(data)
+    rows: dict[int, list] = {eid: [] for eid in types}
+    stamps: dict[int, list] = {eid: [] for eid in types}
+    packers = {eid: et.struct for eid, et in types.items()}
+    note, n = "", 0
+    while i < end:
+        if i + _ENTRY_HEAD.size > end:
+            note = f"dropped {end - i} trailing bytes (an incomplete entry header) at byte {i}"
+            break
+        eid, stamp = _ENTRY_HEAD.unpack_from(data, i)
+        if eid not in types:
+            msg = f"unknown event id {eid} at byte {i}: the data section is corrupt"
+            if not allow_truncated or crc_ok:
+                raise UsdLogError(msg)
+            note = f"stopped at {msg}; dropped the last {end - i} bytes"
+            break
+        pk = packers[eid]
+        if i + _ENTRY_HEAD.size + pk.size > end:
+            msg = f"entry of event {types[eid].name!r} at byte {i} is cut off"
+            if not allow_truncated or crc_ok:
+                raise UsdLogError(msg)
+            note = f"dropped an incomplete final entry: {msg}"
+            break
+        rows[eid].append(pk.unpack_from(data, i + _ENTRY_HEAD.size))
+        stamps[eid].append(stamp)
+        i += _ENTRY_HEAD.size + pk.size
+        n += 1
+    if not crc_ok:
+        note = "no valid CRC (truncated file); " + (note or "all entries complete")
+    events = {}
+    for eid, et in types.items():
+        cols = np.array(rows[eid], dtype=float).reshape(len(rows[eid]), len(et.variables))
+        ev = {"timestamp_us": np.array(stamps[eid], dtype=np.uint64)}
+        ev.update({name: cols[:, k] for k, (name, _) in enumerate(et.variables)})
+        events[et.name] = ev
+    return UsdLog(version, types, events, crc_ok, note, n)
+
+
+def read(path: str | Path, allow_truncated: bool = False) -> UsdLog:
+    path = Path(path)
+    try:
+        data = path.read_bytes()
+    except OSError as e:
+        raise UsdLogError(f"cannot read uSD log {path}: {e.strerror or e}") from e
+    try:
+        return decode(data, allow_truncated)
+    except UsdLogError as e:
+        raise UsdLogError(f"{path}: {e}") from e
+
+
+@dataclass
+class UsdLogWriter:
+    """Builds a version-2 file in memory: declare event types, add entries, ``encode``."""
+
+    types: list[EventType] = field(default_factory=list)
+    _body: list[bytes] = field(default_factory=list)
+
+    def declare(self, eid: int, name: str, variables) -> EventType:
+        et = EventType(int(eid), name, tuple((str(n), str(t)) for n, t in variables))
+        if any(t not in TYPE_CHARS for _, t in et.variables):
+            raise ValueError(f"type characters must be in {TYPE_CHARS}")
+        if any(x.id == et.id for x in self.types):
+            raise ValueError(f"event id {eid} declared twice")
+        self.types.append(et)
+        return et
+
+    def add(self, et: EventType, timestamp_us: int, values) -> None:
+        self._body.append(_ENTRY_HEAD.pack(et.id, int(timestamp_us)) + et.struct.pack(*values))
+
+    def add_many(self, et: EventType, timestamps_us, columns) -> None:
+        """Entries of one event type from a [T] timestamp array and [T, n_vars] values."""
+        for stamp, row in zip(np.asarray(timestamps_us), np.asarray(columns).tolist()):
+            self.add(et, int(stamp), [int(round(x)) if t not in "fe" else x for x, (_, t) in zip(row, et.variables)])
+
+    def encode(self, order_by_time: bool = True) -> bytes:
+        head = [struct.pack("<BHH", MAGIC, VERSION, len(self.types))]
+        for et in self.types:
+            head.append(struct.pack("<H", et.id) + et.name.encode("ascii") + b"\0")
+            head.append(struct.pack("<H", len(et.variables)))
+            head.extend(f"{n}({t})".encode("ascii") + b"\0" for n, t in et.variables)
+        body = self._body
+        if order_by_time:  # a ring buffer writes entries in the order they were triggered
+            body = sorted(body, key=lambda b: _ENTRY_HEAD.unpack_from(b)[1])
+        data = b"".join(head) + b"".join(body)
+        return data + struct.pack("<I", zlib.crc32(data))
+
+    def write(self, path: str | Path) -> None:
+        atomic_write_bytes(Path(path), self.encode())
