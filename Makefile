@@ -43,6 +43,7 @@ bench: deps
 	@$(PYTHON) benchmarks/bench_core.py
 	@$(PYTHON) benchmarks/bench_target.py
 	@$(PYTHON) benchmarks/bench_sim.py
+	@$(PYTHON) benchmarks/bench_plan.py
 
 # Cortex-M4F cross build of the library: flash, RAM, worst-case stack (JSON)
 firmware: deps $(GEN)/ns2_model_config.h

@@ -1,0 +1,54 @@
+"""Planning benchmark (JSON on stdout): planning time per robot of Stage 1
+(AO-RRT) and Stage 2 (SCP) for the 3-robot cases SSL and SLL, in 2-D (yz) and 3-D,
+with the learned model (build/plan/model.pt when `ns2 plan` made it, else a small
+model trained here on the analytic downwash data) and with f_a = 0."""
+from __future__ import annotations
+
+import json
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from ns2codegen.checkpoint import save_checkpoint
+from ns2codegen.config import Config
+from ns2codegen.data.analytic import downwash_dataset
+from ns2codegen.planning.experiments import scenario_problem
+from ns2codegen.planning.forces import ForceModel, load_force_model
+from ns2codegen.planning.planner import plan
+from ns2codegen.planning.problem import RRTParams, SCPParams
+from ns2codegen.train import train
+
+SEEDS = (0, 1)
+
+
+def main() -> None:
+    cfg = Config.load()
+    with tempfile.TemporaryDirectory() as tmp:
+        ck = Path("build/plan/model.pt")
+        source = str(ck)
+        if not ck.is_file():
+            ds = downwash_dataset(cfg, 1000, seed=0)
+            model, rep = train(cfg, ds, epochs=5)
+            ck = Path(tmp) / "m.pt"
+            save_checkpoint(ck, model, cfg, {"seed": 0, "data_hash": ds.content_hash(), "report": rep})
+            source = "analytic downwash data, 5 epochs"
+        models = {"NN": load_force_model(cfg, ck), "BL": ForceModel(cfg, None)}
+        result = {"model": source, "seeds": list(SEEDS), "cases": {}}
+        for dims in (2, 3):
+            for name in ("SSL", "SLL"):
+                pb = scenario_problem(cfg, name, dims)
+                for mode, fm in models.items():
+                    s1, s2 = [], []
+                    for seed in SEEDS:
+                        res = plan(pb, fm, RRTParams(seed=seed), SCPParams(seed=seed))
+                        s1.append(np.mean(res.stage1.time_per_robot_s))
+                        s2.append(np.mean(res.stage2.time_per_robot_s))
+                    result["cases"][f"{dims}D {name} {mode}"] = {
+                        "stage1_s_per_robot": round(float(np.mean(s1)), 3),
+                        "stage2_s_per_robot": round(float(np.mean(s2)), 3)}
+    print(json.dumps({"planning": result}, indent=2))
+
+
+if __name__ == "__main__":
+    main()

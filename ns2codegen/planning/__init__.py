@@ -1,0 +1,17 @@
+"""Interaction-aware multi-robot motion planning (paper, section "Interaction-Aware
+Multi-Robot Planning", Algorithm "planning"), one module per concern:
+
+problem.py      robots, start/goal, limits and planner parameters as plain data
+forces.py       the learned interaction force f_a,z-hat of every robot from its
+                neighbour set (the deep set, or f_a = 0 for the baseline), batched,
+                with torch autograd Jacobians
+dynamics.py     double integrator + learned force, eqs. (planning-dynamics) and
+                (planning-discreteDynamics); team forces along trajectories
+aorrt.py        Stage 1: sequential AO-RRT with the others as dynamic obstacles
+scp.py          Stage 2: sequential convex programming, eq. (scp), cvxpy + Clarabel
+verify.py       independent check of a team solution (box, collisions, force bounds)
+planner.py      Algorithm "planning": Stage 1, post-processing, Stage 2, timings
+output.py       Crazyflie piecewise polynomials (high-level commander upload), CSV
+tracking.py     flying the plan in the simulator with the C controller in the loop
+experiments.py  the paper's planning experiments (SL, SS, LL, SSL, SLL; NN vs BL)
+"""

@@ -1,0 +1,294 @@
+"""Stage 1: sequential interaction-aware AO-RRT (Algorithm "planning", lines
+init..PostProcess; paper, section "Stage 1: Sampling-Based Planning").
+
+Robots are planned one after the other in a random permutation, the others being
+dynamic obstacles with known trajectories (a finished robot rests at its last
+position).  The tree lives in the state-cost space: x = [p; v; f_a,z-hat] plus
+the time step k and the cost c = sum ||u|| dt.  An extension samples x_rand
+uniformly in the state box (with f_a in [-f_a,max, f_a,max]) and c_rand in
+[0, c^(i)], picks the nearest node with a kd-tree (scipy cKDTree), samples u
+uniformly in the action box and propagates eq. (planning-discreteDynamics) for
+one fixed dt with the learned force.  Every ``goal_bias_every``-th sample is the
+goal (goal biasing).  StateValid: the state box including |f_a,z-hat| <=
+f_a,max, the tight sphere collision r^(I(i) I(j)) against every planned robot
+(continuous over the step), and for every neighbour j its force with robot i at
+the new state: |f_a^(j)| <= f_a,max^(j) and |f_a^(j) - previous f_a^(j)| <= b_fa
+(trust region).  AO-RRT repeats the search with the decreasing cost bound c^(i)
+until the termination condition (iterations, patience, time).
+
+For speed, ``batch`` candidate extensions share one nearest-neighbour query and
+one batched call of the learned model (the tree is at most one batch stale).
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from .dynamics import Trajectory, hold_arrays, segment_distance, step
+from .forces import ForceModel
+from .problem import PlanningError, Problem, RRTParams
+
+
+@dataclass
+class Team:
+    """The current solution of the whole team over the horizon H (hold after the end)."""
+    P: np.ndarray           # [H+1, N, 3]
+    V: np.ndarray           # [H+1, N, 3]
+    FA: np.ndarray          # [H+1, N] grams, joint forces of the planned robots
+    planned: np.ndarray     # [N] bool
+    trajs: list
+
+    @staticmethod
+    def empty(problem: Problem, H: int) -> "Team":
+        n = problem.n
+        P = np.repeat(problem.starts()[None], H + 1, 0)
+        return Team(P, np.zeros_like(P), np.zeros((H + 1, n)), np.zeros(n, bool), [None] * n)
+
+    def set(self, i: int, traj: Trajectory, fm: ForceModel, types) -> None:
+        H = len(self.P) - 1
+        self.P[:, i], self.V[:, i] = hold_arrays(traj, H)
+        self.trajs[i] = traj
+        self.planned[i] = True
+        self.FA = fm.team_np(types, self.P, self.V, np.repeat(self.planned[None], H + 1, 0))
+
+
+@dataclass
+class Tree:
+    """Nodes of one RRT (for extraction and for the figures)."""
+    p: np.ndarray
+    v: np.ndarray
+    fa: np.ndarray
+    k: np.ndarray
+    c: np.ndarray
+    parent: np.ndarray
+    u: np.ndarray
+    n: int = 0
+    rejected: list = field(default_factory=list)   # edges rejected by a neighbour's force check
+
+    @staticmethod
+    def alloc(size: int) -> "Tree":
+        return Tree(np.zeros((size, 3)), np.zeros((size, 3)), np.zeros(size), np.zeros(size, int),
+                    np.zeros(size), np.full(size, -1), np.zeros((size, 3)))
+
+    def add(self, p, v, fa, k, c, parent, u) -> np.ndarray:
+        idx = np.arange(self.n, self.n + len(p))
+        self.p[idx], self.v[idx], self.fa[idx], self.k[idx] = p, v, fa, k
+        self.c[idx], self.parent[idx], self.u[idx] = c, parent, u
+        self.n += len(p)
+        return idx
+
+    def path(self, leaf: int) -> Trajectory:
+        idx = [leaf]
+        while self.parent[idx[-1]] >= 0:
+            idx.append(self.parent[idx[-1]])
+        idx = np.array(idx[::-1])
+        return Trajectory(self.p[idx].copy(), self.v[idx].copy(), self.fa[idx].copy(), self.u[idx[1:]].copy(), 0.0)
+
+    def trimmed(self) -> "Tree":
+        s = slice(0, self.n)
+        return Tree(self.p[s], self.v[s], self.fa[s], self.k[s], self.c[s], self.parent[s], self.u[s], self.n,
+                    self.rejected)
+
+
+@dataclass
+class Stage1Result:
+    trajs: list                 # Trajectory per robot (own length)
+    costs: list                 # c^(i)
+    trees: list                 # last successful Tree per robot (figures)
+    order_history: list         # permutation of every AO iteration
+    accept_history: list        # (iteration, robot, cost, team P, V, FA before acceptance, trajectory)
+    iterations: int
+    time_s: float
+    time_per_robot_s: list
+
+
+class AORRT:
+    def __init__(self, problem: Problem, fm: ForceModel, params: RRTParams = RRTParams()):
+        self.pb, self.fm, self.par = problem, fm, params
+        self.types = problem.type_index()
+        self.kappa = problem.kappa()
+        self.r = problem.r_pair()
+        self.fa_max = problem.fa_max()
+        self.lo, self.hi = problem.box()
+        self.ax = list(problem.axes)
+        self.rng = np.random.default_rng(params.seed)
+
+    # ------------------------------------------------------------------ checks
+    def _forces(self, team: Team, i: int, k: np.ndarray, p: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """Joint forces [B, N] of the planned robots and robot i (at p, v) at steps k."""
+        P, V = team.P[k].copy(), team.V[k].copy()
+        P[:, i], V[:, i] = p, v
+        present = np.repeat(team.planned[None], len(k), 0)
+        present[:, i] = True
+        return self.fm.team_np(self.types, P, V, present)
+
+    def _valid(self, team: Team, i: int, k_prev, p_prev, k, p, v):
+        """StateValid (line state_valid) for candidates of robot i; returns
+        (valid [B], own force [B], rejected only by a neighbour's force check [B])."""
+        lim = self.pb.limits
+        ax = self.ax
+        ok = (k <= len(team.P) - 1)
+        ok &= np.all((p[:, ax] >= self.lo[ax]) & (p[:, ax] <= self.hi[ax]), 1)
+        ok &= np.all(np.abs(v) <= lim.v_max + 1e-12, 1)
+        fa_i = np.zeros(len(p))
+        nbr_bad = np.zeros(len(p), bool)
+        idx = np.flatnonzero(ok)
+        if len(idx) == 0:
+            return ok, fa_i, nbr_bad
+        kk = k[idx]
+        F = self._forces(team, i, kk, p[idx], v[idx])
+        fa_i[idx] = F[:, i]
+        good = np.abs(F[:, i]) <= self.fa_max[i]
+        nb = np.zeros(len(idx), bool)
+        for j in np.flatnonzero(team.planned):
+            if j == i:
+                continue
+            d = segment_distance(p_prev[idx], p[idx], team.P[k_prev[idx], j], team.P[kk, j])
+            good &= d >= self.r[i, j]
+            nb |= (np.abs(F[:, j]) > self.fa_max[j]) | (np.abs(F[:, j] - team.FA[kk, j]) > lim.b_fa_g)
+        ok[idx] = good & ~nb
+        nbr_bad[idx] = good & nb
+        return ok, fa_i, nbr_bad
+
+    def _tail_valid(self, team: Team, i: int, k_end: int, p_end: np.ndarray) -> bool:
+        """A robot that reached its goal rests there; the rest of the horizon must stay
+        valid for it and for its neighbours (else the solution is not accepted)."""
+        H = len(team.P) - 1
+        if k_end >= H:
+            return True
+        k = np.arange(k_end + 1, H + 1)
+        p = np.repeat(p_end[None], len(k), 0)
+        ok, _, _ = self._valid(team, i, k - 1, p, k, p, np.zeros_like(p))
+        return bool(ok.all())
+
+    # ------------------------------------------------------------------ one RRT
+    def _key(self, p, v, fa, c):
+        par = self.par
+        return np.column_stack([p[:, self.ax], par.w_v * v[:, self.ax], par.w_fa * fa[:, None], par.w_c * c[:, None]])
+
+    def rrt(self, team: Team, i: int, c_bound: float, deadline: float):
+        """Lines rrt_start..rrt_end for robot i with cost bound c_bound; returns
+        (Trajectory or None, Tree)."""
+        par, lim, ax = self.par, self.pb.limits, self.ax
+        rng = self.rng
+        start, goal = self.pb.starts()[i], self.pb.goals()[i]
+        tree = Tree.alloc(par.max_nodes + par.batch)
+        fa0 = self._forces(team, i, np.array([0]), start[None], np.zeros((1, 3)))[0, i]
+        tree.add(start[None], np.zeros((1, 3)), np.array([fa0]), np.array([0]), np.array([0.0]), np.array([-1]),
+                 np.zeros((1, 3)))
+        keys = np.zeros((par.max_nodes + par.batch, len(ax) * 2 + 2))
+        keys[:1] = self._key(tree.p[:1], tree.v[:1], tree.fa[:1], tree.c[:1])
+        kd, built = None, 0
+        n_samples = 0
+        na = len(ax)
+        while tree.n < par.max_nodes and time.perf_counter() < deadline:
+            b = par.batch
+            # UniformSample(X) in the state-cost space, with goal biasing
+            xr = np.zeros((b, 3))
+            xr[:, ax] = rng.uniform(self.lo[ax], self.hi[ax], (b, na))
+            vr = np.zeros((b, 3))
+            vr[:, ax] = rng.uniform(-lim.v_max, lim.v_max, (b, na))
+            far = rng.uniform(-self.fa_max[i], self.fa_max[i], b)
+            cr = rng.uniform(0.0, c_bound, b) if np.isfinite(c_bound) else np.zeros(b)
+            gb = (n_samples + np.arange(b)) % par.goal_bias_every == 0
+            xr[gb], vr[gb], far[gb], cr[gb] = goal, 0.0, 0.0, 0.0
+            n_samples += b
+            q = self._key(xr, vr, far, cr)
+            # FindClosest: kd-tree over the built nodes + brute force over the newest
+            if kd is None or tree.n - built > max(64, built // 4):
+                kd, built = cKDTree(keys[:tree.n]), tree.n
+            d_kd, near = kd.query(q)
+            if tree.n > built:
+                d_new = np.linalg.norm(q[:, None, :] - keys[None, built:tree.n], axis=2)
+                j = d_new.argmin(1)
+                closer = d_new[np.arange(b), j] < d_kd
+                near = np.where(closer, built + j, near)
+            # UniformSample(U) and Propagate for dt with the learned force
+            u = np.zeros((b, 3))
+            u[:, ax] = rng.uniform(-lim.u_max, lim.u_max, (b, na))
+            p_new, v_new = step(tree.p[near], tree.v[near], u, tree.fa[near], self.kappa[i], par.dt)
+            k_new = tree.k[near] + 1
+            c_new = tree.c[near] + np.linalg.norm(u, axis=1) * par.dt
+            ok, fa_new, nbr_bad = self._valid(team, i, tree.k[near], tree.p[near], k_new, p_new, v_new)
+            ok &= c_new < c_bound
+            for e in np.flatnonzero(nbr_bad)[:max(0, 3000 - len(tree.rejected))]:
+                tree.rejected.append((tree.p[near[e]].copy(), p_new[e].copy()))
+            sel = np.flatnonzero(ok)
+            if len(sel) == 0:
+                continue
+            idx = tree.add(p_new[sel], v_new[sel], fa_new[sel], k_new[sel], c_new[sel], near[sel], u[sel])
+            keys[idx] = self._key(p_new[sel], v_new[sel], fa_new[sel], c_new[sel])
+            at_goal = (np.linalg.norm(p_new[sel] - goal, axis=1) <= par.eps_p) & \
+                      (np.linalg.norm(v_new[sel], axis=1) <= par.eps_v)
+            for leaf in idx[at_goal][np.argsort(c_new[sel][at_goal])]:
+                if self._tail_valid(team, i, int(tree.k[leaf]), tree.p[leaf]):
+                    traj = tree.path(int(leaf))
+                    traj.dt = par.dt
+                    return traj, tree
+        return None, tree
+
+    # ------------------------------------------------------------------ AO-RRT
+    def check_endpoints(self) -> None:
+        """Infeasible limits at the start or goal configuration: clear error."""
+        for what, pts in (("start", self.pb.starts()), ("goal", self.pb.goals())):
+            F = self.fm.team_np(self.types, pts[None], np.zeros_like(pts)[None])[0]
+            bad = np.flatnonzero(np.abs(F) > self.fa_max)
+            if len(bad):
+                i = bad[0]
+                raise PlanningError(f"infeasible limits: at the {what} robot {i} ({self.pb.robots[i].type}) feels "
+                                    f"|f_a| = {abs(F[i]):.2f} g > f_a,max = {self.fa_max[i]:.2f} g")
+
+    def run(self) -> Stage1Result:
+        self.pb.validate()
+        self.check_endpoints()
+        par, n = self.par, self.pb.n
+        t0 = time.perf_counter()
+        deadline_total = t0 + par.total_time_s
+        team = Team.empty(self.pb, par.max_steps)
+        costs = [np.inf] * n
+        trees = [None] * n
+        per_robot = [0.0] * n
+        orders, accepts = [], []
+        since_improved = 0
+        it = 0
+        while True:
+            order = self.rng.permutation(n)     # RandomShuffle
+            orders.append(order.tolist())
+            improved = False
+            for i in order:
+                ts = time.perf_counter()
+                deadline = min(ts + par.rrt_time_s, deadline_total)
+                traj, tree = self.rrt(team, int(i), costs[i], deadline)
+                per_robot[i] += time.perf_counter() - ts
+                if traj is not None:
+                    accepts.append((it, int(i), traj.effort(), team.P.copy(), team.V.copy(), team.FA.copy(), traj.copy()))
+                    costs[i] = traj.effort()     # c^(i) <- c (line cost_update)
+                    trees[i] = tree.trimmed()
+                    team.set(int(i), traj, self.fm, self.types)
+                    improved = True
+            it += 1
+            missing = [int(i) for i in range(n) if team.trajs[i] is None]
+            since_improved = 0 if improved else since_improved + 1
+            out_of_time = time.perf_counter() >= deadline_total
+            if missing:
+                if out_of_time:
+                    raise PlanningError(
+                        f"no path found for robot(s) {missing} within {par.total_time_s:.0f} s of Stage 1 "
+                        f"(goal unreachable under the limits, or too little time)")
+                continue
+            if it >= par.ao_iterations or since_improved >= par.ao_patience or out_of_time:
+                break               # TerminationCondition1
+        # refresh every robot's forces jointly with the final team (they were stored
+        # as they were at acceptance time)
+        for i, tr in enumerate(team.trajs):
+            tr.fa = team.FA[:tr.T + 1, i].copy()
+        return Stage1Result(list(team.trajs), costs, trees, orders, accepts, it, time.perf_counter() - t0, per_robot)
+
+
+def post_process(trajs: list, kappa: np.ndarray) -> list:
+    """Uniform length (line postprocess): every trajectory held to the longest."""
+    T = max(tr.T for tr in trajs)
+    return [tr.held(T, float(k)) for tr, k in zip(trajs, kappa)]

@@ -1,0 +1,297 @@
+"""The paper's planning experiments ("Motion Planning with Aerodynamics Coupling"):
+two or three robots exchange positions (SL, SS, LL, SSL, SLL) in the yz plane (2-D)
+and in 3-D, 5 trials each, planned with the learned model (NN) and with f_a = 0
+(BL) by the same algorithm and parameters, then flown in the simulator with the
+C controller and the ground-truth interactions.  Reported per robot type: worst
+tracking error (eq. metric) and worst true interaction force against the limits
+(5 g small, 10 g large), planning times; figures like the paper's."""
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from ..config import Config
+from ..fileio import atomic_write_bytes, atomic_write_files
+from .forces import ForceModel, load_force_model
+from .planner import PlanResult, plan
+from .problem import Limits, PlanningError, Problem, Robot, RRTParams, SCPParams
+from .verify import check_solution
+
+SCENARIOS = {"SL": ("small", "large"), "SS": ("small", "small"), "LL": ("large", "large"),
+             "SSL": ("small", "small", "large"), "SLL": ("small", "large", "large")}
+LIMITS_2D = Limits(pos_lo=(0.0, -0.9, 0.3), pos_hi=(0.0, 0.9, 2.0))
+LIMITS_3D = Limits(pos_lo=(-0.6, -0.9, 0.3), pos_hi=(0.6, 0.9, 2.0))
+SPACING, HEIGHT = 0.8, 1.0
+
+
+def scenario_problem(cfg: Config, name: str, dims: int) -> Problem:
+    """Robots side by side on the y axis at z = 1 m; robot k flies to the place of
+    robot k + 1 (cyclically): a swap for two robots, a rotation for three."""
+    team = SCENARIOS[name]
+    n = len(team)
+    y = np.linspace(-SPACING / 2, SPACING / 2, n)
+    robots = [Robot(t, (0.0, float(y[k]), HEIGHT), (0.0, float(y[(k + 1) % n]), HEIGHT)) for k, t in enumerate(team)]
+    return Problem(cfg, robots, LIMITS_2D if dims == 2 else LIMITS_3D, (1, 2) if dims == 2 else (0, 1, 2))
+
+
+def default_checkpoint(cfg: Config, folder: Path, seconds_per_team: float = 60.0, log=print) -> Path:
+    """A model of the simulator's interactions when none is given: baseline flights of
+    every team in the simulator (ns2 sim collect), then training (ns2 train)."""
+    from ..checkpoint import save_checkpoint
+    from ..data.analytic import downwash_dataset
+    from ..export import export
+    from ..train import train
+    from ns2host.sim.collect import collect
+
+    folder.mkdir(parents=True, exist_ok=True)
+    ck = folder / "model.pt"
+    if ck.is_file():
+        return ck
+    log(f"no checkpoint given: training one on simulated flights ({seconds_per_team:.0f} s per team) into {ck}")
+    boot = downwash_dataset(cfg, 300, seed=0)       # the controller build needs some exported model
+    m0, rep0 = train(cfg, boot, epochs=1)
+    save_checkpoint(folder / "boot.pt", m0, cfg, {"seed": 0, "data_hash": boot.content_hash(), "report": rep0})
+    export(folder / "boot.pt", folder / "boot_gen")
+    ds = collect(cfg, folder / "boot_gen", seconds_per_team, seed=1)
+    model, rep = train(cfg, ds)
+    save_checkpoint(ck, model, cfg, {"seed": rep["seed"], "data_hash": ds.content_hash(), "report": rep,
+                                     "data_files": [f"sim collect {seconds_per_team} s per team, seed 1"]})
+    return ck
+
+
+def _summary(trials: list, pb: Problem) -> dict:
+    ok = [t for t in trials if t.get("error") is None]
+    types = [r.type for r in pb.robots]
+    out = {"trials": len(trials), "planned": len(ok)}
+    if not ok:
+        return out
+    err = np.array([max(t["track"]["worst_error_m"]) for t in ok])
+    out.update(median_worst_error_m=float(np.median(err)), max_worst_error_m=float(err.max()))
+    fa_max = pb.fa_max()
+    for kind in sorted(set(types)):
+        idx = [i for i, t in enumerate(types) if t == kind]
+        worst = np.array([max(t["track"]["worst_fa_g"][i] for i in idx) for t in ok])
+        planned = np.array([max(t["check"]["robots"][i]["worst_fa_g"] for i in idx) for t in ok])
+        out[kind] = {"max_worst_fa_g": float(worst.max()), "median_worst_fa_g": float(np.median(worst)),
+                     "limit_g": float(fa_max[idx[0]]), "trials_over_limit": int((worst > fa_max[idx[0]]).sum()),
+                     "planned_max_fa_g": float(planned.max())}
+    out["trials_any_over_limit"] = int(sum(any(t["track"]["worst_fa_g"][i] > fa_max[i] for i in range(pb.n)) for t in ok))
+    out["stage1_s_per_robot"] = float(np.mean([np.mean(t["timings"]["stage1_per_robot_s"]) for t in ok]))
+    out["stage2_s_per_robot"] = float(np.mean([np.mean(t["timings"]["stage2_per_robot_s"]) for t in ok]))
+    return out
+
+
+def run_trial(pb: Problem, fm: ForceModel, gen_dir, seed: int, rrt: RRTParams, scp_params: SCPParams):
+    from .tracking import track
+
+    t0 = time.perf_counter()
+    try:
+        res = plan(pb, fm, replace(rrt, seed=seed), replace(scp_params, seed=seed))
+    except PlanningError as e:
+        return {"seed": seed, "error": str(e), "time_s": time.perf_counter() - t0}, None, None
+    chk = check_solution(pb, fm, res.trajs)
+    tr = track(pb, res.trajs, gen_dir)
+    rec = {"seed": seed, "error": None, "types": [r.type for r in pb.robots], "timings": res.timings(),
+           "stage1_costs": [float(c) for c in res.stage1.costs], "scp_merit": res.stage2.merit_history,
+           "scp_iterations": res.stage2.iterations, "scp_converged": res.stage2.converged,
+           "check": {"robots": chk["robots"]},
+           "track": {"worst_error_m": tr["worst_error_m"], "worst_fa_g": tr["worst_fa_g"]}}
+    return rec, res, tr["log"]
+
+
+def planning_experiments(cfg: Config, checkpoint, gen_dir, out_dir, scenarios=None, dims=(2, 3), trials: int = 5,
+                         rrt: RRTParams = RRTParams(), scp_params: SCPParams = SCPParams(), log=print) -> dict:
+    from .output import write_plan
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    models = {"NN": load_force_model(cfg, checkpoint), "BL": ForceModel(cfg, None)}
+    results = {}
+    for d in dims:
+        for name in scenarios or SCENARIOS:
+            pb = scenario_problem(cfg, name, d)
+            key = f"{d}D {name}"
+            results[key] = {}
+            examples = {}
+            for mode, fm in models.items():
+                recs = []
+                for trial in range(trials):
+                    rec, res, flight = run_trial(pb, fm, gen_dir, trial, rrt, scp_params)
+                    recs.append(rec)
+                    if res is not None and mode not in examples:
+                        examples[mode] = (res, flight)
+                        write_plan(out / "trajectories" / f"{d}d_{name}_{mode}", res.trajs,
+                                   [r.type for r in pb.robots], pb.kappa())
+                    log(f"{key} {mode} trial {trial}: " + (rec["error"] if rec["error"] else
+                        f"worst error {100 * max(rec['track']['worst_error_m']):.1f} cm, worst |f_a| "
+                        + ", ".join(f"{r.type} {f:.1f} g" for r, f in zip(pb.robots, rec["track"]["worst_fa_g"]))))
+                results[key][mode] = {"summary": _summary(recs, pb), "trials": recs}
+            if d == 2 and len(examples) == 2:
+                example_figure(pb, examples, out / f"plan_{d}d_{name}.png")
+    atomic_write_files(out, {"plan.json": json.dumps(results, indent=1, default=float) + "\n",
+                             "plan.md": table(results) + "\n"})
+    summary_figure(results, out / "plan_summary.png")
+    return results
+
+
+def table(results: dict) -> str:
+    lines = ["| case | planner | planned | worst tracking error median / max (cm) | worst f_a small: max (limit 5 g), "
+             "trials over | worst f_a large: max (limit 10 g), trials over | Stage 1 / Stage 2 s per robot |",
+             "|---|---|---|---|---|---|---|"]
+    for key, res in results.items():
+        for mode in ("BL", "NN"):
+            s = res[mode]["summary"]
+            if not s.get("planned"):
+                lines.append(f"| {key} | {mode} | 0/{s['trials']} | - | - | - | - |")
+                continue
+            cells = []
+            for kind in ("small", "large"):
+                cells.append(f"{s[kind]['max_worst_fa_g']:.1f} g, {s[kind]['trials_over_limit']}/{s['planned']}"
+                             if kind in s else "-")
+            lines.append(f"| {key} | {mode} | {s['planned']}/{s['trials']} | {100 * s['median_worst_error_m']:.1f} / "
+                         f"{100 * s['max_worst_error_m']:.1f} | {cells[0]} | {cells[1]} | "
+                         f"{s['stage1_s_per_robot']:.1f} / {s['stage2_s_per_robot']:.1f} |")
+    return "\n".join(lines)
+
+
+def _save(fig, path: Path) -> None:
+    import io
+
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=110)
+    atomic_write_bytes(path, buf.getvalue())
+
+
+COLORS = ["tab:blue", "tab:orange", "tab:green"]
+
+
+def example_figure(pb: Problem, examples: dict, path: Path) -> None:
+    """Paper's Fig. plot2: yz plots (NN Stage 1 with the tree coloured by |f_a|; NN
+    SCP (dashed) and tracked (solid); BL planned (dashed) and tracked), and the true
+    interaction forces over time with the limits (dashed)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.collections import LineCollection
+
+    from .problem import GRAMS_TO_N
+
+    fig, axes = plt.subplots(2, 3, figsize=(14, 7))
+    nn, nn_log = examples["NN"]
+    bl, bl_log = examples["BL"]
+    ax = axes[0, 0]
+    for i, tree in enumerate(nn.stage1.trees):
+        if tree is None or tree.n < 2:
+            continue
+        child = np.arange(1, tree.n)
+        segs = np.stack([tree.p[tree.parent[child]][:, 1:], tree.p[child][:, 1:]], 1)
+        lc = LineCollection(segs, cmap="viridis", linewidths=0.4, alpha=0.5)
+        lc.set_array(np.abs(tree.fa[child]))
+        lc.set_clim(0, 15)
+        ax.add_collection(lc)
+        if tree.rejected:
+            rej = np.array([[a[1:], b[1:]] for a, b in tree.rejected[:500]])
+            ax.add_collection(LineCollection(rej, colors="tab:red", linewidths=0.4, alpha=0.4))
+    fig.colorbar(lc, ax=ax, label="|f_a,z-hat| at tree node (g)")
+    for i, tr in enumerate(nn.stage1.trajs):
+        ax.plot(tr.p[:, 1], tr.p[:, 2], color=COLORS[i], lw=2, label=f"{i}: {pb.robots[i].type}")
+    ax.set_title("NN, Stage 1 (tree by |f_a|, red: rejected by a neighbour's force)", fontsize=8)
+    ax.legend(fontsize=7)
+    for ax, (res, lg, title) in zip(axes[0, 1:], ((nn, nn_log, "NN: SCP (dashed), tracked (solid)"),
+                                                   (bl, bl_log, "BL: planned (dashed), tracked (solid)"))):
+        for i, tr in enumerate(res.trajs):
+            ax.plot(tr.p[:, 1], tr.p[:, 2], "--", color=COLORS[i])
+            ax.plot(lg["p"][:, i, 1], lg["p"][:, i, 2], "-", color=COLORS[i], lw=1)
+            mid = tr.T // 2
+            ax.add_patch(plt.Circle((tr.p[mid, 1], tr.p[mid, 2]), pb.radius()[i], fill=False, color=COLORS[i]))
+        ax.set_title(title, fontsize=8)
+    for ax in axes[0]:
+        ax.set_xlabel("y (m)")
+        ax.set_ylabel("z (m)")
+        ax.set_aspect("equal")
+        ax.set_xlim(-1.0, 1.0)
+        ax.set_ylim(0.2, 2.1)
+    for ax, (res, lg) in zip(axes[1], ((nn, None), (nn, nn_log), (bl, bl_log))):
+        for i in range(pb.n):
+            if lg is None:
+                tr = res.stage1.trajs[i]
+                ax.plot(tr.t, tr.fa, color=COLORS[i])
+                ax.set_title("planned f_a,z-hat (Stage 1, NN)", fontsize=8)
+            else:
+                ax.plot(lg["t"], lg["truth_fa"][:, i, 2] / GRAMS_TO_N, color=COLORS[i])
+                ax.set_title("true f_a,z in the simulator", fontsize=8)
+            ax.axhline(-pb.fa_max()[i], ls="--", color=COLORS[i], lw=0.8)
+        ax.set_xlabel("t (s)")
+        ax.set_ylabel("g")
+    fig.tight_layout()
+    _save(fig, path)
+    plt.close(fig)
+
+
+def summary_figure(results: dict, path: Path) -> None:
+    """Paper's Fig. plot3: worst tracking error and worst force per type, BL vs NN."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    keys = list(results)
+    fig, axes = plt.subplots(3, 1, figsize=(max(6, 1.3 * len(keys)), 8), sharex=True)
+    for k, key in enumerate(keys):
+        for m, (mode, color) in enumerate((("BL", "tab:red"), ("NN", "tab:blue"))):
+            ok = [t for t in results[key][mode]["trials"] if t["error"] is None]
+            x = k + (m - 0.5) * 0.3
+            axes[0].scatter([x] * len(ok), [100 * max(t["track"]["worst_error_m"]) for t in ok], color=color, s=12,
+                            label=mode if k == 0 else None)
+            for row, kind in ((1, "small"), (2, "large")):
+                vals = []
+                for t in ok:
+                    vals += [f for f, ty in zip(t["track"]["worst_fa_g"], t["types"]) if ty == kind]
+                axes[row].scatter([x] * len(vals), vals, color=color, s=12)
+    axes[0].set_ylabel("worst tracking error (cm)")
+    axes[0].legend()
+    for row, (kind, lim) in ((1, ("small", 5.0)), (2, ("large", 10.0))):
+        axes[row].axhline(lim, color="r", lw=1)
+        axes[row].set_ylabel(f"worst |f_a| {kind} (g)")
+    axes[2].set_xticks(range(len(keys)), keys, rotation=30)
+    fig.tight_layout()
+    _save(fig, path)
+    plt.close(fig)
+
+
+def load_problem(cfg: Config, path) -> Problem:
+    """A problem file (JSON): {"robots": [{"type", "start", "goal"}], "axes": "yz" or
+    "xyz", "limits": {fields of Limits}}."""
+    try:
+        raw = json.loads(Path(path).read_text())
+        robots = [Robot(str(r["type"]), tuple(float(x) for x in r["start"]), tuple(float(x) for x in r["goal"]))
+                  for r in raw["robots"]]
+        axes = {"yz": (1, 2), "xyz": (0, 1, 2)}[raw.get("axes", "yz")]
+        lim = raw.get("limits", {})
+        limits = replace(Limits(), **{k: (tuple(v) if isinstance(v, list) else v) for k, v in lim.items()})
+    except FileNotFoundError as e:
+        raise PlanningError(f"problem file not found: {path}") from e
+    except (OSError, ValueError, KeyError, TypeError) as e:
+        raise PlanningError(f"problem file {path} is malformed: {e!r}") from e
+    if any(len(r.start) != 3 or len(r.goal) != 3 for r in robots):
+        raise PlanningError("start and goal must be [x, y, z]")
+    return Problem(cfg, robots, limits, axes)
+
+
+def plan_problem_file(cfg: Config, path, checkpoint, out_dir, rrt: RRTParams, scp_params: SCPParams) -> dict:
+    """Plan one problem file; write the Crazyflie files and plan.json (check + timings)."""
+    from .output import write_plan
+    from .verify import is_valid
+
+    pb = load_problem(cfg, path)
+    fm = load_force_model(cfg, checkpoint)
+    res: PlanResult = plan(pb, fm, rrt, scp_params)
+    chk = check_solution(pb, fm, res.trajs)
+    files = write_plan(out_dir, res.trajs, [r.type for r in pb.robots], pb.kappa())
+    report = {"valid": is_valid(chk, tol=1e-3), "timings": res.timings(), "robots": chk["robots"], "files": files,
+              "scp_merit": res.stage2.merit_history, "model": "BL (f_a = 0)" if checkpoint is None else str(checkpoint)}
+    atomic_write_files(Path(out_dir), {"plan.json": json.dumps(report, indent=1) + "\n"})
+    return report

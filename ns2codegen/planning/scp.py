@@ -1,0 +1,176 @@
+"""Stage 2: sequential convex programming (Algorithm "planning", lines
+stage2_start..stage2_end; paper, section "Stage 2: Optimization-Based Motion Planning").
+
+One convex program per robot per iteration, eq. (scp), the others fixed:
+
+    min  sum_k ||u_k||^2 + lambda_1 ||x_T - x_f||_inf + lambda_2 delta
+    s.t. p, v: eq. (planning-discreteDynamics) with a_k = u_k + kappa fa_k e_z
+         fa_k = f_a-hat(x_bar_k) + A_k (x_k - x_bar_k)                 eq. (planning-xdot-approx)
+         u_k in U;  x_k in X_delta (box + |fa_k| <= f_a,max, widened by delta >= 0)
+         <p_bar^(ij)_k, p_k - p_bar^(j)_k> >= r^(I(i)I(j)) ||p_bar^(ij)_k||   (convexified collision)
+         x_0 = x_s
+         |C^(j)_k (x_k - x_bar_k)| <= b_fa, |f_a^(j)(x_bar_k) + C^(j)_k (x_k - x_bar_k)| <= f_a,max^(j) + delta
+         |x_k - x_bar_k| <= b_x,  |u_k - u_bar_k| <= b_u                   (trust regions)
+
+A_k and C^(j)_k are Jacobians of the learned force from torch autograd
+(eq. planning-Fa-approx).  Solved with cvxpy and Clarabel.  A step is accepted only
+when it lowers the team merit (the objective evaluated with the true nonlinear
+learned forces of the whole team, plus penalties on nonlinear dynamics defects,
+box and collision violations); otherwise the robot's trust region is halved and
+the program solved again.  Hence the merit decreases monotonically; iterations
+stop when it decreases by less than ``tol`` (relative), or at the limits.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import cvxpy as cp
+import numpy as np
+
+from .dynamics import Trajectory, segment_distance, step
+from .forces import ForceModel
+from .problem import PlanningError, Problem, SCPParams
+
+
+@dataclass
+class SCPResult:
+    trajs: list
+    merit_history: list         # team merit: initial, then after every iteration
+    iterations: int
+    converged: bool
+    time_s: float
+    time_per_robot_s: list
+    max_defect: float           # max nonlinear dynamics defect of the result (m or m/s)
+
+
+def _team_arrays(trajs: list) -> tuple[np.ndarray, np.ndarray]:
+    return np.stack([t.p for t in trajs], 1), np.stack([t.v for t in trajs], 1)
+
+
+def merit(pb: Problem, fm: ForceModel, trajs: list, par: SCPParams) -> tuple[float, dict]:
+    """Team merit with the true (nonlinear) learned forces of the whole team."""
+    P, V = _team_arrays(trajs)
+    F = fm.team_np(pb.type_index(), P, V)
+    kappa, fa_max, r = pb.kappa(), pb.fa_max(), pb.r_pair()
+    lo, hi = pb.box()
+    ax = list(pb.axes)
+    goals = pb.goals()
+    parts = {"effort": 0.0, "goal": 0.0, "violation": 0.0, "defect": 0.0}
+    max_defect = 0.0
+    for i, tr in enumerate(trajs):
+        parts["effort"] += float((tr.u ** 2).sum())
+        parts["goal"] += par.lambda_goal * float(np.abs(np.concatenate([tr.p[-1, ax] - goals[i, ax], tr.v[-1, ax]])).max())
+        viol = max(0.0, float(np.max(tr.p[:, ax] - hi[ax])), float(np.max(lo[ax] - tr.p[:, ax])),
+                   float(np.max(np.abs(tr.v) - pb.limits.v_max)), float(np.max(np.abs(F[:, i]) - fa_max[i])))
+        for j in range(i + 1, pb.n):
+            d = segment_distance(tr.p[:-1], tr.p[1:], trajs[j].p[:-1], trajs[j].p[1:])
+            viol += float(np.clip(r[i, j] - d, 0.0, None).sum())
+        parts["violation"] += par.lambda_box * viol
+        p1, v1 = step(tr.p[:-1], tr.v[:-1], tr.u, F[:-1, i], kappa[i], tr.dt)
+        dp, dv = np.abs(tr.p[1:] - p1), np.abs(tr.v[1:] - v1)
+        parts["defect"] += par.lambda_defect * float(dp.sum() + dv.sum())
+        max_defect = max(max_defect, float(dp.max(initial=0.0)), float(dv.max(initial=0.0)))
+    parts["max_defect"] = max_defect
+    parts["forces"] = F
+    return parts["effort"] + parts["goal"] + parts["violation"] + parts["defect"], parts
+
+
+def solve_cp(pb: Problem, fm: ForceModel, trajs: list, i: int, par: SCPParams, rho: float,
+             time_limit: float) -> Trajectory | None:
+    """SolveCP: eq. (scp) for robot i around the current team solution."""
+    tr = trajs[i]
+    T, dt = tr.T, tr.dt
+    ax = list(pb.axes)
+    d = len(ax)
+    zc = ax.index(2)
+    types = pb.type_index()
+    P, V = _team_arrays(trajs)
+    F, dP, dV = fm.jacobians(types, P, V, i)
+    kappa, fa_max, r = pb.kappa()[i], pb.fa_max(), pb.r_pair()
+    lo, hi = pb.box()
+    lim = pb.limits
+    pbar, vbar, ubar = tr.p[:, ax], tr.v[:, ax], tr.u[:, ax]
+
+    p, v = cp.Variable((T + 1, d)), cp.Variable((T + 1, d))
+    fa, u, delta = cp.Variable(T + 1), cp.Variable((T, d)), cp.Variable(nonneg=True)
+    dp, dv = p - pbar, v - vbar
+
+    def lin(j):   # linearized change of robot j's force caused by robot i's (p, v)
+        return cp.sum(cp.multiply(dP[j][:, ax], dp), axis=1) + cp.sum(cp.multiply(dV[j][:, ax], dv), axis=1)
+
+    cons = [p[0] == pb.starts()[i, ax], v[0] == 0.0, fa == F[:, i] + lin(i)]
+    for c in range(d):
+        a = u[:, c] + kappa * fa[:-1] if c == zc else u[:, c]
+        cons += [v[1:, c] == v[:-1, c] + a * dt, p[1:, c] == p[:-1, c] + v[:-1, c] * dt + 0.5 * dt * dt * a]
+    cons += [cp.abs(u) <= lim.u_max,
+             p >= lo[ax] - delta, p <= hi[ax] + delta, cp.abs(v) <= lim.v_max + delta,
+             cp.abs(fa) <= fa_max[i] + delta,
+             cp.abs(dp) <= rho * par.b_p, cp.abs(dv) <= rho * par.b_v, cp.abs(u - ubar) <= rho * par.b_u]
+    for j in range(pb.n):
+        if j == i:
+            continue
+        rel = P[:, i] - P[:, j]
+        dist = np.linalg.norm(rel, axis=1)
+        ks = np.flatnonzero(dist < r[i, j] + 2.0 * par.b_p + 0.3)
+        if len(ks):
+            nrm = rel[ks][:, ax] / np.maximum(dist[ks], 1e-9)[:, None]
+            cons.append(cp.sum(cp.multiply(nrm, p[ks] - P[ks, j][:, ax]), axis=1) >= r[i, j] + par.collision_margin)
+        if np.any(dP[j]) or np.any(dV[j]):
+            cons += [cp.abs(lin(j)) <= lim.b_fa_g, cp.abs(F[:, j] + lin(j)) <= fa_max[j] + delta]
+    goal = cp.hstack([p[T] - pb.goals()[i, ax], v[T]])
+    obj = cp.sum_squares(u) + par.lambda_goal * cp.norm(goal, "inf") + par.lambda_box * delta
+    prob = cp.Problem(cp.Minimize(obj), cons)
+    try:
+        kw = {"time_limit": max(time_limit, 0.1)} if par.solver == "CLARABEL" else {}
+        prob.solve(solver=par.solver, canon_backend=cp.SCIPY_CANON_BACKEND, **kw)
+    except cp.error.SolverError:
+        return None
+    if prob.status not in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE) or p.value is None:
+        return None
+    out = tr.copy()
+    out.p[:, ax], out.v[:, ax], out.u[:, ax] = p.value, v.value, u.value
+    out.fa = np.asarray(fa.value, float)
+    return out
+
+
+def scp(pb: Problem, fm: ForceModel, trajs: list, par: SCPParams = SCPParams()) -> SCPResult:
+    """Refine uniform-length trajectories (Stage 1 after post-processing)."""
+    if len({t.T for t in trajs}) != 1:
+        raise PlanningError("Stage 2 needs trajectories of uniform length (post-process Stage 1 first)")
+    rng = np.random.default_rng(par.seed)
+    t0 = time.perf_counter()
+    deadline = t0 + par.time_limit_s
+    trajs = [t.copy() for t in trajs]
+    J, parts = merit(pb, fm, trajs, par)
+    history = [J]
+    rho = np.ones(pb.n)
+    per_robot = [0.0] * pb.n
+    converged = False
+    it = 0
+    while it < par.max_iterations and time.perf_counter() < deadline:
+        for i in rng.permutation(pb.n):          # RandomShuffle
+            ts = time.perf_counter()
+            for _ in range(par.max_shrinks + 1):
+                if time.perf_counter() >= deadline:
+                    break
+                cand = solve_cp(pb, fm, trajs, int(i), par, rho[i], deadline - time.perf_counter())
+                if cand is not None:
+                    trial = list(trajs)
+                    trial[i] = cand
+                    J_new, parts_new = merit(pb, fm, trial, par)
+                    if J_new < J:
+                        trajs, J, parts = trial, J_new, parts_new
+                        rho[i] = min(1.0, 2.0 * rho[i])
+                        break
+                rho[i] *= 0.5
+            per_robot[i] += time.perf_counter() - ts
+        it += 1
+        history.append(J)
+        if history[-2] - J <= par.tol * abs(history[-2]):
+            converged = True
+            break
+    F = parts["forces"]
+    for i, tr in enumerate(trajs):
+        tr.fa = F[:, i].copy()
+    return SCPResult(trajs, history, it, converged, time.perf_counter() - t0, per_robot, parts["max_defect"])
