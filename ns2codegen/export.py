@@ -23,9 +23,10 @@ from .config import c_identifier
 from .fileio import atomic_write_files
 from .queries import random_queries
 from .quantize import ExportModel, from_checkpoint
+from .vehicle import default_gains, has_rigid_body, vehicle
 
 TEMPLATES = Path(__file__).resolve().parent.parent / "templates"
-HEADERS = ("ns2_model_config.h", "ns2_model_float.h", "ns2_model_fixed.h")
+HEADERS = ("ns2_model_config.h", "ns2_model_float.h", "ns2_model_fixed.h", "ns2_vehicles.h")
 MANIFEST = "ns2_model_manifest.json"
 ERROR_QUERIES = 20000
 
@@ -133,6 +134,11 @@ def render(m: ExportModel) -> dict[str, str]:
            "out_scale": 2.0 ** -q.out_frac,
            "min_margin_bits": min(p["margin_bits"] for p in q.proof),
            "quad_counts": sorted({pad4(l.n_in) // 4 for net in q.phi + q.rho for l in net.layers})}
+    if all(has_rigid_body(cfg, t) for t in cfg.robot_types):
+        ctx["vehicles"] = [vehicle(cfg, t) for t in cfg.robot_types]
+        ctx["gains"] = [default_gains(v) for v in ctx["vehicles"]]
+    else:
+        ctx["vehicles"], ctx["gains"] = [], []
     env = _env()
     return {h: env.get_template(h + ".j2").render(**ctx) for h in HEADERS}
 

@@ -20,7 +20,7 @@ from ns2host.cbuild import REPO, flags
 
 from conftest import train_and_export
 
-HEADERS = ("ns2_model_config.h", "ns2_model_float.h", "ns2_model_fixed.h")
+HEADERS = ("ns2_model_config.h", "ns2_model_float.h", "ns2_model_fixed.h", "ns2_vehicles.h")
 ARM_CC = shutil.which("arm-none-eabi-gcc")
 
 

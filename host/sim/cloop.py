@@ -16,18 +16,9 @@ from ns2codegen.data.labels import psi1_newtons
 from ..cbuild import CModel
 from .aero import calibrated
 from .dynamics import Dynamics, SwarmState
-from .vehicle import G, Vehicle, base_type, vehicle
+from .vehicle import G, base_type, default_gains, vehicle
 
 ATT_HZ, POS_HZ = 500, 100
-
-
-def default_gains(veh: Vehicle) -> dict:
-    """Gains scaled with mass and inertia (tuned in the simulator)."""
-    J = veh.inertia
-    return {"Lp": [2.0, 2.0, 2.5], "Kv": [4.0 * veh.mass] * 3, "Gv": [1.5] * 3,
-            "Lq": [18.0, 18.0, 8.0], "Kw": list(40.0 * J), "Gw": list(20.0 * J),
-            "Kwd": list(40.0 * J / veh.lam), "int_v_max": 0.5, "int_w_max": 1.0,
-            "fa_max_N": 0.3 * veh.mass * G, "min_thrust_N": 0.1 * veh.mass * G, "d_filter": 0.5}
 
 
 @dataclass

@@ -1,20 +1,33 @@
 /*
- * ns2_app.c - Crazyflie app: the learned interaction force f_a,z (Neural-Swarm2)
- * as a feed-forward term of the on-board controller.
+ * ns2_app.c - Crazyflie app: the Neural-Swarm2 interaction-aware tracking
+ * controller (firmware/src/ns2_controller.c) with the learned interaction force
+ * f_a,z as feed-forward, as the firmware's out-of-tree controller.
  *
- * Thin glue, all logic is in the tested library (firmware/src):
+ * Thin glue; all logic is in the tested library (firmware/src):
  *  - neighbours: positions of the other Crazyflies from the firmware's peer
  *    localization (mocap broadcasts), velocity by finite differences
- *    (ns2_peers), robot types from the ns2type parameters, the environment
- *    always included by ns2_predict_*;
- *  - prediction at 100 Hz from the own state estimate, float or fixed point
- *    (param ns2.fixed), limited to +-ns2.faLimit grams;
- *  - control: until the ns2 tracking controller lands, the firmware's Mellinger
- *    controller runs and its thrust is corrected by -f_a,z (thrust units per N =
- *    ns2.massThrust, the Mellinger constant); ns2.enable = 0 is the baseline.
- * PARAM groups: ns2 (switches, limits), ns2type (robot type of radio ids 0..31);
- * LOG group ns2: faHat (g), inferUs (us), nUsed, status.
+ *    (ns2_peers), robot types from the ns2type parameters; the environment is
+ *    always included by the library;
+ *  - prediction spread over the 500 Hz ticks (ns2_job_*): begun at each 100 Hz
+ *    position tick from the current state and neighbours, ns2.phiPerTick phi
+ *    evaluations per 500 Hz tick, finished (rho) at the next position tick,
+ *    fixed point or float (ns2.fixed), limited to +-ns2.faLimit grams;
+ *  - control: ns2_ctrl_position at 100 Hz with f_a = [0, 0, f_a,z] (zero when
+ *    ns2.enable = 0: the paper's baseline), ns2_ctrl_attitude at 500 Hz (delay
+ *    compensation, thrust-priority mixing, PWM from psi_2 and the battery
+ *    voltage), motor PWM ratios through controlModeForce.  Build the firmware
+ *    without battery compensation of the motor commands
+ *    (CONFIG_ENABLE_THRUST_BAT_COMPENSATED unset): psi_2 already uses the voltage.
+ *  - no position setpoint (mode.z == modeDisable, e.g. on the ground): motors off,
+ *    controller state reset.  Non-finite state or setpoint: the library's safe
+ *    outputs (ns2_controller.h).
+ * Vehicle parameters and default gains of each robot type come from the
+ * generated ns2_vehicles.h; the gains of this robot are in PARAM group ns2gain.
+ * PARAM: ns2 (switches, limits), ns2type (robot types of radio ids), ns2gain.
+ * LOG ns2: faHat (g), inferUs (worst prediction slice of the last period, us),
+ * nUsed, status, ctrlStatus, ex/ey/ez (position error, m).
  */
+#include <math.h>
 #include <stdbool.h>
 #include <stddef.h>
 #include <stdint.h>
@@ -28,35 +41,55 @@
 
 #include "configblock.h"
 #include "controller.h"
-#include "controller_mellinger.h"
 #include "log.h"
 #include "param.h"
 #include "peer_localization.h"
+#include "pm.h"
 #include "stabilizer_types.h"
 #include "usec_time.h"
 
+#include "ns2_controller.h"
 #include "ns2_deepset.h"
 #include "ns2_peers.h"
+#include "ns2_vehicles.h"
 
+#if !NS2_HAVE_VEHICLES
+#error "ns2_vehicles.h: a robot type lacks rigid-body parameters in the config (see config/default.toml)"
+#endif
+
+#define NS2_DEG2RAD 0.017453292519943295f
 #define NS2_GRAVITY 9.81f
 
+static const ns2_vehicle_t vehicles[NS2_NUM_ROBOT_TYPES] = NS2_VEHICLES_INIT;
+static const ns2_gains_t default_gains[NS2_NUM_ROBOT_TYPES] = NS2_DEFAULT_GAINS_INIT;
+
 static struct {
-    uint8_t enable;     /* 1: apply the learned feed-forward; 0: baseline */
+    uint8_t enable;     /* 1: learned feed-forward; 0: baseline (f_a = 0) */
     uint8_t fixed;      /* 1: fixed-point inference, 0: float */
     uint8_t selfType;   /* robot type of this Crazyflie (NS2_TYPE_*) */
+    uint8_t phiPerTick; /* phi evaluations per 500 Hz tick */
     uint16_t maxAgeMs;  /* peers older than this are ignored */
     float faLimit;      /* |f_a,z| limit, g */
-    float massThrust;   /* thrust units per newton of the controller output */
-} cfg = {1, 1, NS2_TYPE_SMALL, 100, 20.0f, 132000.0f};
+} cfg = {1, 1, NS2_TYPE_SMALL, 4, 100, 20.0f};
 
 static uint32_t typeMask1; /* radio id i is robot type 1 when bit i is set */
 static uint32_t typeMask2; /* ... type 2 (for a third robot type) */
 
+static ns2_gains_t gains;  /* PARAM ns2gain, copied into the controller at 100 Hz */
+static ns2_ctrl_t ctrl;
+static uint8_t ctrlType = 0xFFu; /* robot type ctrl was initialized for */
 static ns2_peers_t peers;
-static float faHat;       /* g */
-static uint32_t inferUs;  /* us */
+static ns2_job_t job;
+static bool jobBegun;
+static ns2_neighbor_t nbrs[NS2_PEERS_MAX];
+
+static float faHat;        /* g */
+static uint32_t inferUs;   /* us */
+static uint32_t sliceUsMax;
 static uint8_t nUsed;
 static int32_t status;
+static uint32_t ctrlStatus;
+static float ex, ey, ez;   /* m */
 
 void appMain(void)
 {
@@ -77,9 +110,73 @@ static uint8_t type_of(uint8_t id)
     return 0u;
 }
 
-static void predict(const state_t *state, uint32_t now_ms)
+static uint8_t self_type(void)
 {
-    static ns2_neighbor_t nb[NS2_PEERS_MAX];
+    return cfg.selfType < NS2_NUM_ROBOT_TYPES ? cfg.selfType : 0u;
+}
+
+/* Reset the controller state (integrators, filters) and the prediction; a new
+ * robot type also gets its vehicle parameters and default gains. */
+static void reset_controller(void)
+{
+    if (self_type() != ctrlType) {
+        ctrlType = self_type();
+        gains = default_gains[ctrlType];
+    }
+    ns2_ctrl_init(&ctrl, &vehicles[ctrlType], &gains);
+    jobBegun = false;
+    faHat = 0.0f;
+}
+
+static void to_ctrl_state(const state_t *state, const sensorData_t *sensors, ns2_ctrl_state_t *s)
+{
+    const quaternion_t *q = &state->attitudeQuaternion;
+    s->p[0] = state->position.x;
+    s->p[1] = state->position.y;
+    s->p[2] = state->position.z;
+    s->v[0] = state->velocity.x;
+    s->v[1] = state->velocity.y;
+    s->v[2] = state->velocity.z;
+    s->q[0] = q->w;
+    s->q[1] = q->x;
+    s->q[2] = q->y;
+    s->q[3] = q->z;
+    s->w[0] = sensors->gyro.x * NS2_DEG2RAD;
+    s->w[1] = sensors->gyro.y * NS2_DEG2RAD;
+    s->w[2] = sensors->gyro.z * NS2_DEG2RAD;
+}
+
+static void to_setpoint(const setpoint_t *sp, ns2_setpoint_t *d)
+{
+    d->p[0] = sp->position.x;
+    d->p[1] = sp->position.y;
+    d->p[2] = sp->position.z;
+    d->v[0] = sp->velocity.x;
+    d->v[1] = sp->velocity.y;
+    d->v[2] = sp->velocity.z;
+    d->a[0] = sp->acceleration.x;
+    d->a[1] = sp->acceleration.y;
+    d->a[2] = sp->acceleration.z;
+    d->yaw = sp->attitude.yaw * NS2_DEG2RAD;
+    d->w[0] = d->w[1] = d->w[2] = 0.0f;
+}
+
+/* Finish the running prediction (rho) into faHat, then begin the next one from
+ * the current state and the neighbours' latest positions. */
+static void predict_period(const ns2_ctrl_state_t *s, uint32_t now_ms)
+{
+    if (jobBegun) {
+        ns2_info_t info;
+        const uint64_t t0 = usecTimestamp();
+        const float f = cfg.fixed ? ldexpf((float)ns2_job_finish_q15(&job, &info), -NS2_Q_OUT_FRAC)
+                                  : ns2_job_finish_f32(&job, &info);
+        const uint32_t us = (uint32_t)(usecTimestamp() - t0);
+        inferUs = us > sliceUsMax ? us : sliceUsMax;
+        sliceUsMax = 0;
+        status = info.status;
+        nUsed = (uint8_t)info.n_used;
+        faHat = f > cfg.faLimit ? cfg.faLimit : (f < -cfg.faLimit ? -cfg.faLimit : f);
+    }
     for (uint8_t i = 0; i < PEER_LOCALIZATION_MAX_NEIGHBORS; ++i) {
         const peerLocalizationOtherPosition_t *o = peerLocalizationGetPositionByIdx(i);
         if (o != NULL && o->id != 0u) {
@@ -87,42 +184,67 @@ static void predict(const state_t *state, uint32_t now_ms)
             (void)ns2_peers_update(&peers, o->id, type_of(o->id), o->timestamp, p);
         }
     }
-    const float p[3] = {state->position.x, state->position.y, state->position.z};
-    const float v[3] = {state->velocity.x, state->velocity.y, state->velocity.z};
     const uint8_t self = (uint8_t)(configblockGetRadioAddress() & 0xFFu);
-    const uint16_t n = ns2_peers_neighbors(&peers, self, p, v, now_ms, cfg.maxAgeMs, nb, NS2_PEERS_MAX);
-    ns2_info_t info;
+    const uint16_t n = ns2_peers_neighbors(&peers, self, s->p, s->v, now_ms, cfg.maxAgeMs, nbrs, NS2_PEERS_MAX);
+    (void)ns2_job_begin(&job, self_type(), s->p, s->v, nbrs, n);
+    jobBegun = true;
+}
+
+static void predict_slice(void)
+{
     const uint64_t t0 = usecTimestamp();
-    float f = cfg.fixed ? ns2_predict_q15_g(cfg.selfType, p, v, nb, n, &info)
-                        : ns2_predict_f32(cfg.selfType, p, v, nb, n, &info);
-    inferUs = (uint32_t)(usecTimestamp() - t0);
-    status = info.status;
-    nUsed = (uint8_t)info.n_used;
-    faHat = f > cfg.faLimit ? cfg.faLimit : (f < -cfg.faLimit ? -cfg.faLimit : f);
+    if (cfg.fixed) {
+        (void)ns2_job_step_q15(&job, cfg.phiPerTick);
+    } else {
+        (void)ns2_job_step_f32(&job, cfg.phiPerTick);
+    }
+    const uint32_t us = (uint32_t)(usecTimestamp() - t0);
+    sliceUsMax = us > sliceUsMax ? us : sliceUsMax;
 }
 
 void controllerOutOfTreeInit(void)
 {
-    controllerMellingerInit();
     ns2_peers_init(&peers, 0.5f);
+    reset_controller();
 }
 
 bool controllerOutOfTreeTest(void)
 {
-    return controllerMellingerTest();
+    return true;
 }
 
 void controllerOutOfTree(control_t *control, const setpoint_t *setpoint, const sensorData_t *sensors,
                          const state_t *state, const uint32_t tick)
 {
-    controllerMellinger(control, setpoint, sensors, state, tick);
-    if (RATE_DO_EXECUTE(RATE_100_HZ, tick)) {
-        predict(state, (uint32_t)T2M(xTaskGetTickCount()));
+    control->controlMode = controlModeForce;
+    if (setpoint->mode.z == modeDisable || self_type() != ctrlType) {
+        reset_controller(); /* on the ground, or the robot type was changed */
+        for (int m = 0; m < STABILIZER_NR_OF_MOTORS; ++m) {
+            control->normalizedForces[m] = 0.0f;
+        }
+        return;
     }
-    if (cfg.enable && control->thrust > 0.0f) {
-        /* the controller should produce m a_d - f_a: subtract the learned force */
-        const float thrust = control->thrust - faHat * 1e-3f * NS2_GRAVITY * cfg.massThrust;
-        control->thrust = thrust > 0.0f ? thrust : 0.0f;
+    if (!RATE_DO_EXECUTE(RATE_500_HZ, tick)) {
+        return; /* the motor commands of the last attitude step stay */
+    }
+    ns2_ctrl_state_t s;
+    to_ctrl_state(state, sensors, &s);
+    if (RATE_DO_EXECUTE(RATE_100_HZ, tick)) {
+        ns2_setpoint_t sp;
+        to_setpoint(setpoint, &sp);
+        predict_period(&s, (uint32_t)T2M(xTaskGetTickCount()));
+        const float fa[3] = {0.0f, 0.0f, cfg.enable ? faHat * 1e-3f * NS2_GRAVITY : 0.0f}; /* g -> N */
+        ctrl.g = gains;
+        ns2_ctrl_position(&ctrl, &s, &sp, fa, 1.0f / (float)RATE_100_HZ);
+        ex = s.p[0] - sp.p[0];
+        ey = s.p[1] - sp.p[1];
+        ez = s.p[2] - sp.p[2];
+    }
+    predict_slice();
+    ns2_ctrl_attitude(&ctrl, &s, 1.0f / (float)RATE_500_HZ, pmGetBatteryVoltage());
+    ctrlStatus = ctrl.status;
+    for (int m = 0; m < STABILIZER_NR_OF_MOTORS; ++m) {
+        control->normalizedForces[m] = ctrl.pwm[m];
     }
 }
 
@@ -130,9 +252,9 @@ PARAM_GROUP_START(ns2)
 PARAM_ADD(PARAM_UINT8, enable, &cfg.enable)
 PARAM_ADD(PARAM_UINT8, fixed, &cfg.fixed)
 PARAM_ADD(PARAM_UINT8, selfType, &cfg.selfType)
+PARAM_ADD(PARAM_UINT8, phiPerTick, &cfg.phiPerTick)
 PARAM_ADD(PARAM_UINT16, maxAgeMs, &cfg.maxAgeMs)
 PARAM_ADD(PARAM_FLOAT, faLimit, &cfg.faLimit)
-PARAM_ADD(PARAM_FLOAT, massThrust, &cfg.massThrust)
 PARAM_GROUP_STOP(ns2)
 
 PARAM_GROUP_START(ns2type)
@@ -140,9 +262,31 @@ PARAM_ADD(PARAM_UINT32, mask1, &typeMask1)
 PARAM_ADD(PARAM_UINT32, mask2, &typeMask2)
 PARAM_GROUP_STOP(ns2type)
 
+/* gains of eqs. (v_ref), (pos_ctrl), (omega_ref), (att_ctrl): see ns2_controller.h */
+#define NS2_GAIN3(NAME)                      \
+    PARAM_ADD(PARAM_FLOAT, NAME##x, &gains.NAME[0]) \
+    PARAM_ADD(PARAM_FLOAT, NAME##y, &gains.NAME[1]) \
+    PARAM_ADD(PARAM_FLOAT, NAME##z, &gains.NAME[2])
+PARAM_GROUP_START(ns2gain)
+NS2_GAIN3(Lp)
+NS2_GAIN3(Kv)
+NS2_GAIN3(Gv)
+NS2_GAIN3(Lq)
+NS2_GAIN3(Kw)
+NS2_GAIN3(Gw)
+NS2_GAIN3(Kwd)
+PARAM_ADD(PARAM_FLOAT, intVMax, &gains.int_v_max)
+PARAM_ADD(PARAM_FLOAT, intWMax, &gains.int_w_max)
+PARAM_ADD(PARAM_FLOAT, faMaxN, &gains.fa_max_N)
+PARAM_GROUP_STOP(ns2gain)
+
 LOG_GROUP_START(ns2)
 LOG_ADD(LOG_FLOAT, faHat, &faHat)
 LOG_ADD(LOG_UINT32, inferUs, &inferUs)
 LOG_ADD(LOG_UINT8, nUsed, &nUsed)
 LOG_ADD(LOG_INT32, status, &status)
+LOG_ADD(LOG_UINT32, ctrlStatus, &ctrlStatus)
+LOG_ADD(LOG_FLOAT, ex, &ex)
+LOG_ADD(LOG_FLOAT, ey, &ey)
+LOG_ADD(LOG_FLOAT, ez, &ez)
 LOG_GROUP_STOP(ns2)

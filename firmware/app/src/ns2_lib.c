@@ -4,3 +4,4 @@
 #include "../../src/ns2_f32.c"
 #include "../../src/ns2_q15.c"
 #include "../../src/ns2_peers.c"
+#include "../../src/ns2_controller.c"
