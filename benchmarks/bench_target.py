@@ -71,7 +71,7 @@ def measure_library(elf: Path, cfg: Config) -> dict:
             "instructions_per_mac_phi": round(per_phi / phi_macs, 3),
             "kernel_instructions_per_mac": round(kernel / (17 * phi_macs + rho_macs), 3),
             "instruction_mix_16_neighbors": dict(runs[16].mix.most_common(10)),
-            "sliced_15_neighbors": sliced,
+            "sliced_15_neighbors": dict(sliced, job_ram_bytes=cm.symbols["job"][1]),  # static ns2_job_t of the image
         }
     return out
 
