@@ -27,32 +27,46 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .dynamics import Trajectory, hold_arrays, segment_distance, step
+from .dynamics import Trajectory, accel, hold_arrays, segment_distance, step, substates
 from .forces import ForceModel
 from .problem import PlanningError, Problem, RRTParams
 
 
 @dataclass
 class Team:
-    """The current solution of the whole team over the horizon H (hold after the end)."""
+    """The current solution of the whole team over the horizon H (rest after the end):
+    states and joint forces at the knots and at the points inside every step."""
     P: np.ndarray           # [H+1, N, 3]
     V: np.ndarray           # [H+1, N, 3]
     FA: np.ndarray          # [H+1, N] grams, joint forces of the planned robots
+    PS: np.ndarray          # [H, m-1, N, 3] inside step k (k -> k+1)
+    VS: np.ndarray
+    FAS: np.ndarray         # [H, m-1, N]
     planned: np.ndarray     # [N] bool
     trajs: list
 
     @staticmethod
     def empty(problem: Problem, H: int) -> "Team":
-        n = problem.n
+        n, m = problem.n, problem.limits.fa_substeps
         P = np.repeat(problem.starts()[None], H + 1, 0)
-        return Team(P, np.zeros_like(P), np.zeros((H + 1, n)), np.zeros(n, bool), [None] * n)
+        PS = np.repeat(P[:H, None], m - 1, 1)
+        return Team(P, np.zeros_like(P), np.zeros((H + 1, n)), PS, np.zeros_like(PS), np.zeros((H, m - 1, n)),
+                    np.zeros(n, bool), [None] * n)
 
-    def set(self, i: int, traj: Trajectory, fm: ForceModel, types) -> None:
-        H = len(self.P) - 1
+    def set(self, i: int, traj: Trajectory, fm: ForceModel, types, kappa: float) -> None:
+        H, m = len(self.P) - 1, self.PS.shape[1] + 1
         self.P[:, i], self.V[:, i] = hold_arrays(traj, H)
+        ps, vs = substates(traj.p[:-1], traj.v[:-1], traj.accel(kappa), traj.dt, m)
+        self.PS[:, :, i] = self.P[:H, None, i]
+        self.VS[:, :, i] = 0.0
+        self.PS[:traj.T, :, i], self.VS[:traj.T, :, i] = ps, vs
         self.trajs[i] = traj
         self.planned[i] = True
-        self.FA = fm.team_np(types, self.P, self.V, np.repeat(self.planned[None], H + 1, 0))
+        present = np.repeat(self.planned[None], H + 1, 0)
+        self.FA = fm.team_np(types, self.P, self.V, present)
+        n = len(self.planned)
+        self.FAS = fm.team_np(types, self.PS.reshape(-1, n, 3), self.VS.reshape(-1, n, 3),
+                              np.repeat(self.planned[None], H * (m - 1), 0)).reshape(H, m - 1, n)
 
 
 @dataclass
@@ -117,17 +131,26 @@ class AORRT:
         self.rng = np.random.default_rng(params.seed)
 
     # ------------------------------------------------------------------ checks
-    def _forces(self, team: Team, i: int, k: np.ndarray, p: np.ndarray, v: np.ndarray) -> np.ndarray:
-        """Joint forces [B, N] of the planned robots and robot i (at p, v) at steps k."""
-        P, V = team.P[k].copy(), team.V[k].copy()
+    def _forces(self, team: Team, i: int, k: np.ndarray, q: np.ndarray, p: np.ndarray, v: np.ndarray):
+        """Joint forces [B, N] of the planned robots and robot i (at p, v) at knot k
+        (q = 0) or at point q of step k -> k+1 (q >= 1), and the planned robots'
+        previous forces [B, N] there."""
+        kc, qc = np.minimum(k, len(team.PS) - 1), np.maximum(q, 1) - 1
+        knot = (q == 0)[:, None]
+        P = np.where(knot[..., None], team.P[k], team.PS[kc, qc])
+        V = np.where(knot[..., None], team.V[k], team.VS[kc, qc])
+        FA = np.where(knot, team.FA[k], team.FAS[kc, qc])
         P[:, i], V[:, i] = p, v
         present = np.repeat(team.planned[None], len(k), 0)
         present[:, i] = True
-        return self.fm.team_np(self.types, P, V, present)
+        return self.fm.team_np(self.types, P, V, present), FA
 
-    def _valid(self, team: Team, i: int, k_prev, p_prev, k, p, v):
-        """StateValid (line state_valid) for candidates of robot i; returns
-        (valid [B], own force [B], rejected only by a neighbour's force check [B])."""
+    def _valid(self, team: Team, i: int, k_prev, p_prev, v_prev, a, k, p, v):
+        """StateValid (line state_valid) for candidates of robot i that move from
+        (p_prev, v_prev) at step k_prev with acceleration a to (p, v) at step k;
+        returns (valid [B], own force at k [B], rejected only by a neighbour's force
+        check [B]).  Force limits are checked at k and at fa_substeps - 1 points
+        inside the step."""
         lim = self.pb.limits
         ax = self.ax
         ok = (k <= len(team.P) - 1)
@@ -138,17 +161,22 @@ class AORRT:
         idx = np.flatnonzero(ok)
         if len(idx) == 0:
             return ok, fa_i, nbr_bad
-        kk = k[idx]
-        F = self._forces(team, i, kk, p[idx], v[idx])
-        fa_i[idx] = F[:, i]
-        good = np.abs(F[:, i]) <= self.fa_max[i]
-        nb = np.zeros(len(idx), bool)
+        kk, b, m = k[idx], len(idx), lim.fa_substeps
+        ps, vs = substates(p_prev[idx], v_prev[idx], a[idx], self.par.dt, m)     # [b, m-1, 3]
+        P = np.concatenate([p[idx][:, None], ps], 1).reshape(-1, 3)
+        V = np.concatenate([v[idx][:, None], vs], 1).reshape(-1, 3)
+        q = np.tile(np.arange(m), b)
+        F, FA = self._forces(team, i, np.repeat(kk, m) - (q > 0), q, P, V)
+        F, FA = F.reshape(b, m, -1), FA.reshape(b, m, -1)
+        fa_i[idx] = F[:, 0, i]
+        good = np.all(np.abs(F[:, :, i]) <= self.fa_max[i], 1)
+        nb = np.zeros(b, bool)
         for j in np.flatnonzero(team.planned):
             if j == i:
                 continue
             d = segment_distance(p_prev[idx], p[idx], team.P[k_prev[idx], j], team.P[kk, j])
             good &= d >= self.r[i, j]
-            nb |= (np.abs(F[:, j]) > self.fa_max[j]) | (np.abs(F[:, j] - team.FA[kk, j]) > lim.b_fa_g)
+            nb |= np.any((np.abs(F[:, :, j]) > self.fa_max[j]) | (np.abs(F[:, :, j] - FA[:, :, j]) > lim.b_fa_g), 1)
         ok[idx] = good & ~nb
         nbr_bad[idx] = good & nb
         return ok, fa_i, nbr_bad
@@ -161,7 +189,8 @@ class AORRT:
             return True
         k = np.arange(k_end + 1, H + 1)
         p = np.repeat(p_end[None], len(k), 0)
-        ok, _, _ = self._valid(team, i, k - 1, p, k, p, np.zeros_like(p))
+        z = np.zeros_like(p)
+        ok, _, _ = self._valid(team, i, k - 1, p, z, z, k, p, z)
         return bool(ok.all())
 
     # ------------------------------------------------------------------ one RRT
@@ -176,7 +205,7 @@ class AORRT:
         rng = self.rng
         start, goal = self.pb.starts()[i], self.pb.goals()[i]
         tree = Tree.alloc(par.max_nodes + par.batch)
-        fa0 = self._forces(team, i, np.array([0]), start[None], np.zeros((1, 3)))[0, i]
+        fa0 = self._forces(team, i, np.array([0]), np.array([0]), start[None], np.zeros((1, 3)))[0][0, i]
         tree.add(start[None], np.zeros((1, 3)), np.array([fa0]), np.array([0]), np.array([0.0]), np.array([-1]),
                  np.zeros((1, 3)))
         keys = np.zeros((par.max_nodes + par.batch, len(ax) * 2 + 2))
@@ -212,7 +241,8 @@ class AORRT:
             p_new, v_new = step(tree.p[near], tree.v[near], u, tree.fa[near], self.kappa[i], par.dt)
             k_new = tree.k[near] + 1
             c_new = tree.c[near] + np.linalg.norm(u, axis=1) * par.dt
-            ok, fa_new, nbr_bad = self._valid(team, i, tree.k[near], tree.p[near], k_new, p_new, v_new)
+            a = accel(u, tree.fa[near], self.kappa[i])
+            ok, fa_new, nbr_bad = self._valid(team, i, tree.k[near], tree.p[near], tree.v[near], a, k_new, p_new, v_new)
             ok &= c_new < c_bound
             for e in np.flatnonzero(nbr_bad)[:max(0, 3000 - len(tree.rejected))]:
                 tree.rejected.append((tree.p[near[e]].copy(), p_new[e].copy()))
@@ -267,7 +297,7 @@ class AORRT:
                     accepts.append((it, int(i), traj.effort(), team.P.copy(), team.V.copy(), team.FA.copy(), traj.copy()))
                     costs[i] = traj.effort()     # c^(i) <- c (line cost_update)
                     trees[i] = tree.trimmed()
-                    team.set(int(i), traj, self.fm, self.types)
+                    team.set(int(i), traj, self.fm, self.types, float(self.kappa[i]))
                     improved = True
             it += 1
             missing = [int(i) for i in range(n) if team.trajs[i] is None]

@@ -83,6 +83,27 @@ def hold_arrays(traj: Trajectory, H: int) -> tuple[np.ndarray, np.ndarray]:
     return p, v
 
 
+def substates(p: np.ndarray, v: np.ndarray, a: np.ndarray, dt: float, m: int):
+    """States inside each step (held acceleration a) at s = q dt / m, q = 1..m-1:
+    p, v [..., m-1, 3] for p, v, a [..., 3] at the start of the step.  The learned
+    force is a narrow spike when a robot crosses another's wake, so the force limits
+    are checked at these points too, not only at the knots."""
+    s = (np.arange(1, m) / m * dt)[:, None]
+    p, v, a = p[..., None, :], v[..., None, :], a[..., None, :]
+    return p + v * s + 0.5 * a * s * s, v + a * s
+
+
+def team_substates(trajs: list, kappa, m: int):
+    """substates of every robot of a uniform-length team: P, V [T (m-1), N, 3]
+    (time-major: step k's points are rows k (m-1) .. (k+1)(m-1) - 1)."""
+    out_p, out_v = [], []
+    for tr, k in zip(trajs, kappa):
+        ps, vs = substates(tr.p[:-1], tr.v[:-1], tr.accel(float(k)), tr.dt, m)
+        out_p.append(ps.reshape(-1, 3))
+        out_v.append(vs.reshape(-1, 3))
+    return np.stack(out_p, 1), np.stack(out_v, 1)
+
+
 def segment_distance(a0: np.ndarray, a1: np.ndarray, b0: np.ndarray, b1: np.ndarray) -> np.ndarray:
     """Minimum distance between two robots moving linearly from a0 to a1 and from b0
     to b1 over the same interval (closed form), batched over leading axes."""

@@ -38,6 +38,7 @@ class Limits:
     u_max: float = 2.5                       # m/s^2 per axis (action box U)
     fa_max_g: dict = field(default_factory=lambda: {"small": 5.0, "large": 10.0})  # f_a,max per type
     b_fa_g: float = 3.0                      # trust region on a neighbour's force change
+    fa_substeps: int = 4                     # force limits also checked at dt/4, dt/2, 3dt/4 of every step
 
 
 @dataclass(frozen=True)
@@ -133,6 +134,8 @@ class Problem:
             raise PlanningError(f"unknown robot types {unknown}; the config has {self.cfg.robot_types}")
         if not (lim.v_max > 0 and lim.u_max > 0 and lim.b_fa_g > 0):
             raise PlanningError("infeasible limits: v_max, u_max and b_fa must be positive")
+        if not (isinstance(lim.fa_substeps, int) and lim.fa_substeps >= 1):
+            raise PlanningError("fa_substeps must be a positive integer")
         fa_max = self.fa_max()
         if not np.all(fa_max > 0):
             raise PlanningError(f"infeasible limits: f_a,max must be positive, got {fa_max.tolist()}")

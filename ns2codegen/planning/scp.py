@@ -12,6 +12,8 @@ One convex program per robot per iteration, eq. (scp), the others fixed:
          |C^(j)_k (x_k - x_bar_k)| <= b_fa, |f_a^(j)(x_bar_k) + C^(j)_k (x_k - x_bar_k)| <= f_a,max^(j) + delta
          |x_k - x_bar_k| <= b_x,  |u_k - u_bar_k| <= b_u                   (trust regions)
 
+The force rows are also imposed at fa_substeps - 1 points inside every step
+(the states there are affine in the variables), where a crossing's force peaks.
 A_k and C^(j)_k are Jacobians of the learned force from torch autograd
 (eq. planning-Fa-approx).  Solved with cvxpy and Clarabel.  A step is accepted only
 when it lowers the team merit (the objective evaluated with the true nonlinear
@@ -27,8 +29,9 @@ from dataclasses import dataclass
 
 import cvxpy as cp
 import numpy as np
+from scipy import sparse
 
-from .dynamics import Trajectory, segment_distance, step
+from .dynamics import Trajectory, segment_distance, step, team_substates
 from .forces import ForceModel
 from .problem import PlanningError, Problem, SCPParams
 
@@ -53,6 +56,8 @@ def merit(pb: Problem, fm: ForceModel, trajs: list, par: SCPParams) -> tuple[flo
     P, V = _team_arrays(trajs)
     F = fm.team_np(pb.type_index(), P, V)
     kappa, fa_max, r = pb.kappa(), pb.fa_max(), pb.r_pair()
+    F_sub = fm.team_np(pb.type_index(), *team_substates(trajs, kappa, pb.limits.fa_substeps)) \
+        if pb.limits.fa_substeps > 1 else np.zeros((0, pb.n))
     lo, hi = pb.box()
     ax = list(pb.axes)
     goals = pb.goals()
@@ -62,7 +67,8 @@ def merit(pb: Problem, fm: ForceModel, trajs: list, par: SCPParams) -> tuple[flo
         parts["effort"] += float((tr.u ** 2).sum())
         parts["goal"] += par.lambda_goal * float(np.abs(np.concatenate([tr.p[-1, ax] - goals[i, ax], tr.v[-1, ax]])).max())
         viol = max(0.0, float(np.max(tr.p[:, ax] - hi[ax])), float(np.max(lo[ax] - tr.p[:, ax])),
-                   float(np.max(np.abs(tr.v) - pb.limits.v_max)), float(np.max(np.abs(F[:, i]) - fa_max[i])))
+                   float(np.max(np.abs(tr.v) - pb.limits.v_max)), float(np.max(np.abs(F[:, i]) - fa_max[i])),
+                   float(np.max(np.abs(F_sub[:, i]) - fa_max[i], initial=0.0)))
         for j in range(i + 1, pb.n):
             d = segment_distance(tr.p[:-1], tr.p[1:], trajs[j].p[:-1], trajs[j].p[1:])
             viol += float(np.clip(r[i, j] - d, 0.0, None).sum())
@@ -96,16 +102,45 @@ def solve_cp(pb: Problem, fm: ForceModel, trajs: list, i: int, par: SCPParams, r
     fa, u, delta = cp.Variable(T + 1), cp.Variable((T, d)), cp.Variable(nonneg=True)
     dp, dv = p - pbar, v - vbar
 
-    def lin(j):   # linearized change of robot j's force caused by robot i's (p, v)
-        return cp.sum(cp.multiply(dP[j][:, ax], dp), axis=1) + cp.sum(cp.multiply(dV[j][:, ax], dv), axis=1)
+    def rowdot(J, X):
+        """Rows of J [R, d] dotted with the rows of the expression X [R, d]: a sparse
+        matrix times vec(X) (fast to canonicalize)."""
+        R = J.shape[0]
+        cols = (np.arange(d)[None, :] * R + np.arange(R)[:, None]).ravel()
+        M = sparse.csr_matrix((J.ravel(), (np.repeat(np.arange(R), d), cols)), shape=(R, R * d))
+        return M @ cp.vec(X, order="F")
+
+    def lin(j, jp=dP, jv=dV, rows=slice(None), dp=dp, dv=dv):
+        """Linearized change of robot j's force caused by robot i's (p, v)."""
+        return rowdot(jp[j][rows][:, ax], dp) + rowdot(jv[j][rows][:, ax], dv)
+
+    # the points inside every step (dynamics.substates), affine in the variables
+    m = lim.fa_substeps
+    ez = np.zeros((1, d))
+    ez[0, zc] = kappa
+    acc = u + cp.reshape(fa[:-1], (T, 1), order="F") @ ez
+    subs = []
+    if m > 1:
+        Ps, Vs = team_substates(trajs, pb.kappa(), m)
+        Fs, dPs, dVs = fm.jacobians(types, Ps, Vs, i)
+        for q in range(1, m):
+            sq, rows = q / m * dt, slice(q - 1, None, m - 1)
+            pq = p[:-1] + sq * v[:-1] + 0.5 * sq * sq * acc
+            vq = v[:-1] + sq * acc
+            subs.append((rows, pq - Ps[rows, i][:, ax], vq - Vs[rows, i][:, ax]))
+
+    def slack(shape):   # delta spread over a shape (a broadcast scalar variable is slow to canonicalize)
+        return np.ones(shape) * delta
 
     cons = [p[0] == pb.starts()[i, ax], v[0] == 0.0, fa == F[:, i] + lin(i)]
+    for rows, dpq, dvq in subs:     # the robot's own force limit inside the steps
+        cons.append(cp.abs(Fs[rows, i] + lin(i, dPs, dVs, rows, dpq, dvq)) <= fa_max[i] + slack(T))
     for c in range(d):
         a = u[:, c] + kappa * fa[:-1] if c == zc else u[:, c]
         cons += [v[1:, c] == v[:-1, c] + a * dt, p[1:, c] == p[:-1, c] + v[:-1, c] * dt + 0.5 * dt * dt * a]
     cons += [cp.abs(u) <= lim.u_max,
-             p >= lo[ax] - delta, p <= hi[ax] + delta, cp.abs(v) <= lim.v_max + delta,
-             cp.abs(fa) <= fa_max[i] + delta,
+             p >= np.tile(lo[ax], (T + 1, 1)) - slack((T + 1, d)), p <= np.tile(hi[ax], (T + 1, 1)) + slack((T + 1, d)),
+             cp.abs(v) <= lim.v_max + slack((T + 1, d)), cp.abs(fa) <= fa_max[i] + slack(T + 1),
              cp.abs(dp) <= rho * par.b_p, cp.abs(dv) <= rho * par.b_v, cp.abs(u - ubar) <= rho * par.b_u]
     for j in range(pb.n):
         if j == i:
@@ -117,13 +152,17 @@ def solve_cp(pb: Problem, fm: ForceModel, trajs: list, i: int, par: SCPParams, r
             nrm = rel[ks][:, ax] / np.maximum(dist[ks], 1e-9)[:, None]
             cons.append(cp.sum(cp.multiply(nrm, p[ks] - P[ks, j][:, ax]), axis=1) >= r[i, j] + par.collision_margin)
         if np.any(dP[j]) or np.any(dV[j]):
-            cons += [cp.abs(lin(j)) <= lim.b_fa_g, cp.abs(F[:, j] + lin(j)) <= fa_max[j] + delta]
+            cons += [cp.abs(lin(j)) <= lim.b_fa_g, cp.abs(F[:, j] + lin(j)) <= fa_max[j] + slack(T + 1)]
+        for rows, dpq, dvq in subs:
+            if np.any(dPs[j][rows]) or np.any(dVs[j][rows]):
+                cj = lin(j, dPs, dVs, rows, dpq, dvq)
+                cons += [cp.abs(cj) <= lim.b_fa_g, cp.abs(Fs[rows, j] + cj) <= fa_max[j] + slack(T)]
     goal = cp.hstack([p[T] - pb.goals()[i, ax], v[T]])
     obj = cp.sum_squares(u) + par.lambda_goal * cp.norm(goal, "inf") + par.lambda_box * delta
     prob = cp.Problem(cp.Minimize(obj), cons)
     try:
         kw = {"time_limit": max(time_limit, 0.1)} if par.solver == "CLARABEL" else {}
-        prob.solve(solver=par.solver, canon_backend=cp.SCIPY_CANON_BACKEND, **kw)
+        prob.solve(solver=par.solver, **kw)
     except cp.error.SolverError:
         return None
     if prob.status not in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE) or p.value is None:
