@@ -228,14 +228,18 @@ def sim():
 @click.option("--learned", type=click.Choice(["none", "float", "fixed"]), default="none", show_default=True,
               help="fly with the model of --gen as feed-forward (curriculum learning)")
 @click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--usd-dir", type=click.Path(file_okay=False), default=None,
+              help="also write every robot's log as a Crazyflie uSD file here (+ flights.toml)")
+@_vehicle_option
 @click.option("--out", type=click.Path(dir_okay=False), required=True)
-def sim_collect(gen_dir, seconds_per_team, learned, seed, out):
+def sim_collect(gen_dir, seconds_per_team, learned, seed, usd_dir, vehicle_files, out):
     """Fly every team of 1-3 robots (random walks and swaps) and build a data set from the logs."""
     from ns2host.sim.collect import collect, teams
 
-    cfg = Config.load()
+    cfg = _config(None, vehicle_files)
     _parent_ok(out)
-    ds = collect(cfg, gen_dir, seconds_per_team, seed=seed, learned=None if learned == "none" else learned)
+    ds = collect(cfg, gen_dir, seconds_per_team, seed=seed, learned=None if learned == "none" else learned,
+                 usd_dir=usd_dir)
     ds.save(out)
     click.echo(f"wrote {out}: {len(ds)} samples from {len(teams(cfg))} teams, scenarios {ds.scenario_names}")
 

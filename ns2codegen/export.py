@@ -19,7 +19,7 @@ import numpy as np
 
 from . import __version__
 from .checkpoint import load_checkpoint
-from .config import c_identifier
+from .config import VEHICLE_KEYS, c_identifier
 from .fileio import atomic_write_files
 from .queries import random_queries
 from .quantize import ExportModel, from_checkpoint
@@ -153,6 +153,8 @@ def manifest(m: ExportModel, errors: dict) -> dict:
         "seed": meta.get("seed"),
         "robot_types": cfg.robot_types,
         "neighbor_types": cfg.neighbor_types,
+        "vehicles": {n: {k: v for k, v in cfg.vehicle(n).items() if k in VEHICLE_KEYS or k == "vehicle_file"}
+                     for n in cfg.robot_types},  # the parameters the labels were made with (Table cfprops / sysid)
         "dims": {"phi": cfg.phi_dims(), "rho": cfg.rho_dims(), "hidden": m.hidden,
                  "max_neighbors": m.max_neighbors},
         "normalization": meta.get("normalization"),

@@ -196,9 +196,13 @@ def test_end_to_end_logs_to_data_train_export(cfg, sim_logs, tmp_path, monkeypat
     training -> export (in-process, with fewer error-measurement queries than the
     exporter's default to keep the suite fast; tests/test_export.py covers the rest)."""
     import ns2codegen.export as export_mod
+    from ns2codegen.export import cfloat
 
     root, _ = sim_logs
-    r = ns2("logs-to-data", root, "--out", tmp_path / "d.npz")
+    vfile = tmp_path / "large.toml"   # a vehicle parameter file (as `ns2 sysid` writes): lambda 17.5
+    vfile.write_text('[vehicle]\nname = "large"\nlambda = 17.5\n')
+    cfg = cfg.with_vehicle_files([vfile])
+    r = ns2("logs-to-data", root, "--out", tmp_path / "d.npz", "--vehicle", vfile)
     assert r.returncode == 0, r.stderr
     rep = json.loads(r.stdout)
     assert rep["samples"] > 1000 and set(rep["scenarios"]) == {"L->S", "S->L"}
@@ -212,6 +216,9 @@ def test_end_to_end_logs_to_data_train_export(cfg, sim_logs, tmp_path, monkeypat
     monkeypatch.setattr(export_mod, "ERROR_QUERIES", 1000)
     man = export_mod.export(tmp_path / "m.pt", tmp_path / "gen")
     assert man["data_hash"] == ds.content_hash() and man["robot_types"] == ["small", "large"]
+    assert man["vehicles"]["large"]["lambda"] == 17.5 and man["vehicles"]["large"]["vehicle_file"] == "large.toml"
+    veh_h = (tmp_path / "gen" / "ns2_vehicles.h").read_text()   # the firmware controller's parameters
+    assert veh_h.index(f".lambda = {cfloat(17.5)}") > veh_h.index("/* large */") > veh_h.index(f".lambda = {cfloat(16.0)}")
     assert (tmp_path / "gen" / "ns2_model_float.h").stat().st_size > 1000
     # a corrupt log is a clear error with exit code 1, no data set written
     bad = root.parent / "bad"

@@ -5,6 +5,7 @@ real logs (ns2codegen.data.from_logs), never through the ground truth."""
 from __future__ import annotations
 
 import itertools
+from pathlib import Path
 
 import numpy as np
 
@@ -14,6 +15,7 @@ from ns2codegen.data.from_logs import Flight, flights_to_dataset
 
 from .cloop import CLoopSwarm
 from .scenarios import random_walk, swap
+from .usdlogs import write_flight, write_manifest
 
 POS_NOISE_M = 0.001      # motion capture
 VEL_NOISE_MPS = 0.002    # state estimate
@@ -45,12 +47,19 @@ def fly(cfg: Config, team, gen_dir, kind: str, duration: float, seed: int, learn
 
 
 def collect(cfg: Config, gen_dir, seconds_per_team: float, seed: int = 0, learned=None,
-            team_list=None) -> Dataset:
-    """Half random walk, half swaps per team (single robots only random walk)."""
-    flights = []
+            team_list=None, usd_dir=None) -> Dataset:
+    """Half random walk, half swaps per team (single robots only random walk); with
+    ``usd_dir`` the (noisy) logs are also written there as Crazyflie uSD files with a
+    flights.toml, the input of ``ns2 logs-to-data``."""
+    flights, entries = [], []
     for k, team in enumerate(team_list or teams(cfg)):
         kinds = ["random"] if len(team) == 1 else ["random", "swap"]
         for j, kind in enumerate(kinds):
-            flights.append(fly(cfg, team, gen_dir, kind, seconds_per_team / len(kinds),
-                               seed=seed * 1000 + 10 * k + j, learned=learned))
+            s = seed * 1000 + 10 * k + j
+            flights.append(fly(cfg, team, gen_dir, kind, seconds_per_team / len(kinds), seed=s, learned=learned))
+            if usd_dir is not None:
+                entries.append(write_flight(Path(usd_dir), f"{''.join(t[0] for t in team)}_{kind}_{s}",
+                                            list(team), flights[-1].__dict__, seed=s))
+    if usd_dir is not None:
+        write_manifest(Path(usd_dir), entries)
     return flights_to_dataset(cfg, flights)
