@@ -93,7 +93,8 @@ def test_crazyflie_app_flies_the_ns2_controller(exported, tmp_path):
     above.  The sliced prediction of the app equals the direct one-shot prediction
     bit for bit (fixed and float), the motors get PWM ratios in controlModeForce,
     the baseline hovers at psi_2 of the hover force, the learned downwash asks for
-    more thrust, and no position setpoint means motors off."""
+    more thrust, no position setpoint means motors off, and a write of ns2.sync
+    logs one ns2Sync event."""
     import json
     import subprocess
 
@@ -115,6 +116,7 @@ def test_crazyflie_app_flies_the_ns2_controller(exported, tmp_path):
         assert res["mode"] == 2 and res["n"] == 1  # controlModeForce, the peer is a neighbour
         assert np.float32(res["fa_hat_g"]) == np.float32(res["direct_g"])
         assert all(0.0 < u < 1.0 for u in res["mean_pwm"]) and res["off_pwm"] == [0, 0, 0, 0]
+        assert res["sync"] == [1, 42]  # one ns2Sync event for the one write of ns2.sync
     veh = vehicle(exported.cfg, "small")
     f_g, v = veh.mass * G / 4 / G * 1000.0, 3.9 / 4.2
     c = veh.psi2

@@ -102,7 +102,7 @@ typedef struct {
     uint8_t type[NS2_MAX_NEIGHBORS + 1];         /* neighbour type of each phi input */
     float x[NS2_MAX_NEIGHBORS + 1][6];           /* clamped phi inputs, environment first */
     float h_f32[NS2_HIDDEN];                     /* latent sum, float path */
-    int32_t h_q15[NS2_HIDDEN];                   /* latent sum, fixed-point path */
+    int32_t h_q15[(NS2_HIDDEN + 3) / 4 * 4];     /* latent sum, fixed-point path (rows padded to 4) */
 } ns2_job_t;
 
 /* Returns info.status (NS2_OK or NS2_ERR_*); on error the job finishes with 0. */

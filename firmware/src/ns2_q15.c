@@ -47,6 +47,7 @@ static int32_t ns2_smlad_c(int32_t a, int32_t b, int32_t acc)
 }
 
 #define NS2_Q_WORDS (NS2_PAD4(NS2_MAX_WIDTH) / 2) /* int16 pairs per activation buffer */
+#define NS2_HIDDEN_PAD4 NS2_PAD4(NS2_HIDDEN)      /* latent sum incl. the padded rows */
 
 /* floor(a / 2^s) for any sign, without implementation-defined shifts. */
 static int32_t floor_shift(int32_t a, uint8_t s)
@@ -98,10 +99,16 @@ static int32_t finish(int32_t acc, uint8_t shift, int relu)
     return (relu && r < 0) ? 0 : r;
 }
 
+/* Output of a layer: packed int16 pairs with ReLU (hidden layers), packed int16
+ * pairs (rho's last layer), or int16 outputs written to (set) or added to (acc)
+ * int32 sums (phi's last layer, straight into the latent sum h). */
+enum { NS2_OUT_RELU, NS2_OUT_LIN, NS2_OUT_SET, NS2_OUT_ACC };
+
 /* One layer, portable C: per block the four biases, then n_quads input quads. */
-static void dense_q15_c(const ns2_q15_layer_t *layer, const int32_t *x, int32_t *y, int relu)
+static void dense_q15_c(const ns2_q15_layer_t *layer, const int32_t *x, int32_t *y, int out)
 {
     const int32_t *w = layer->wb;
+    const int relu = out == NS2_OUT_RELU;
     for (uint16_t blk = 0; blk < layer->n_blocks; ++blk) {
         int32_t acc[4] = {w[0], w[1], w[2], w[3]};
         const int32_t *xp = x;
@@ -116,8 +123,15 @@ static void dense_q15_c(const ns2_q15_layer_t *layer, const int32_t *x, int32_t 
             }
             w += 8;
         }
-        y[2u * blk] = pack16(finish(acc[0], layer->shift, relu), finish(acc[1], layer->shift, relu));
-        y[2u * blk + 1u] = pack16(finish(acc[2], layer->shift, relu), finish(acc[3], layer->shift, relu));
+        if (out == NS2_OUT_SET || out == NS2_OUT_ACC) {
+            for (uint16_t r = 0; r < 4u; ++r) {
+                const int32_t v = finish(acc[r], layer->shift, 0);
+                y[4u * blk + r] = out == NS2_OUT_SET ? v : y[4u * blk + r] + v;
+            }
+        } else {
+            y[2u * blk] = pack16(finish(acc[0], layer->shift, relu), finish(acc[1], layer->shift, relu));
+            y[2u * blk + 1u] = pack16(finish(acc[2], layer->shift, relu), finish(acc[3], layer->shift, relu));
+        }
     }
 }
 
@@ -126,10 +140,12 @@ static void dense_q15_c(const ns2_q15_layer_t *layer, const int32_t *x, int32_t 
  * kind (USAT #15 = ReLU + saturation for hidden layers, SSAT #16 for the last).
  * Per block: two LDRD of the biases; per quad (unrolled NQ times by the
  * assembler) one LDRD of the two input words, two LDM of four weight words and
- * eight SMLAD; then ASR (the floor shift), saturation, two PKHBT and one STRD.
+ * eight SMLAD; then ASR (the floor shift), saturation, and the store: two
+ * PKHBT and one STRD, or (set) two STRD of int32 values, or (acc) twice LDRD,
+ * two ADD and STRD into the int32 sums.
  * Same arithmetic as dense_q15_c: integer sums are exact, SMLAD is
  * acc + lo*lo + hi*hi, ASR is floor division by 2^shift. */
-#define NS2_Q15_KERNEL(NQ, NAME, SAT)                                                           \
+#define NS2_Q15_KERNEL(NQ, NAME, SAT, STORE)                                                     \
     __attribute__((noinline)) static void dense_q15_##NQ##_##NAME(                              \
         const int32_t *x, const int32_t *w, int32_t *y, uint32_t n_blocks, int32_t s)           \
     {                                                                                           \
@@ -161,9 +177,7 @@ static void dense_q15_c(const ns2_q15_layer_t *layer, const int32_t *x, int32_t 
                          SAT " %[a1], " SAT_BITS_##NAME ", %[a1]\n\t"                           \
                          SAT " %[a2], " SAT_BITS_##NAME ", %[a2]\n\t"                           \
                          SAT " %[a3], " SAT_BITS_##NAME ", %[a3]\n\t"                           \
-                         "pkhbt %[a0], %[a0], %[a1], lsl #16\n\t"                               \
-                         "pkhbt %[a2], %[a2], %[a3], lsl #16\n\t"                               \
-                         "strd %[a0], %[a2], [%[y]], #8\n\t"                                    \
+                         STORE                                                                  \
                          "subs %[n], %[n], #1\n\t"                                              \
                          "bne 1b"                                                               \
                          : [a0] "=&r"(a0), [a1] "=&r"(a1), [a2] "=&r"(a2), [a3] "=&r"(a3),       \
@@ -174,21 +188,45 @@ static void dense_q15_c(const ns2_q15_layer_t *layer, const int32_t *x, int32_t 
     }
 #define SAT_BITS_relu "#15"
 #define SAT_BITS_lin "#16"
-#define NS2_Q15_KERNELS(NQ)              \
-    NS2_Q15_KERNEL(NQ, relu, "usat")     \
-    NS2_Q15_KERNEL(NQ, lin, "ssat")
+#define SAT_BITS_set "#16"
+#define SAT_BITS_acc "#16"
+#define NS2_Q15_STORE_SET                     \
+    "strd %[a0], %[a1], [%[y]], #8\n\t"      \
+    "strd %[a2], %[a3], [%[y]], #8\n\t"
+#define NS2_Q15_STORE_PACKED                  \
+    "pkhbt %[a0], %[a0], %[a1], lsl #16\n\t" \
+    "pkhbt %[a2], %[a2], %[a3], lsl #16\n\t" \
+    "strd %[a0], %[a2], [%[y]], #8\n\t"
+#define NS2_Q15_STORE_ADD                     \
+    "ldrd %[x0], %[x1], [%[y]]\n\t"          \
+    "add %[x0], %[x0], %[a0]\n\t"            \
+    "add %[x1], %[x1], %[a1]\n\t"            \
+    "strd %[x0], %[x1], [%[y]], #8\n\t"      \
+    "ldrd %[x0], %[x1], [%[y]]\n\t"          \
+    "add %[x0], %[x0], %[a2]\n\t"            \
+    "add %[x1], %[x1], %[a3]\n\t"            \
+    "strd %[x0], %[x1], [%[y]], #8\n\t"
+#define NS2_Q15_KERNELS(NQ)                                \
+    NS2_Q15_KERNEL(NQ, relu, "usat", NS2_Q15_STORE_PACKED) \
+    NS2_Q15_KERNEL(NQ, lin, "ssat", NS2_Q15_STORE_PACKED)  \
+    NS2_Q15_KERNEL(NQ, set, "ssat", NS2_Q15_STORE_SET)     \
+    NS2_Q15_KERNEL(NQ, acc, "ssat", NS2_Q15_STORE_ADD)
 NS2_Q15_FOR_EACH_QUAD_COUNT(NS2_Q15_KERNELS)
 
 #define NS2_Q15_CASE(NQ)                                                                  \
     case NQ:                                                                              \
-        if (relu) {                                                                       \
+        if (out == NS2_OUT_RELU) {                                                        \
             dense_q15_##NQ##_relu(x, layer->wb, y, layer->n_blocks, (int32_t)layer->shift); \
-        } else {                                                                          \
+        } else if (out == NS2_OUT_LIN) {                                                  \
             dense_q15_##NQ##_lin(x, layer->wb, y, layer->n_blocks, (int32_t)layer->shift);  \
+        } else if (out == NS2_OUT_SET) {                                                  \
+            dense_q15_##NQ##_set(x, layer->wb, y, layer->n_blocks, (int32_t)layer->shift);  \
+        } else {                                                                          \
+            dense_q15_##NQ##_acc(x, layer->wb, y, layer->n_blocks, (int32_t)layer->shift);  \
         }                                                                                 \
         return;
 
-static void dense_q15(const ns2_q15_layer_t *layer, const int32_t *x, int32_t *y, int relu)
+static void dense_q15(const ns2_q15_layer_t *layer, const int32_t *x, int32_t *y, int out)
 {
     if (layer->n_blocks == 0u) {
         return;
@@ -196,7 +234,7 @@ static void dense_q15(const ns2_q15_layer_t *layer, const int32_t *x, int32_t *y
     switch (layer->n_quads) {
         NS2_Q15_FOR_EACH_QUAD_COUNT(NS2_Q15_CASE)
     default:
-        dense_q15_c(layer, x, y, relu); /* a count the exporter did not list */
+        dense_q15_c(layer, x, y, out); /* a count the exporter did not list */
         return;
     }
 }
@@ -204,12 +242,13 @@ static void dense_q15(const ns2_q15_layer_t *layer, const int32_t *x, int32_t *y
 #define dense_q15 dense_q15_c
 #endif
 
-static const int32_t *net_q15(const ns2_q15_net_t *net, const int32_t *x, int32_t buf[2][NS2_Q_WORDS])
+/* The hidden layers of an MLP (ReLU); returns the last hidden activation (in buf). */
+static const int32_t *hidden_q15(const ns2_q15_net_t *net, const int32_t *x, int32_t buf[2][NS2_Q_WORDS])
 {
     const int32_t *in = x;
-    for (uint8_t l = 0; l < net->n_layers; ++l) {
+    for (uint8_t l = 0; l + 1u < net->n_layers; ++l) {
         int32_t *out = buf[l & 1u];
-        dense_q15(&net->layers[l], in, out, l + 1u < net->n_layers);
+        dense_q15(&net->layers[l], in, out, NS2_OUT_RELU);
         in = out;
     }
     return in;
@@ -224,35 +263,32 @@ static void quantize_input(const float x[6], float scale, int32_t xq[4])
     xq[3] = 0;
 }
 
-/* h = phi (first term) or h += phi, from packed int16 pairs */
-static void accumulate(int32_t h[NS2_HIDDEN], const int32_t *phi, int first)
-{
-    for (int k = 0; k < NS2_HIDDEN; ++k) {
-        const int32_t v = (k & 1) ? hi16(phi[k / 2]) : lo16(phi[k / 2]);
-        h[k] = first ? v : h[k] + v;
-    }
-}
-
-/* h = phi_t(x) (first input) or h += phi_t(x), x clamped (int32 sums: exact) */
-static void phi_add_q15(int32_t h[NS2_HIDDEN], uint8_t t, const float x[6], int first)
+/* h = phi_t(x) (first input) or h += phi_t(x), x clamped (int32 sums: exact).
+ * phi's last layer writes or adds its int16 outputs straight into h (the
+ * padded rows give 0). */
+static void phi_add_q15(int32_t h[NS2_HIDDEN_PAD4], uint8_t t, const float x[6], int first)
 {
     int32_t xq[4];
     int32_t buf[2][NS2_Q_WORDS];
+    const ns2_q15_net_t *net = &ns2_q15_phi[t];
     quantize_input(x, ns2_q15_in_scale[t], xq);
-    accumulate(h, net_q15(&ns2_q15_phi[t], xq, buf), first);
+    dense_q15(&net->layers[net->n_layers - 1u], hidden_q15(net, xq, buf), h, first ? NS2_OUT_SET : NS2_OUT_ACC);
 }
 
 /* The latent sum brought to rho's input format, then rho. */
-static int16_t rho_q15(uint8_t robot_type, const int32_t h[NS2_HIDDEN])
+static int16_t rho_q15(uint8_t robot_type, const int32_t h[NS2_HIDDEN_PAD4])
 {
-    int32_t hq[NS2_PAD4(NS2_HIDDEN) / 2];
+    int32_t hq[NS2_HIDDEN_PAD4 / 2];
+    int32_t y[2];
     int32_t buf[2][NS2_Q_WORDS];
-    for (int k = 0; k < NS2_PAD4(NS2_HIDDEN) / 2; ++k) {
+    const ns2_q15_net_t *net = &ns2_q15_rho[robot_type];
+    for (int k = 0; k < NS2_HIDDEN_PAD4 / 2; ++k) {
         const int32_t h0 = 2 * k < NS2_HIDDEN ? round_shift_sat(h[2 * k], NS2_Q_SUM_SHIFT) : 0;
         const int32_t h1 = 2 * k + 1 < NS2_HIDDEN ? round_shift_sat(h[2 * k + 1], NS2_Q_SUM_SHIFT) : 0;
         hq[k] = pack16(h0, h1);
     }
-    return (int16_t)lo16(net_q15(&ns2_q15_rho[robot_type], hq, buf)[0]);
+    dense_q15(&net->layers[net->n_layers - 1u], hidden_q15(net, hq, buf), y, NS2_OUT_LIN);
+    return (int16_t)lo16(y[0]);
 }
 
 int16_t ns2_predict_q15(uint8_t robot_type, const float p[3], const float v[3],
@@ -261,7 +297,7 @@ int16_t ns2_predict_q15(uint8_t robot_type, const float p[3], const float v[3],
     ns2_info_t local;
     ns2_info_t *inf = info != NULL ? info : &local;
     float x[6];
-    int32_t h[NS2_HIDDEN];
+    int32_t h[NS2_HIDDEN_PAD4];
     uint16_t idx[NS2_MAX_NEIGHBORS];
     uint16_t n_used;
 

@@ -23,7 +23,11 @@
  *    outputs (ns2_controller.h).
  * Vehicle parameters and default gains of each robot type come from the
  * generated ns2_vehicles.h; the gains of this robot are in PARAM group ns2gain.
- * PARAM: ns2 (switches, limits), ns2type (robot types of radio ids), ns2gain.
+ * Clock synchronization for the logs (paper, "Data Collection"): writing the
+ * parameter ns2.sync (broadcast to all drones before take-off) logs the uSD
+ * event ns2Sync with the written value as seq; ns2codegen.logs.align aligns the
+ * robots' clocks on it.
+ * PARAM: ns2 (switches, limits, sync), ns2type (robot types of radio ids), ns2gain.
  * LOG ns2: faHat (g), inferUs (worst prediction slice of the last period, us),
  * nUsed, status, ctrlStatus, ex/ey/ez (position error, m).
  */
@@ -38,6 +42,8 @@
 
 #define DEBUG_MODULE "NS2"
 #include "debug.h"
+
+#include "eventtrigger.h"
 
 #include "configblock.h"
 #include "controller.h"
@@ -71,6 +77,10 @@ static struct {
     uint16_t maxAgeMs;  /* peers older than this are ignored */
     float faLimit;      /* |f_a,z| limit, g */
 } cfg = {1, 1, NS2_TYPE_SMALL, 4, 100, 20.0f};
+
+static uint32_t syncSeq;   /* PARAM ns2.sync: a new value logs the event ns2Sync */
+static uint32_t syncLogged;
+EVENTTRIGGER(ns2Sync, uint32, seq)
 
 static uint32_t typeMask1; /* radio id i is robot type 1 when bit i is set */
 static uint32_t typeMask2; /* ... type 2 (for a third robot type) */
@@ -217,6 +227,11 @@ void controllerOutOfTree(control_t *control, const setpoint_t *setpoint, const s
                          const state_t *state, const uint32_t tick)
 {
     control->controlMode = controlModeForce;
+    if (syncSeq != syncLogged) {
+        syncLogged = syncSeq;
+        eventTrigger_ns2Sync_payload.seq = syncSeq;
+        eventTrigger(&eventTrigger_ns2Sync);
+    }
     if (setpoint->mode.z == modeDisable || self_type() != ctrlType) {
         reset_controller(); /* on the ground, or the robot type was changed */
         for (int m = 0; m < STABILIZER_NR_OF_MOTORS; ++m) {
@@ -255,6 +270,7 @@ PARAM_ADD(PARAM_UINT8, selfType, &cfg.selfType)
 PARAM_ADD(PARAM_UINT8, phiPerTick, &cfg.phiPerTick)
 PARAM_ADD(PARAM_UINT16, maxAgeMs, &cfg.maxAgeMs)
 PARAM_ADD(PARAM_FLOAT, faLimit, &cfg.faLimit)
+PARAM_ADD(PARAM_UINT32, sync, &syncSeq)
 PARAM_GROUP_STOP(ns2)
 
 PARAM_GROUP_START(ns2type)

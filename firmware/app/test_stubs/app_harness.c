@@ -25,9 +25,15 @@
 #include "../src/ns2_app.c"
 
 static uint32_t now_ms;
+static uint32_t sync_events, sync_seq;
 static peerLocalizationOtherPosition_t peer = {2u, 0u, {0.05f, 0.0f, 1.3f}, {0.0f, 0.0f, 0.0f, 1.0f}};
 
 int consolePrintf(const char *fmt, ...) { (void)fmt; return 0; }
+void eventTrigger(const eventTrigger_t *event)
+{
+    sync_events++;
+    sync_seq = *(const uint32_t *)event->payload;
+}
 uint64_t usecTimestamp(void) { return (uint64_t)now_ms * 1000u; }
 uint64_t configblockGetRadioAddress(void) { return 0xE7E7E7E701ull; }
 float pmGetBatteryVoltage(void) { return 3.9f; }
@@ -58,6 +64,9 @@ int main(int argc, char **argv)
     float sum[4] = {0};
     for (uint32_t tick = 0; tick < 1000u; ++tick) {
         now_ms = tick;
+        if (tick == 500u) {
+            syncSeq = 42u; /* the broadcast parameter write */
+        }
         controllerOutOfTree(&control, &sp, &sensors, &state, tick);
         for (int m = 0; m < 4; ++m) {
             sum[m] += control.normalizedForces[m];
@@ -80,6 +89,7 @@ int main(int argc, char **argv)
     sp.mode.z = modeDisable;
     now_ms = 1000u;
     controllerOutOfTree(&control, &sp, &sensors, &state, 1000u);
+    printf(", \"sync\": [%u, %u]", (unsigned)sync_events, (unsigned)sync_seq);
     printf(", \"off_pwm\": [%g, %g, %g, %g]}\n", (double)control.normalizedForces[0],
            (double)control.normalizedForces[1], (double)control.normalizedForces[2],
            (double)control.normalizedForces[3]);
