@@ -138,37 +138,30 @@ static void reset_controller(void)
     faHat = 0.0f;
 }
 
+static void set3(float out[3], float x, float y, float z)
+{
+    out[0] = x;
+    out[1] = y;
+    out[2] = z;
+}
+
 static void to_ctrl_state(const state_t *state, const sensorData_t *sensors, ns2_ctrl_state_t *s)
 {
     const quaternion_t *q = &state->attitudeQuaternion;
-    s->p[0] = state->position.x;
-    s->p[1] = state->position.y;
-    s->p[2] = state->position.z;
-    s->v[0] = state->velocity.x;
-    s->v[1] = state->velocity.y;
-    s->v[2] = state->velocity.z;
-    s->q[0] = q->w;
-    s->q[1] = q->x;
-    s->q[2] = q->y;
-    s->q[3] = q->z;
-    s->w[0] = sensors->gyro.x * NS2_DEG2RAD;
-    s->w[1] = sensors->gyro.y * NS2_DEG2RAD;
-    s->w[2] = sensors->gyro.z * NS2_DEG2RAD;
+    set3(s->p, state->position.x, state->position.y, state->position.z);
+    set3(s->v, state->velocity.x, state->velocity.y, state->velocity.z);
+    s->q[0] = q->w; /* [w x y z] */
+    set3(&s->q[1], q->x, q->y, q->z);
+    set3(s->w, sensors->gyro.x * NS2_DEG2RAD, sensors->gyro.y * NS2_DEG2RAD, sensors->gyro.z * NS2_DEG2RAD);
 }
 
 static void to_setpoint(const setpoint_t *sp, ns2_setpoint_t *d)
 {
-    d->p[0] = sp->position.x;
-    d->p[1] = sp->position.y;
-    d->p[2] = sp->position.z;
-    d->v[0] = sp->velocity.x;
-    d->v[1] = sp->velocity.y;
-    d->v[2] = sp->velocity.z;
-    d->a[0] = sp->acceleration.x;
-    d->a[1] = sp->acceleration.y;
-    d->a[2] = sp->acceleration.z;
+    set3(d->p, sp->position.x, sp->position.y, sp->position.z);
+    set3(d->v, sp->velocity.x, sp->velocity.y, sp->velocity.z);
+    set3(d->a, sp->acceleration.x, sp->acceleration.y, sp->acceleration.z);
+    set3(d->w, 0.0f, 0.0f, 0.0f);
     d->yaw = sp->attitude.yaw * NS2_DEG2RAD;
-    d->w[0] = d->w[1] = d->w[2] = 0.0f;
 }
 
 /* Finish the running prediction (rho) into faHat, then begin the next one from
