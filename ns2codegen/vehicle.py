@@ -44,6 +44,10 @@ def base_type(name: str) -> str:
     return name.rstrip("*")
 
 
+# config keys of a robot type that simulation and the controller need
+RIGID_BODY_KEYS = ("arm_length_m", "inertia_kgm2", "thrust_to_torque_m", "psi1", "psi2")
+
+
 def vehicle(cfg: Config, name: str) -> Vehicle:
     """Parameters of robot type ``name``; "<type>*" is the type with stronger motors
     (psi_1 and the maximum force scaled by STRONG, psi_2 its inverse accordingly)."""
@@ -54,7 +58,7 @@ def vehicle(cfg: Config, name: str) -> Vehicle:
         return Vehicle(name, v.mass, v.inertia, v.arm, v.kappa, v.lam, v.f_max * k, v.diameter, v.psi1 * k,
                        np.array([p2[0], p2[1] / k, p2[2], p2[3] / k ** 2, p2[4] / k]))
     t = cfg.vehicle(name)
-    for key in ("arm_length_m", "inertia_kgm2", "thrust_to_torque_m", "psi1", "psi2"):
+    for key in RIGID_BODY_KEYS:
         if key not in t:
             raise ValueError(f"robot type {name}: {key} is needed for simulation and the controller")
     return Vehicle(name, t["mass_g"] / 1000.0, np.array(t["inertia_kgm2"], float), float(t["arm_length_m"]),
@@ -65,7 +69,7 @@ def vehicle(cfg: Config, name: str) -> Vehicle:
 def has_rigid_body(cfg: Config, name: str) -> bool:
     """Whether robot type ``name`` has what simulation and the controller need."""
     t = cfg.vehicle(name)
-    return all(k in t for k in ("arm_length_m", "inertia_kgm2", "thrust_to_torque_m", "psi1", "psi2"))
+    return all(k in t for k in RIGID_BODY_KEYS)
 
 
 def default_gains(veh: Vehicle) -> dict:
