@@ -5,14 +5,17 @@
 #   make test     the whole test suite (host C, cross-compiled Cortex-M4F build)
 #   make bench    benchmarks, JSON on stdout (host training/inference, then the
 #                 emulated Cortex-M4: instructions, cycles, budget, memory)
+#   make export-onboard  the same with the one-tick on-board variant of the
+#                 network (narrower intermediate layers, H and L of the paper)
 #   make firmware cross-build the library for the STM32F405 and print its size
 PYTHON ?= python3
 NS2 := $(PYTHON) -m ns2codegen.cli
 GEN := firmware/generated
 DEFAULT := build/default
+ONBOARD := build/onboard
 CHECKPOINT ?= $(DEFAULT)/model.pt
 
-.PHONY: all deps export test bench firmware sim paper-data clean
+.PHONY: all deps export export-onboard test bench firmware sim paper-data clean
 
 all: export
 
@@ -34,6 +37,13 @@ $(DEFAULT)/model.pt: $(DEFAULT)/data.npz config/default.toml
 
 export: deps $(CHECKPOINT)
 	$(NS2) export $(CHECKPOINT) --out $(GEN)
+
+$(ONBOARD)/model.pt: $(DEFAULT)/data.npz config/default.toml
+	@mkdir -p $(ONBOARD)
+	$(NS2) train --data $< --out $@ --onboard
+
+export-onboard: deps $(ONBOARD)/model.pt
+	$(NS2) export $(ONBOARD)/model.pt --out $(GEN)
 
 # ---------------------------------------------------------------- checks
 test: deps

@@ -2,8 +2,10 @@
 Cortex-M4 (unicorn), executed instructions and estimated cycles (cost model in
 ns2host/cm4_count.py) per phi and rho evaluation and per full prediction with
 1, 4, 15 and 16 neighbours, float and fixed point; microseconds at 168 MHz; the
-2 ms-tick budget; emlearn's generated C for the same layer sizes side by side;
-flash, RAM and worst-case stack from the cross build.
+2 ms-tick budget (ns2host/budget.py), for the paper's network and for the
+one-tick on-board variant (ns2codegen.config.ONBOARD_WIDTHS); emlearn's
+generated C for the same layer sizes side by side; flash, RAM and worst-case
+stack from the cross build.
 
     python benchmarks/bench_target.py [--gen firmware/generated]
 """
@@ -20,15 +22,13 @@ from pathlib import Path
 import numpy as np
 
 from ns2codegen.checkpoint import load_checkpoint, save_checkpoint
-from ns2codegen.config import Config
+from ns2codegen.config import ONBOARD_WIDTHS, Config
 from ns2codegen.data.analytic import downwash_dataset
 from ns2codegen.export import export
 from ns2codegen.train import train
-from ns2host import cm4_count, firmware_report, target
+from ns2host import budget, cm4_count, firmware_report, target
 from ns2host.cbuild import REPO, flags
-from ns2host.target import NBR_DT
 
-TICK_US, BUDGET_FRACTION = 2000.0, 0.2
 PHI_PER_TICK = 4  # sliced prediction: phi evaluations per 500 Hz tick (the app's ns2.phiPerTick)
 
 
@@ -38,26 +38,14 @@ def macs(dims):
 
 def measure_library(elf: Path, cfg: Config) -> dict:
     cm = cm4_count.Cm4(elf)
-    rng = np.random.default_rng(0)
+    nb = budget.neighbors(cfg, 16, np.random.default_rng(0))
     out = {}
     phi_macs, rho_macs = macs(cfg.phi_dims()), macs(cfg.rho_dims())
     for name, fn in (("float", "ns2_predict_f32"), ("fixed", "ns2_predict_q15")):
         runs = {}
         for n in (0, 1, 4, 15, 16):
-            cm.reset_scratch()
-            p = cm.write(np.float32([0.1, -0.2, 0.8]).tobytes())
-            v = cm.write(np.float32([0.2, 0.0, -0.1]).tobytes())
-            info = cm.write(bytes(16))
-            nb = np.zeros(max(n, 1), NBR_DT)
-            nb["type"] = rng.integers(0, cfg.num_robot_types, len(nb))
-            nb["rel"] = np.column_stack([rng.uniform(-0.2, 0.2, (len(nb), 2)), rng.uniform(0.1, 1.0, len(nb)),
-                                         rng.normal(0, 0.3, (len(nb), 3))])
-            a = cm.write(nb.tobytes())
-            _, _, run = cm.call(fn, 0, p, v, a, n, info)
-            used = int.from_bytes(cm.read(info + 4, 2), "little")
-            assert used == n, f"{used} of {n} neighbours used"
-            runs[n] = run
-        sliced = measure_sliced(cm, name, p, v, a, info)
+            runs[n], args = budget.prediction_run(cm, fn, nb, n)
+        sliced = measure_sliced(cm, name, args["p"], args["v"], args["nbrs"], args["info"])
         per_phi = (runs[16].instructions - runs[1].instructions) / 15
         per_phi_cyc = (runs[16].cycles - runs[1].cycles) / 15
         kernel = sum(c for f, c in runs[16].by_function.items() if f.startswith("dense"))
@@ -72,6 +60,7 @@ def measure_library(elf: Path, cfg: Config) -> dict:
             "kernel_instructions_per_mac": round(kernel / (17 * phi_macs + rho_macs), 3),
             "instruction_mix_16_neighbors": dict(runs[16].mix.most_common(10)),
             "sliced_15_neighbors": dict(sliced, job_ram_bytes=cm.symbols["job"][1]),  # static ns2_job_t of the image
+            "_per_phi_cycles": per_phi_cyc, "_no_neighbor_cycles": runs[0].cycles,
         }
     return out
 
@@ -99,31 +88,8 @@ def measure_sliced(cm: cm4_count.Cm4, name: str, p: int, v: int, nbrs: int, info
 
 
 def measure_controller(gen: Path, cfg: Config) -> dict:
-    """One position step (100 Hz) and one attitude step (500 Hz) of the firmware
-    controller, in a hovering, slightly perturbed state."""
-    from ns2host.cbuild import CModel
-    from ns2host.sim.cloop import CLoopSwarm
-
-    sw = CLoopSwarm(cfg, ["small"], gen, [[0, 0, 1.0]])
-    ffi = sw.c.ffi
-    c = ffi.addressof(sw.ctrl, 0)
-    cm = cm4_count.Cm4(target.build_controller_image(gen))
-    ctrl = cm.write(bytes(ffi.sizeof("ns2_ctrl_t")))
-    cm.call("ns2_ctrl_init", ctrl, cm.write(bytes(ffi.buffer(ffi.addressof(c[0], "veh")))),
-            cm.write(bytes(ffi.buffer(ffi.addressof(c[0], "g")))))
-    st = ffi.new("ns2_ctrl_state_t *", {"p": [0.01, -0.02, 1.0], "v": [0.1, 0, 0], "q": [0.999, 0.02, -0.03, 0.01],
-                                         "w": [0.1, -0.2, 0.05]})
-    sp = ffi.new("ns2_setpoint_t *", {"p": [0, 0, 1.0], "yaw": 0.3})
-    s_addr, sp_addr = cm.write(bytes(ffi.buffer(st))), cm.write(bytes(ffi.buffer(sp)))
-    fa = cm.write(np.float32([0.0, 0.0, -0.05]).tobytes())
-    out = {}
-    for _ in range(2):  # second call: derivative filters primed
-        _, _, pos = cm.call("ns2_ctrl_position", ctrl, s_addr, sp_addr, fa, float_args=(0.01,))
-        _, _, att = cm.call("ns2_ctrl_attitude", ctrl, s_addr, float_args=(0.002, 3.9))
-    for name, run in (("position_step", pos), ("attitude_step", att)):
-        out[name] = {"instructions": run.instructions, "cycles": run.cycles,
-                     "us_at_168MHz": round(run.microseconds, 2)}
-    return out
+    return {name: {"instructions": run.instructions, "cycles": run.cycles, "us_at_168MHz": round(run.microseconds, 2)}
+            for name, run in budget.controller_runs(gen, cfg).items()}
 
 
 def measure_emlearn(cfg: Config, work: Path) -> dict | None:
@@ -167,14 +133,27 @@ def measure_emlearn(cfg: Config, work: Path) -> dict | None:
     return res
 
 
-def default_export(work: Path) -> Path:
-    cfg = Config.load()
+def default_export(work: Path, cfg: Config | None = None) -> Path:
+    """A briefly trained model of ``cfg`` (default: the configured, paper-sized one) exported into work."""
+    cfg = cfg or Config.load()
     ds = downwash_dataset(cfg, 500, seed=0)
     model, rep = train(cfg, ds, epochs=1, seed=0)
     ck = work / "model.pt"
     save_checkpoint(ck, model, cfg, {"seed": 0, "data_hash": ds.content_hash(), "report": rep})
     export(ck, work / "gen")
     return work / "gen"
+
+
+def measure_onboard_variant(work: Path) -> dict:
+    """The one-tick on-board variant of the network (ONBOARD_WIDTHS: narrower
+    intermediate layers, H and L as in the paper): the whole
+    prediction with 15 neighbours and a controller step in one 2 ms tick."""
+    cfg = Config.load().with_overrides(**ONBOARD_WIDTHS)
+    (work / "onboard").mkdir()
+    gen = default_export(work / "onboard", cfg)
+    return {"phi": cfg.phi_dims(), "rho": cfg.rho_dims(), "macs": {"phi": macs(cfg.phi_dims()),
+                                                                    "rho": macs(cfg.rho_dims())},
+            **budget.one_tick(gen, cfg), "memory": firmware_report.report(gen)["ns2_predict_q15"]}
 
 
 def main() -> None:
@@ -192,6 +171,7 @@ def main() -> None:
         ctrl = measure_controller(gen, cfg)
         eml = measure_emlearn(cfg, work)
         mem = firmware_report.report(gen)
+        onboard = measure_onboard_variant(work)
     result = {"cost_model": "ns2host/cm4_count.py (Cortex-M4 TRM cycle counts, no wait states)",
               "macs": {"phi": macs(cfg.phi_dims()), "rho": macs(cfg.rho_dims())}, **lib}
     if eml:
@@ -201,23 +181,29 @@ def main() -> None:
             "phi_instructions_ratio_fixed": round(eml["phi"]["instructions"] / lib["fixed"]["per_phi"]["instructions"], 2),
             "phi_cycles_ratio_float": round(eml["phi"]["cycles"] / lib["float"]["per_phi"]["cycles"], 2),
             "phi_cycles_ratio_fixed": round(eml["phi"]["cycles"] / lib["fixed"]["per_phi"]["cycles"], 2)}
-    budget = TICK_US * BUDGET_FRACTION
+    limit = budget.BUDGET_US
     step = ctrl["position_step"]["us_at_168MHz"] + ctrl["attitude_step"]["us_at_168MHz"]
     result["controller"] = ctrl
+    fixed = lib["fixed"]
+    free = limit * 168 - step * 168 - fixed.pop("_no_neighbor_cycles")
+    per_phi = fixed.pop("_per_phi_cycles")
+    lib["float"].pop("_per_phi_cycles"), lib["float"].pop("_no_neighbor_cycles")
     result["budget_2ms_tick"] = {
-        "budget_us": budget,
+        "budget_us": limit,
         "controller_step_us": round(step, 2),
         **{f"{k}_prediction_15_neighbors_plus_controller_us":
            round(lib[k]["prediction"]["15_neighbors"]["us_at_168MHz"] + step, 1) for k in ("float", "fixed")},
-        **{f"{k}_meets_budget": lib[k]["prediction"]["15_neighbors"]["us_at_168MHz"] + step <= budget
+        **{f"{k}_meets_budget": lib[k]["prediction"]["15_neighbors"]["us_at_168MHz"] + step <= limit
            for k in ("float", "fixed")},
+        "fixed_max_neighbors_in_one_tick": int(free // per_phi),
         # the prediction sliced over the five ticks of one 100 Hz position period
         **{f"{k}_sliced_worst_tick_plus_controller_us":
            round(lib[k]["sliced_15_neighbors"]["worst_tick_us_at_168MHz"] + step, 1) for k in ("float", "fixed")},
         **{f"{k}_sliced_meets_budget":
-           lib[k]["sliced_15_neighbors"]["worst_tick_us_at_168MHz"] + step <= budget
+           lib[k]["sliced_15_neighbors"]["worst_tick_us_at_168MHz"] + step <= limit
            and lib[k]["sliced_15_neighbors"]["fits_in_position_period"] for k in ("float", "fixed")},
     }
+    result["onboard_variant_one_tick"] = onboard
     result["memory"] = {k: mem[k] for k in firmware_report.ENTRY_POINTS}
     print(json.dumps(result, indent=2))
 

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from .config import Config, ConfigError
+from .config import ONBOARD_WIDTHS, Config, ConfigError
 
 
 class _Errors(click.Group):
@@ -85,9 +85,16 @@ def _parent_ok(path) -> None:
 @click.option("--lr", type=click.FloatRange(min=0.0, min_open=True), default=None)
 @click.option("--hidden", type=click.IntRange(min=1), default=None, help="H (overrides config)")
 @click.option("--layers", type=click.IntRange(min=2), default=None, help="L (overrides config)")
+@click.option("--width", type=click.IntRange(min=1), default=None,
+              help="intermediate layer width (overrides config; paper 40)")
+@click.option("--phi-first", type=click.IntRange(min=1), default=None,
+              help="width of phi's first hidden layer (overrides config; paper 25)")
+@click.option("--onboard", is_flag=True,
+              help="the one-tick on-board variant: intermediate widths 24, phi's first layer 16")
 @_vehicle_option
 @click.option("--quiet", is_flag=True)
-def train(data_paths, config_path, out, epochs, seed, batch_size, lr, hidden, layers, vehicle_files, quiet):
+def train(data_paths, config_path, out, epochs, seed, batch_size, lr, hidden, layers, width, phi_first, onboard,
+          vehicle_files, quiet):
     """Train the heterogeneous deep set; writes a checkpoint and prints the report."""
     from tqdm import tqdm
 
@@ -96,7 +103,9 @@ def train(data_paths, config_path, out, epochs, seed, batch_size, lr, hidden, la
     from .train import train as run
 
     cfg = _config(config_path, vehicle_files)
-    overrides = {k: v for k, v in (("hidden", hidden), ("layers", layers)) if v is not None}
+    overrides = dict(ONBOARD_WIDTHS) if onboard else {}
+    overrides.update({k: v for k, v in (("hidden", hidden), ("layers", layers), ("width", width),
+                                        ("phi_first", phi_first)) if v is not None})
     if overrides:
         cfg = cfg.with_overrides(**overrides)
     ds = Dataset.concat([Dataset.load(p) for p in data_paths])
@@ -282,15 +291,21 @@ def sim_rings(gen_dir, out_dir, duration, learned):
 @click.option("--scenarios", default="SL,SS,LL,SSL,SLL", show_default=True)
 @click.option("--dims", type=click.Choice(["2", "3", "both"]), default="both", show_default=True)
 @click.option("--trials", type=click.IntRange(min=1), default=5, show_default=True)
-@click.option("--time-limit", type=click.FloatRange(min=1.0), default=60.0, show_default=True,
-              help="seconds for Stage 1 and again for Stage 2, per plan")
-def plan_cmd(checkpoint, problem_path, baseline, out_dir, scenarios, dims, trials, time_limit):
+@click.option("--max-samples", type=click.IntRange(min=1), default=None,
+              help="samples per RRT run, Stage 1's stopping rule [default: RRTParams.max_samples]")
+@click.option("--time-limit", type=click.FloatRange(min=1.0), default=300.0, show_default=True,
+              help="wall-clock safety net in seconds for Stage 1 and again for Stage 2, per plan (the sample and "
+                   "iteration counts stop them first, so a seed gives the same plan on any machine)")
+def plan_cmd(checkpoint, problem_path, baseline, out_dir, scenarios, dims, trials, max_samples, time_limit):
     """Interaction-aware motion planning (AO-RRT + SCP): the paper's experiments, or one problem."""
     from .planning import experiments as ex
     from .planning.problem import PlanningError, RRTParams, SCPParams
 
     cfg = Config.load()
-    rrt, scp_params = RRTParams(total_time_s=time_limit), SCPParams(time_limit_s=time_limit)
+    rrt = RRTParams(total_time_s=time_limit, rrt_time_s=min(RRTParams.rrt_time_s, time_limit))
+    if max_samples is not None:
+        rrt = RRTParams(**{**rrt.__dict__, "max_samples": max_samples})
+    scp_params = SCPParams(time_limit_s=time_limit)
     try:
         if checkpoint is None and not (problem_path and baseline):
             checkpoint = ex.default_checkpoint(cfg, Path("build/plan"), log=click.echo)

@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 from ns2codegen.checkpoint import load_checkpoint, save_checkpoint
-from ns2codegen.config import Config
+from ns2codegen.config import ONBOARD_WIDTHS, Config
 from ns2codegen.data.analytic import downwash_dataset
 from ns2codegen.export import export
 from ns2codegen.quantize import ExportModel, from_checkpoint
@@ -49,3 +49,10 @@ def cfg() -> Config:
 @pytest.fixture(scope="session")
 def exported(tmp_path_factory, cfg) -> Exported:
     return train_and_export(cfg, tmp_path_factory.mktemp("default"))
+
+
+@pytest.fixture(scope="session")
+def onboard(tmp_path_factory, cfg) -> Exported:
+    """The one-tick on-board variant of the network (narrower intermediate layers)."""
+    return train_and_export(cfg.with_overrides(**ONBOARD_WIDTHS), tmp_path_factory.mktemp("onboard"),
+                            samples=500, epochs=2)

@@ -23,6 +23,12 @@ def test_gen_train_export(tmp_path):
     assert r.returncode == 0, r.stderr
     man = json.loads((tmp_path / "gen" / "ns2_model_manifest.json").read_text())
     assert man["dims"]["phi"] == [6, 25, 40, 10] and man["dims"]["rho"] == [10, 40, 40, 1]
+    r = ns2("train", "--data", data, "--out", ck, "--epochs", "1", "--onboard", "--width", "20", "--quiet")
+    assert r.returncode == 0, r.stderr
+    r = ns2("export", ck, "--out", tmp_path / "gen")
+    assert r.returncode == 0, r.stderr
+    man = json.loads((tmp_path / "gen" / "ns2_model_manifest.json").read_text())
+    assert man["dims"]["phi"] == [6, 16, 20, 20, 20] and man["dims"]["rho"] == [20, 20, 20, 20, 1]
 
 
 def test_cli_errors(tmp_path):

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from ns2codegen.queries import random_queries
-from ns2host import cm4_count, firmware_report, target
+from ns2host import budget, cm4_count, firmware_report, target
 from ns2host.target import NBR_DT
 
 pytestmark = pytest.mark.skipif(not target.have_toolchain(), reason="arm-none-eabi-gcc missing")
@@ -60,6 +60,17 @@ def test_instruction_budgets_per_multiply_accumulate(exported, cm):
             assert kernels / (17 * phi) < 1.0  # dense kernels: < 1 instruction per MAC
     assert per_phi["ns2_predict_f32"] < 3.0, per_phi  # whole phi evaluation, float
     assert per_phi["ns2_predict_q15"] < 1.25, per_phi
+
+
+def test_one_tick_budget(exported, onboard):
+    """A whole fixed-point prediction with 15 neighbours + the environment and a
+    controller step within 20 % of a 2 ms tick: met by the on-board variant (the
+    paper-sized network is sliced over five ticks by the app, see bench_target)."""
+    small = budget.one_tick(onboard.gen_dir, onboard.cfg)
+    assert small["fixed"]["meets_budget"] and small["fixed"]["total_us"] <= budget.BUDGET_US
+    assert small["controller_step_us"] > 5.0
+    paper = budget.one_tick(exported.gen_dir, exported.cfg)
+    assert paper["fixed"]["prediction_us"] > 1.5 * small["fixed"]["prediction_us"]  # 3550 vs 1536 MACs per phi
 
 
 def test_memory_report(exported):

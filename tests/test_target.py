@@ -41,6 +41,13 @@ def test_qemu_stm32f405_bit_exact(exported, cmodel):
     _compare(exported, cmodel, q, res)
 
 
+def test_qemu_onboard_variant_bit_exact(onboard):
+    """The one-tick on-board network (other layer widths, other kernel sizes)."""
+    elf = target.build_image(onboard.gen_dir)
+    q = random_queries(onboard.cfg, 4_000, seed=34, wild=0.05)
+    _compare(onboard, onboard.cmodel(), q, target.run_vectors(elf, q))
+
+
 def test_qemu_crazyflie_flags_os(exported, cmodel):
     """-Os, as the Crazyflie firmware builds: still bit-exact (no fused multiply-add)."""
     elf = target.build_image(exported.gen_dir, opt="-Os")

@@ -104,8 +104,9 @@ static int32_t finish(int32_t acc, uint8_t shift, int relu)
  * int32 sums (phi's last layer, straight into the latent sum h). */
 enum { NS2_OUT_RELU, NS2_OUT_LIN, NS2_OUT_SET, NS2_OUT_ACC };
 
-/* One layer, portable C: per block the four biases, then n_quads input quads. */
-static void dense_q15_c(const ns2_q15_layer_t *layer, const int32_t *x, int32_t *y, int out)
+/* One layer, portable C: per block the four biases, then n_quads input quads.
+ * Not inlined into dense_q15: the Cortex-M4 dispatch stays a thin switch. */
+__attribute__((noinline)) static void dense_q15_c(const ns2_q15_layer_t *layer, const int32_t *x, int32_t *y, int out)
 {
     const int32_t *w = layer->wb;
     const int relu = out == NS2_OUT_RELU;
