@@ -12,12 +12,12 @@ import torch
 from ns2codegen.planning.aorrt import AORRT, post_process
 from ns2codegen.planning.dynamics import hold_arrays, step
 from ns2codegen.planning.forces import ForceModel, single_thread
-from ns2codegen.planning.output import eval_pieces, read_poly4d, write_plan
+from ns2codegen.planning.output import MAX_PIECES, POLY4D_BYTES, eval_pieces, poly4d_bytes, read_poly4d, write_plan
 from ns2codegen.planning.problem import Limits, PlanningError, Problem, Robot, RRTParams, SCPParams
 from ns2codegen.planning.scp import scp
 from ns2codegen.planning.verify import check_solution
 
-RRT = RRTParams(max_nodes=4000, rrt_time_s=5.0, ao_iterations=2, total_time_s=30.0, seed=3)
+RRT = RRTParams(max_nodes=4000, max_samples=30000, ao_iterations=2, seed=3)
 SWAP_SL = [Robot("small", (0.0, -0.4, 1.0), (0.0, 0.4, 1.0)), Robot("large", (0.0, 0.4, 1.0), (0.0, -0.4, 1.0))]
 LIMITS = Limits(pos_lo=(0.0, -0.9, 0.3), pos_hi=(0.0, 0.9, 2.0))
 
@@ -210,9 +210,58 @@ def test_bad_input_is_refused_quickly(cfg):
         Problem(cfg, SWAP_SL, Limits(pos_lo=LIMITS.pos_lo, pos_hi=LIMITS.pos_hi, v_max=0.0)).validate()
     t0 = time.perf_counter()
     slow = Limits(pos_lo=LIMITS.pos_lo, pos_hi=LIMITS.pos_hi, v_max=0.02)   # goal out of reach in H steps
-    with pytest.raises(PlanningError, match="no path found"):
-        AORRT(Problem(cfg, SWAP_SL[:1], slow), fm, RRTParams(rrt_time_s=0.5, total_time_s=1.5)).run()
+    with pytest.raises(PlanningError, match="no path found .* in 2 rounds"):
+        AORRT(Problem(cfg, SWAP_SL[:1], slow), fm, RRTParams(max_samples=3000, max_rounds=2)).run()
     assert time.perf_counter() - t0 < 10.0
+    # the wall-clock safety net: an absurd sample budget still ends, with a clear message
+    t0 = time.perf_counter()
+    with pytest.raises(PlanningError, match="safety time limit"):
+        AORRT(Problem(cfg, SWAP_SL[:1], slow), fm,
+              RRTParams(max_samples=10 ** 9, rrt_time_s=0.3, total_time_s=0.8)).run()
+    assert time.perf_counter() - t0 < 5.0
+    with pytest.raises(PlanningError, match="max_samples must be a positive integer"):
+        AORRT(Problem(cfg, SWAP_SL, LIMITS), fm, RRTParams(max_samples=0)).run()
+
+
+def test_stage1_is_deterministic_for_a_seed(cfg, fm):
+    """Counted stopping rules: the same seed gives the same Stage 1 output, however
+    generous the wall-clock safety nets (so on any machine, at any load)."""
+    pb = Problem(cfg, SWAP_SL, LIMITS)
+    par = RRTParams(max_nodes=3000, max_samples=8000, ao_iterations=2, seed=11)
+    runs = []
+    for p in (par, RRTParams(**{**par.__dict__, "rrt_time_s": 1e6, "total_time_s": 1e6}),
+              RRTParams(**{**par.__dict__, "seed": 12})):
+        with single_thread():
+            runs.append(AORRT(pb, fm, p).run())
+    a, b, c = runs
+    assert not a.hit_time_limit and not b.hit_time_limit
+    assert a.order_history == b.order_history and a.costs == b.costs and a.samples_per_robot == b.samples_per_robot
+    for ta, tb in zip(a.trajs, b.trajs):
+        assert ta.T == tb.T
+        for name in ("p", "v", "u", "fa"):
+            assert np.array_equal(getattr(ta, name), getattr(tb, name)), name
+    # another seed gives another plan (the comparison above can fail)
+    assert a.costs != c.costs or any(ta.T != tc.T or not np.array_equal(ta.p, tc.p) for ta, tc in zip(a.trajs, c.trajs))
+
+
+def test_poly4d_layout_matches_the_firmware_struct(tmp_path):
+    """struct poly4d { float p[4][8]; float duration; }: x, y, z, yaw coefficients in
+    ascending powers, then the duration, 132 bytes little-endian per piece; the stock
+    4096-byte trajectory memory holds 31 pieces."""
+    import struct
+
+    c = np.arange(32, dtype=float).reshape(4, 8) / 8.0
+    data = poly4d_bytes([(0.5, c), (0.25, -c)])
+    assert POLY4D_BYTES == 132 and len(data) == 264 and MAX_PIECES == 31
+    assert struct.unpack_from("<8f", data, 0) == tuple(c[0])          # x^0..x^7
+    assert struct.unpack_from("<8f", data, 3 * 32) == tuple(c[3])     # yaw
+    assert struct.unpack_from("<f", data, 128) == (0.5,) and struct.unpack_from("<f", data, 132 + 128) == (0.25,)
+    back = read_poly4d(data)
+    assert back[1][0] == 0.25 and np.array_equal(back[1][1], -c)
+    with pytest.raises(ValueError, match="poly4d piece"):
+        poly4d_bytes([(0.5, c[:3])])
+    with pytest.raises(ValueError, match="poly4d piece"):
+        poly4d_bytes([(0.0, c)])
 
 
 def test_cli_plan_problem_file(cfg, exported, tmp_path):

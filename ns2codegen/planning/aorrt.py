@@ -14,7 +14,17 @@ f_a,max, the tight sphere collision r^(I(i) I(j)) against every planned robot
 (continuous over the step), and for every neighbour j its force with robot i at
 the new state: |f_a^(j)| <= f_a,max^(j) and |f_a^(j) - previous f_a^(j)| <= b_fa
 (trust region).  AO-RRT repeats the search with the decreasing cost bound c^(i)
-until the termination condition (iterations, patience, time).
+until the termination condition (iterations, patience).
+
+Stopping rules are counts, so a seed gives the same plan on every machine: an
+RRT run ends after ``max_samples`` samples or ``max_nodes`` nodes, Stage 1 after
+``ao_iterations`` AO iterations (or ``ao_patience`` without improvement) once
+every robot has a path, and fails after ``max_rounds`` rounds in which some robot
+found none.  The wall-clock limits ``rrt_time_s`` and ``total_time_s`` are only a
+safety net against bad input that makes the counted work unexpectedly slow (a
+huge ``max_samples``, a pathological model); with the defaults they are not
+reached (a run that hits one says so in ``Stage1Result.hit_time_limit``, and its
+outcome then depends on the machine).
 
 For speed, ``batch`` candidate extensions share one nearest-neighbour query and
 one batched call of the learned model (the tree is at most one batch stale).
@@ -117,6 +127,8 @@ class Stage1Result:
     iterations: int
     time_s: float
     time_per_robot_s: list
+    samples_per_robot: list     # samples drawn by the RRT runs of every robot
+    hit_time_limit: bool        # the wall-clock safety net stopped a run (outcome machine-dependent)
 
 
 class AORRT:
@@ -129,6 +141,7 @@ class AORRT:
         self.lo, self.hi = problem.box()
         self.ax = list(problem.axes)
         self.rng = np.random.default_rng(params.seed)
+        self.hit_time_limit = False
 
     # ------------------------------------------------------------------ checks
     def _forces(self, team: Team, i: int, k: np.ndarray, q: np.ndarray, p: np.ndarray, v: np.ndarray):
@@ -199,8 +212,9 @@ class AORRT:
         return np.column_stack([p[:, self.ax], par.w_v * v[:, self.ax], par.w_fa * fa[:, None], par.w_c * c[:, None]])
 
     def rrt(self, team: Team, i: int, c_bound: float, deadline: float):
-        """Lines rrt_start..rrt_end for robot i with cost bound c_bound; returns
-        (Trajectory or None, Tree)."""
+        """Lines rrt_start..rrt_end for robot i with cost bound c_bound: at most
+        ``max_samples`` samples and ``max_nodes`` nodes (``deadline``, wall clock,
+        only as a safety net); returns (Trajectory or None, Tree, samples drawn)."""
         par, lim, ax = self.par, self.pb.limits, self.ax
         rng = self.rng
         start, goal = self.pb.starts()[i], self.pb.goals()[i]
@@ -213,7 +227,10 @@ class AORRT:
         kd, built = None, 0
         n_samples = 0
         na = len(ax)
-        while tree.n < par.max_nodes and time.perf_counter() < deadline:
+        while tree.n < par.max_nodes and n_samples < par.max_samples:
+            if time.perf_counter() >= deadline:
+                self.hit_time_limit = True
+                break
             b = par.batch
             # UniformSample(X) in the state-cost space, with goal biasing
             xr = np.zeros((b, 3))
@@ -257,8 +274,8 @@ class AORRT:
                 if self._tail_valid(team, i, int(tree.k[leaf]), tree.p[leaf]):
                     traj = tree.path(int(leaf))
                     traj.dt = par.dt
-                    return traj, tree
-        return None, tree
+                    return traj, tree, n_samples
+        return None, tree, n_samples
 
     # ------------------------------------------------------------------ AO-RRT
     def check_endpoints(self) -> None:
@@ -275,12 +292,16 @@ class AORRT:
         self.pb.validate()
         self.check_endpoints()
         par, n = self.par, self.pb.n
+        for name in ("max_samples", "max_nodes", "max_rounds", "ao_iterations", "batch"):
+            if not (isinstance(getattr(par, name), int) and getattr(par, name) >= 1):
+                raise PlanningError(f"RRT parameter {name} must be a positive integer, got {getattr(par, name)!r}")
         t0 = time.perf_counter()
         deadline_total = t0 + par.total_time_s
         team = Team.empty(self.pb, par.max_steps)
         costs = [np.inf] * n
         trees = [None] * n
         per_robot = [0.0] * n
+        samples = [0] * n
         orders, accepts = [], []
         since_improved = 0
         it = 0
@@ -291,8 +312,9 @@ class AORRT:
             for i in order:
                 ts = time.perf_counter()
                 deadline = min(ts + par.rrt_time_s, deadline_total)
-                traj, tree = self.rrt(team, int(i), costs[i], deadline)
+                traj, tree, drawn = self.rrt(team, int(i), costs[i], deadline)
                 per_robot[i] += time.perf_counter() - ts
+                samples[i] += drawn
                 if traj is not None:
                     accepts.append((it, int(i), traj.effort(), team.P.copy(), team.V.copy(), team.FA.copy(), traj.copy()))
                     costs[i] = traj.effort()     # c^(i) <- c (line cost_update)
@@ -303,11 +325,16 @@ class AORRT:
             missing = [int(i) for i in range(n) if team.trajs[i] is None]
             since_improved = 0 if improved else since_improved + 1
             out_of_time = time.perf_counter() >= deadline_total
+            self.hit_time_limit |= out_of_time
             if missing:
                 if out_of_time:
                     raise PlanningError(
-                        f"no path found for robot(s) {missing} within {par.total_time_s:.0f} s of Stage 1 "
-                        f"(goal unreachable under the limits, or too little time)")
+                        f"no path found for robot(s) {missing} within the {par.total_time_s:.0f} s safety time limit "
+                        f"of Stage 1 (goal unreachable under the limits, or the machine far too slow)")
+                if it >= par.max_rounds:
+                    raise PlanningError(
+                        f"no path found for robot(s) {missing} in {par.max_rounds} rounds of at most "
+                        f"{par.max_samples} samples per robot (goal unreachable under the limits, or too few samples)")
                 continue
             if it >= par.ao_iterations or since_improved >= par.ao_patience or out_of_time:
                 break               # TerminationCondition1
@@ -315,7 +342,8 @@ class AORRT:
         # as they were at acceptance time)
         for i, tr in enumerate(team.trajs):
             tr.fa = team.FA[:tr.T + 1, i].copy()
-        return Stage1Result(list(team.trajs), costs, trees, orders, accepts, it, time.perf_counter() - t0, per_robot)
+        return Stage1Result(list(team.trajs), costs, trees, orders, accepts, it, time.perf_counter() - t0, per_robot,
+                            samples, self.hit_time_limit)
 
 
 def post_process(trajs: list, kappa: np.ndarray) -> list:

@@ -2,17 +2,40 @@
 
 * Piecewise polynomials for the firmware's high-level commander
   (``crtp_commander_high_level``: trajectory upload to the trajectory memory, then
+  ``define_trajectory`` with type POLY4D (0), offset and piece count, then
   ``start_trajectory``).  A piece is ``struct poly4d { float p[4][8]; float
   duration; }``: 8 coefficients (ascending powers of the time since the piece's
-  start, in s) for x, y, z and yaw, 132 bytes little-endian, the layout cflib's
-  ``TrajectoryMemory`` writes.  ``<robot>.bin`` holds those bytes; ``<robot>.csv``
-  the same pieces in Crazyswarm's text format
+  start, in s) for x, y, z and yaw, then the duration, 33 float32 = 132 bytes
+  little-endian, pieces back to back.  ``<robot>.bin`` holds those bytes;
+  ``<robot>.csv`` the same pieces in Crazyswarm's text format
   ``Duration,x^0..x^7,y^0..y^7,z^0..z^7,yaw^0..yaw^7``.  A plan is a C^1 piecewise
   quadratic (dynamics.py), so one piece per planning step is exact; ``merge``
   pieces fits 7th-degree polynomials over several steps (position and velocity
-  matched at both ends, least squares inside) to fit the 4 KiB trajectory memory.
+  matched at both ends, least squares inside) to fit the trajectory memory.
 * ``setpoints.csv``: time-stamped setpoints of every robot at a fixed rate
   (t, robot, type, p, v, a = planned acceleration, u = planned control, f_a,z-hat).
+
+Checked against the public sources (the layout was written from these
+descriptions, no code taken from them):
+* bitcraze/crazyflie-firmware ``src/modules/interface/pptraj.h``: ``PP_DEGREE
+  7``, ``PP_SIZE 8``, ``struct poly4d { float p[4][PP_SIZE]; float duration; }``
+  (``__attribute__((packed))`` in current versions), coefficients "stored in
+  ascending order, i.e. p[0] is the constant term"; ``src/modules/src/pptraj.c``
+  evaluates them with Horner's rule in the time since the piece's start
+  (``piecewise_eval``).
+* bitcraze/crazyflie-firmware ``src/modules/src/crtp_commander_high_level.c``:
+  ``#define TRAJECTORY_MEMORY_SIZE 4096`` ("4k allows us to store 31 poly4d
+  pieces"; some versions define it in ``crtp_commander_high_level.h``), a write
+  is accepted only if offset + length <= the memory size, the piece count of a
+  definition is a ``uint8_t``; newer firmware reports the size at run time
+  (``crtpCommanderHighLevelTrajectoryMemSize``, the memory element's size in
+  cflib), so 4096 is the stock firmware's value, not a protocol constant.
+* bitcraze/crazyflie-lib-python ``cflib/crazyflie/mem/trajectory_memory.py``:
+  ``TrajectoryMemory.write_data`` packs per ``Poly4D`` the x, y, z, yaw values
+  as eight ``<f`` each, then the duration as ``<f``, from address 0.
+* USC-ACTLab/crazyswarm ``ros_ws/src/crazyswarm/scripts/uav_trajectory.py``
+  (``Trajectory.loadcsv``): one header row, then duration, x[8], y[8], z[8],
+  yaw[8] per row.
 """
 from __future__ import annotations
 
@@ -26,8 +49,9 @@ from ..fileio import atomic_write_bytes, atomic_write_files
 from .dynamics import Trajectory
 
 DEG = 7
-POLY4D_BYTES = 4 * 8 * 4 + 4
-TRAJECTORY_MEMORY_BYTES = 4096     # crazyflie-firmware's high-level commander trajectory memory
+POLY4D_BYTES = 4 * 8 * 4 + 4      # 33 float32
+TRAJECTORY_MEMORY_BYTES = 4096     # stock crazyflie-firmware TRAJECTORY_MEMORY_SIZE
+MAX_PIECES = TRAJECTORY_MEMORY_BYTES // POLY4D_BYTES    # 31 pieces of one trajectory at offset 0
 
 
 def exact_pieces(traj: Trajectory, kappa: float) -> list[tuple[float, np.ndarray]]:
@@ -83,7 +107,11 @@ def poly4d_bytes(pieces) -> bytes:
     """cflib TrajectoryMemory layout: x[8], y[8], z[8], yaw[8], duration (float32 LE)."""
     buf = io.BytesIO()
     for d, c in pieces:
-        buf.write(struct.pack("<32f", *np.asarray(c, float).ravel()))
+        c = np.asarray(c, float)
+        if c.shape != (4, DEG + 1) or not np.all(np.isfinite(c)) or not (np.isfinite(d) and d > 0):
+            raise ValueError(f"a poly4d piece needs 4 x {DEG + 1} finite coefficients and a positive duration, "
+                             f"got shape {c.shape}, duration {d}")
+        buf.write(struct.pack("<32f", *c.ravel()))
         buf.write(struct.pack("<f", d))
     return buf.getvalue()
 
@@ -134,7 +162,7 @@ def write_plan(folder, trajs: list, types: list, kappa, steps_per_piece: int = 5
         texts[names[i] + ".csv"] = pieces_csv(pieces)
         bins[names[i] + ".bin"] = poly4d_bytes(pieces)
         report[names[i]] = {"pieces": len(pieces), "bytes": len(bins[names[i] + ".bin"]),
-                            "fits_trajectory_memory": len(bins[names[i] + ".bin"]) <= TRAJECTORY_MEMORY_BYTES,
+                            "fits_trajectory_memory": len(pieces) <= MAX_PIECES,
                             "max_fit_error_m": err}
     texts["setpoints.csv"] = setpoints_csv(trajs, names, types, kappa, rate_hz)
     atomic_write_files(folder, texts)

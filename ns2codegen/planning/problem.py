@@ -41,9 +41,14 @@ class Limits:
     fa_substeps: int = 4                     # force limits also checked at dt/4, dt/2, 3dt/4 of every step
 
 
+MAX_SAMPLES = 40000
+
+
 @dataclass(frozen=True)
 class RRTParams:
-    """Stage 1 (AO-RRT) parameters; every loop has a time or size limit."""
+    """Stage 1 (AO-RRT) parameters.  Every loop stops on a count (samples, nodes,
+    rounds, iterations), so the same seed gives the same plan on any machine; the
+    two time limits are a safety net only (see aorrt.py)."""
     dt: float = 0.1                 # s, fixed propagation step (also Stage 2's step)
     max_steps: int = 100            # horizon H: no plan longer than H dt
     goal_bias_every: int = 10       # every k-th sample is the goal (goal biasing)
@@ -51,10 +56,12 @@ class RRTParams:
     eps_v: float = 0.3              # m/s
     batch: int = 32                 # candidates propagated per batched model call
     max_nodes: int = 6000           # per tree
-    rrt_time_s: float = 6.0         # per RRT run (one robot, one cost bound)
+    max_samples: int = MAX_SAMPLES  # per RRT run (one robot, one cost bound): the primary stopping rule
+    max_rounds: int = 10            # Stage 1 fails after this many rounds with a robot still without a path
     ao_iterations: int = 3          # AO-RRT outer iterations (cost bound decreases)
     ao_patience: int = 1            # stop after this many iterations without improvement
-    total_time_s: float = 60.0      # Stage 1 for the whole team
+    rrt_time_s: float = 60.0        # safety net per RRT run (wall clock)
+    total_time_s: float = 300.0     # safety net for Stage 1 of the whole team (wall clock)
     w_v: float = 0.4                # s: velocity weight of the nearest-neighbour metric
     w_fa: float = 0.01              # m/g: force weight of the metric
     w_c: float = 0.1                # cost weight of the metric (AO-RRT state-cost space)
