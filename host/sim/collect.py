@@ -1,5 +1,8 @@
 """Data collection in the simulator, as in the paper: teams of 1-3 robots of every
-type mix fly random walks (with ground contact height included) and swaps; the
+type mix fly random walks (with ground contact height included) and swaps, and
+optionally every pair of robot types flies close-range passes (``near_field``:
+one robot slowly under the other at vertical gaps from the collision distance to
+1.2 m, the near-field downwash that swaps only cross in a tenth of a second); the
 drones' logs (with sensor noise) become a training set through the same path as
 real logs (ns2codegen.data.from_logs), never through the ground truth."""
 from __future__ import annotations
@@ -14,7 +17,7 @@ from ns2codegen.data.dataset import Dataset
 from ns2codegen.data.from_logs import Flight, flights_to_dataset
 
 from .cloop import CLoopSwarm
-from .scenarios import random_walk, swap
+from .scenarios import near_field, random_walk, swap
 from .usdlogs import write_flight, write_manifest
 
 POS_NOISE_M = 0.001      # motion capture
@@ -36,8 +39,15 @@ def fly(cfg: Config, team, gen_dir, kind: str, duration: float, seed: int, learn
     if kind == "swap":
         heights = 0.4 + 0.25 * np.arange(n)
         sp, start = swap(n, heights, radius=0.4, duration=2.5, rest=0.5, seed=seed)
-    else:
+    elif kind == "near":
+        if n != 2:
+            raise ValueError(f"near-field flights are for pairs of robots, got a team of {n}")
+        sp, start, _ = near_field(list(team), [cfg.vehicle(t).get("diameter_m", 0.12) for t in team], duration,
+                                  seed=seed)
+    elif kind == "random":
         sp, start = random_walk(n, seed=seed)
+    else:
+        raise ValueError(f"unknown flight kind {kind!r}: random, swap or near")
     sw = CLoopSwarm(cfg, list(team), gen_dir, start, aero=True, learned=learned)
     log = sw.run(duration, sp)
     rng = rng or np.random.default_rng(seed)
@@ -47,16 +57,20 @@ def fly(cfg: Config, team, gen_dir, kind: str, duration: float, seed: int, learn
 
 
 def collect(cfg: Config, gen_dir, seconds_per_team: float, seed: int = 0, learned=None,
-            team_list=None, usd_dir=None) -> Dataset:
-    """Half random walk, half swaps per team (single robots only random walk); with
+            team_list=None, usd_dir=None, near_field_seconds: float = 0.0) -> Dataset:
+    """Half random walk, half swaps per team (single robots only random walk), plus
+    ``near_field_seconds`` of close-range passes per pair of robots; with
     ``usd_dir`` the (noisy) logs are also written there as Crazyflie uSD files with a
     flights.toml, the input of ``ns2 logs-to-data``."""
     flights, entries = [], []
     for k, team in enumerate(team_list or teams(cfg)):
         kinds = ["random"] if len(team) == 1 else ["random", "swap"]
-        for j, kind in enumerate(kinds):
+        plan = [(kind, seconds_per_team / len(kinds)) for kind in kinds if seconds_per_team > 0]
+        if len(team) == 2 and near_field_seconds > 0:
+            plan.append(("near", near_field_seconds))
+        for j, (kind, seconds) in enumerate(plan):
             s = seed * 1000 + 10 * k + j
-            flights.append(fly(cfg, team, gen_dir, kind, seconds_per_team / len(kinds), seed=s, learned=learned))
+            flights.append(fly(cfg, team, gen_dir, kind, seconds, seed=s, learned=learned))
             if usd_dir is not None:
                 entries.append(write_flight(Path(usd_dir), f"{''.join(t[0] for t in team)}_{kind}_{s}",
                                             list(team), flights[-1].__dict__, seed=s))

@@ -96,3 +96,88 @@ def rings(counts, heights, radius: float = 0.5, period: float = 8.0, seed: int =
         return Setpoints(p, v, a, np.zeros(n))
 
     return sp, sp(0.0).p
+
+
+def near_field(types, diameters, duration: float, z_low=(0.5, 1.0), gap_max: float = 1.2, reach: float = 0.35,
+               offset: float = 0.06, center: float = 0.2, t_cross=(2.0, 4.0), t_sweep=(2.0, 4.0),
+               t_pass=(0.45, 3.0), passes: int = 3, t_move: float = 2.0, t_move_pass: float = 1.5, seed: int = 0):
+    """Close-range flights of a pair (near-field downwash data), in blocks; in
+    every block one robot is above the other (the roles alternate from block to
+    block).  A block starts with a sweep: the lower robot comes in slowly along a
+    horizontal direction d from ``reach`` m to one side (relative position robot
+    1 - robot 0, whatever the roles) at a vertical gap g_a, stays nearly under the
+    upper robot (within 3 cm along d, a small constant offset |y| <= ``offset``
+    across d) while the gap changes slowly to g_b, and leaves to ``reach`` m on
+    the other side.  Then ``passes`` passes straight through under the upper robot
+    at one gap each, from side to side in a time drawn log-uniformly from
+    ``t_pass`` (relative speeds up to about 2.4 m/s under the upper robot, as in
+    the planner's crossings, where the wake hits the lower robot for only a tenth
+    of a second).  Gaps are drawn log-uniformly (stratified per role) from the
+    tight collision distance (D_0 + D_1) / 2 to ``gap_max``.  Each segment's
+    direction is within 60 degrees of where the last one ended, so the moves
+    between segments (heights, roles and centre change there) keep the robots at
+    least ``reach`` cos 30 deg apart sideways, never through each other.  Both
+    robots carry half of the relative motion about a slowly moving centre.
+    Waypoints are joined by cosine profiles (rest at every waypoint).  Returns
+    (setpoints, start positions, waypoint times)."""
+    rng = np.random.default_rng(seed)
+    g_min = (float(diameters[0]) + float(diameters[1])) / 2.0
+    if not 0.0 < g_min < gap_max:
+        raise ValueError(f"near_field: gap range {g_min:.3f}..{gap_max:.3f} m is empty")
+    if duration <= 0:
+        raise ValueError("near_field: duration must be positive")
+    mean_block = t_move + (t_cross[0] + t_cross[1] + t_sweep[0] + t_sweep[1]) / 2 + \
+        passes * (t_move_pass + np.sqrt(t_pass[0] * t_pass[1]))
+    blocks = max(2, int(np.ceil(duration / mean_block)) + 1)
+    kinds = np.tile(["sweep"] + ["pass"] * passes, blocks)
+    roles = np.repeat(np.arange(blocks) % 2, passes + 1)        # index of the upper robot
+    gaps = np.zeros((len(kinds), 2))
+    for r in (0, 1):
+        idx = np.flatnonzero(roles == r)
+        for e in (0, 1):
+            u = (rng.permutation(len(idx)) + rng.uniform(0, 1, len(idx))) / len(idx)
+            gaps[idx, e] = g_min * (gap_max / g_min) ** u
+
+    def pose(upper, gap, zl, c, rel):
+        p = np.zeros((2, 3))
+        p[0, :2], p[1, :2] = c - rel / 2, c + rel / 2
+        p[upper, 2], p[1 - upper, 2] = zl + gap, zl
+        return p
+
+    pts, times = [], []
+    phi = rng.uniform(0, 2 * np.pi)
+    for k, kind in enumerate(kinds):
+        zl = rng.uniform(*z_low)
+        c = rng.uniform(-center, center, 2)
+        (ga, gb), up = gaps[k], roles[k]
+        d, n = np.array([np.cos(phi), np.sin(phi)]), np.array([-np.sin(phi), np.cos(phi)])
+        across = rng.uniform(-offset, offset) * n
+        if kind == "pass":
+            t0 = times[-1] + t_move_pass if times else 0.0
+            pts += [pose(up, ga, zl, c, reach * d + across), pose(up, ga, zl, c, -reach * d + across)]
+            times += [t0, t0 + np.exp(rng.uniform(np.log(t_pass[0]), np.log(t_pass[1])))]
+        else:                                         # in, sweep the gap nearly under the upper robot, out
+            t0 = times[-1] + t_move if times else 0.0
+            tc = rng.uniform(*t_cross)
+            pts += [pose(up, ga, zl, c, reach * d + across),
+                    pose(up, ga, zl, c, rng.uniform(-0.03, 0.03) * d + across),
+                    pose(up, gb, zl, c, rng.uniform(-0.03, 0.03) * d + across),
+                    pose(up, gb, zl, c, -reach * d + across)]
+            times += [t0, t0 + tc / 2, t0 + tc / 2 + rng.uniform(*t_sweep)]
+            times.append(times[-1] + tc / 2)
+        phi += np.pi + rng.uniform(-np.pi / 3, np.pi / 3)      # start near where this segment ended
+    W = np.stack(pts)                                 # [w, 2, 3]
+    T = np.array(times)
+
+    def sp(t, state=None):
+        k = int(np.clip(np.searchsorted(T, t, side="right") - 1, 0, len(T) - 2))
+        d = T[k + 1] - T[k]
+        s = min(max((t - T[k]) / d, 0.0), 1.0)
+        delta = W[k + 1] - W[k]
+        p = W[k] + delta * (1.0 - np.cos(np.pi * s)) / 2.0
+        inside = 0.0 < s < 1.0
+        v = delta * (np.pi / (2.0 * d)) * np.sin(np.pi * s) if inside else np.zeros((2, 3))
+        a = delta * (np.pi ** 2 / (2.0 * d * d)) * np.cos(np.pi * s) if inside else np.zeros((2, 3))
+        return Setpoints(p, v, a, np.zeros(2))
+
+    return sp, W[0].copy(), T

@@ -26,6 +26,8 @@ SCENARIOS = {"SL": ("small", "large"), "SS": ("small", "small"), "LL": ("large",
 LIMITS_2D = Limits(pos_lo=(0.0, -0.9, 0.3), pos_hi=(0.0, 0.9, 2.0))
 LIMITS_3D = Limits(pos_lo=(-0.6, -0.9, 0.3), pos_hi=(0.6, 0.9, 2.0))
 SPACING, HEIGHT = 0.8, 1.0
+CHECK_GAPS = (0.15, 0.3, 0.5, 1.0)      # m, vertical gaps of downwash_check
+NEAR_FIELD_SECONDS = 180.0              # close-range passes per pair of types in default_checkpoint
 
 
 def scenario_problem(cfg: Config, name: str, dims: int) -> Problem:
@@ -38,9 +40,48 @@ def scenario_problem(cfg: Config, name: str, dims: int) -> Problem:
     return Problem(cfg, robots, LIMITS_2D if dims == 2 else LIMITS_3D, (1, 2) if dims == 2 else (0, 1, 2))
 
 
-def default_checkpoint(cfg: Config, folder: Path, seconds_per_team: float = 60.0, log=print) -> Path:
+def downwash_check(cfg: Config, fm: ForceModel, gaps=CHECK_GAPS, z: float = HEIGHT) -> list[dict]:
+    """The model against the simulator's ground truth (host/sim/aero.py) where the
+    planner exploits it: a robot hovering at height z directly under another hovering
+    robot, for every (lower, upper) type pair and vertical gap; predicted and true
+    f_a,z of the lower robot in grams."""
+    from ns2host.sim.aero import calibrated
+    from ns2host.sim.vehicle import vehicle
+
+    from .problem import GRAMS_TO_N
+
+    rows = []
+    for lower in cfg.robot_types:
+        for upper in cfg.robot_types:
+            truth = calibrated([vehicle(cfg, lower), vehicle(cfg, upper)], vehicle(cfg, cfg.robot_types[0]))
+            types = [cfg.robot_types.index(lower), cfg.robot_types.index(upper)]
+            for gap in gaps:
+                P = np.array([[0.0, 0.0, z], [0.0, 0.0, z + gap]])
+                true_g = float(truth(P, np.zeros((2, 3)))[0, 2] / GRAMS_TO_N)
+                pred_g = float(fm.team_np(types, P[None], np.zeros((1, 2, 3)))[0, 0])
+                rows.append({"lower": lower, "upper": upper, "gap_m": float(gap), "predicted_g": pred_g,
+                             "true_g": true_g})
+    return rows
+
+
+def downwash_table(rows: list[dict]) -> str:
+    gaps = sorted({r["gap_m"] for r in rows})
+    lines = ["| lower robot under | " + " | ".join(f"{g:.2f} m" for g in gaps) + " |",
+             "|---|" + "---|" * len(gaps)]
+    pairs = list(dict.fromkeys((r["lower"], r["upper"]) for r in rows))
+    for lower, upper in pairs:
+        cells = [f"{r['predicted_g']:.1f} / {r['true_g']:.1f}" for r in rows
+                 if (r["lower"], r["upper"]) == (lower, upper)]
+        lines.append(f"| {lower} under {upper} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def default_checkpoint(cfg: Config, folder: Path, seconds_per_team: float = 60.0, log=print,
+                       near_field_seconds: float = NEAR_FIELD_SECONDS) -> Path:
     """A model of the simulator's interactions when none is given: baseline flights of
-    every team in the simulator (ns2 sim collect), then training (ns2 train)."""
+    every team in the simulator (ns2 sim collect) plus close-range passes of every
+    pair of types (the near-field downwash that the planner's plans fly through),
+    then training (ns2 train)."""
     from ..checkpoint import save_checkpoint
     from ..data.analytic import downwash_dataset
     from ..export import export
@@ -51,15 +92,17 @@ def default_checkpoint(cfg: Config, folder: Path, seconds_per_team: float = 60.0
     ck = folder / "model.pt"
     if ck.is_file():
         return ck
-    log(f"no checkpoint given: training one on simulated flights ({seconds_per_team:.0f} s per team) into {ck}")
+    log(f"no checkpoint given: training one on simulated flights ({seconds_per_team:.0f} s per team, "
+        f"{near_field_seconds:.0f} s of close-range passes per pair) into {ck}")
     boot = downwash_dataset(cfg, 300, seed=0)       # the controller build needs some exported model
     m0, rep0 = train(cfg, boot, epochs=1)
     save_checkpoint(folder / "boot.pt", m0, cfg, {"seed": 0, "data_hash": boot.content_hash(), "report": rep0})
     export(folder / "boot.pt", folder / "boot_gen")
-    ds = collect(cfg, folder / "boot_gen", seconds_per_team, seed=1)
+    ds = collect(cfg, folder / "boot_gen", seconds_per_team, seed=1, near_field_seconds=near_field_seconds)
     model, rep = train(cfg, ds)
     save_checkpoint(ck, model, cfg, {"seed": rep["seed"], "data_hash": ds.content_hash(), "report": rep,
-                                     "data_files": [f"sim collect {seconds_per_team} s per team, seed 1"]})
+                                     "data_files": [f"sim collect {seconds_per_team} s per team + near field "
+                                                    f"{near_field_seconds} s per pair, seed 1"]})
     return ck
 
 
@@ -80,6 +123,7 @@ def _summary(trials: list, pb: Problem) -> dict:
                      "limit_g": float(fa_max[idx[0]]), "trials_over_limit": int((worst > fa_max[idx[0]]).sum()),
                      "planned_max_fa_g": float(planned.max())}
     out["trials_any_over_limit"] = int(sum(any(t["track"]["worst_fa_g"][i] > fa_max[i] for i in range(pb.n)) for t in ok))
+    out["trials_hit_time_limit"] = int(sum(t["stage1_hit_time_limit"] for t in ok))
     out["stage1_s_per_robot"] = float(np.mean([np.mean(t["timings"]["stage1_per_robot_s"]) for t in ok]))
     out["stage2_s_per_robot"] = float(np.mean([np.mean(t["timings"]["stage2_per_robot_s"]) for t in ok]))
     return out
@@ -97,6 +141,7 @@ def run_trial(pb: Problem, fm: ForceModel, gen_dir, seed: int, rrt: RRTParams, s
     tr = track(pb, res.trajs, gen_dir)
     rec = {"seed": seed, "error": None, "types": [r.type for r in pb.robots], "timings": res.timings(),
            "stage1_costs": [float(c) for c in res.stage1.costs], "scp_merit": res.stage2.merit_history,
+           "stage1_samples_per_robot": res.stage1.samples_per_robot, "stage1_hit_time_limit": res.stage1.hit_time_limit,
            "scp_iterations": res.stage2.iterations, "scp_converged": res.stage2.converged,
            "check": {"robots": chk["robots"]},
            "track": {"worst_error_m": tr["worst_error_m"], "worst_fa_g": tr["worst_fa_g"]}}
@@ -132,8 +177,12 @@ def planning_experiments(cfg: Config, checkpoint, gen_dir, out_dir, scenarios=No
                 results[key][mode] = {"summary": _summary(recs, pb), "trials": recs}
             if d == 2 and len(examples) == 2:
                 example_figure(pb, examples, out / f"plan_{d}d_{name}.png")
-    atomic_write_files(out, {"plan.json": json.dumps(results, indent=1, default=float) + "\n",
-                             "plan.md": table(results) + "\n"})
+    check = downwash_check(cfg, models["NN"])
+    md = ("Model vs simulator, f_a,z (g) of a robot hovering 1 m up directly under another, predicted / true:\n\n"
+          + downwash_table(check) + "\n\n" + table(results) + "\n")
+    atomic_write_files(out, {"plan.json": json.dumps({"model_check": check, "cases": results}, indent=1,
+                                                      default=float) + "\n",
+                             "plan.md": md})
     summary_figure(results, out / "plan_summary.png")
     return results
 
