@@ -100,7 +100,9 @@ def rings(counts, heights, radius: float = 0.5, period: float = 8.0, seed: int =
 
 def near_field(types, diameters, duration: float, z_low=(0.5, 1.0), gap_max: float = 1.2, reach: float = 0.35,
                offset: float = 0.06, center: float = 0.2, t_cross=(2.0, 4.0), t_sweep=(2.0, 4.0),
-               t_pass=(0.45, 3.0), passes: int = 3, t_move: float = 2.0, t_move_pass: float = 1.5, seed: int = 0):
+               t_pass=(1.25, 5.0), pass_reach: float = 0.8, pass_gap_min: float = 0.03, passes: int = 3,
+               t_move: float = 2.0,
+               t_move_pass: float = 2.0, seed: int = 0):
     """Close-range flights of a pair (near-field downwash data), in blocks; in
     every block one robot is above the other (the roles alternate from block to
     block).  A block starts with a sweep: the lower robot comes in slowly along a
@@ -109,11 +111,15 @@ def near_field(types, diameters, duration: float, z_low=(0.5, 1.0), gap_max: flo
     upper robot (within 3 cm along d, a small constant offset |y| <= ``offset``
     across d) while the gap changes slowly to g_b, and leaves to ``reach`` m on
     the other side.  Then ``passes`` passes straight through under the upper robot
-    at one gap each, from side to side in a time drawn log-uniformly from
-    ``t_pass`` (relative speeds up to about 2.4 m/s under the upper robot, as in
-    the planner's crossings, where the wake hits the lower robot for only a tenth
-    of a second).  Gaps are drawn log-uniformly (stratified per role) from the
-    tight collision distance (D_0 + D_1) / 2 to ``gap_max``.  Each segment's
+    at one gap each, from ``pass_reach`` m on one side to ``pass_reach`` m on the
+    other in a time drawn log-uniformly from ``t_pass`` (relative speeds up to
+    2 m/s under the upper robot, as in the planner's crossings, where the wake hits
+    the lower robot for only a tenth of a second, with accelerations of at most
+    2.5 m/s^2 per robot, the planner's action box).  Gaps are drawn
+    log-uniformly (stratified per role) from the tight collision distance
+    r = (D_0 + D_1) / 2 to ``gap_max`` for the sweeps and from ``pass_gap_min``
+    for the passes; a pass below r is offset sideways just enough to keep the
+    distance >= r (the planner's tight sphere allows that).  Each segment's
     direction is within 60 degrees of where the last one ended, so the moves
     between segments (heights, roles and centre change there) keep the robots at
     least ``reach`` cos 30 deg apart sideways, never through each other.  Both
@@ -133,10 +139,11 @@ def near_field(types, diameters, duration: float, z_low=(0.5, 1.0), gap_max: flo
     roles = np.repeat(np.arange(blocks) % 2, passes + 1)        # index of the upper robot
     gaps = np.zeros((len(kinds), 2))
     for r in (0, 1):
-        idx = np.flatnonzero(roles == r)
-        for e in (0, 1):
-            u = (rng.permutation(len(idx)) + rng.uniform(0, 1, len(idx))) / len(idx)
-            gaps[idx, e] = g_min * (gap_max / g_min) ** u
+        for kind, lo in (("sweep", g_min), ("pass", min(pass_gap_min, g_min))):
+            idx = np.flatnonzero((roles == r) & (kinds == kind))
+            for e in (0, 1):
+                u = (rng.permutation(len(idx)) + rng.uniform(0, 1, len(idx))) / len(idx)
+                gaps[idx, e] = lo * (gap_max / lo) ** u
 
     def pose(upper, gap, zl, c, rel):
         p = np.zeros((2, 3))
@@ -151,10 +158,13 @@ def near_field(types, diameters, duration: float, z_low=(0.5, 1.0), gap_max: flo
         c = rng.uniform(-center, center, 2)
         (ga, gb), up = gaps[k], roles[k]
         d, n = np.array([np.cos(phi), np.sin(phi)]), np.array([-np.sin(phi), np.cos(phi)])
-        across = rng.uniform(-offset, offset) * n
+        across = rng.uniform(-offset, offset)
+        if kind == "pass" and ga < g_min:             # beside the sphere of radius r around the upper robot
+            across = np.sign(across) * (np.sqrt(g_min ** 2 - ga ** 2) + abs(across))
+        across = across * n
         if kind == "pass":
             t0 = times[-1] + t_move_pass if times else 0.0
-            pts += [pose(up, ga, zl, c, reach * d + across), pose(up, ga, zl, c, -reach * d + across)]
+            pts += [pose(up, ga, zl, c, pass_reach * d + across), pose(up, ga, zl, c, -pass_reach * d + across)]
             times += [t0, t0 + np.exp(rng.uniform(np.log(t_pass[0]), np.log(t_pass[1])))]
         else:                                         # in, sweep the gap nearly under the upper robot, out
             t0 = times[-1] + t_move if times else 0.0
