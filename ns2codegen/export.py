@@ -59,16 +59,29 @@ def float_layout(w: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 def fixed_layout(w: np.ndarray, b: np.ndarray, shift: int) -> np.ndarray:
     """Stream of a fixed-point layer (int32 words): per block of four rows the four
-    biases plus the rounding offset 2^(shift-1), then per input quad and row two words
-    of packed int16 weights (even input in the low half): [block][4 + n_quads * 8]."""
+    biases plus the rounding offset 2^(shift-1), then per input pair the four rows'
+    words of packed int16 weights (even input in the low half):
+    [block][4 + n_pairs * 4], n_pairs = 2 n_quads."""
     n_out, n_in = w.shape
     wp = np.zeros((pad4(n_out), pad4(n_in)), np.int64)
     wp[:n_out, :n_in] = w
-    quads = wp.reshape(-1, 4, pad4(n_in) // 4, 4).transpose(0, 2, 1, 3)  # [block][quad][row][4]
-    words = (quads[..., 1::2] * 65536 + (quads[..., 0::2] & 0xFFFF)).reshape(quads.shape[0], -1)
+    pairs = wp.reshape(-1, 4, pad4(n_in) // 2, 2).transpose(0, 2, 1, 3)  # [block][pair][row][2]
+    words = (pairs[..., 1] * 65536 + (pairs[..., 0] & 0xFFFF)).reshape(pairs.shape[0], -1)
     bias = np.zeros(pad4(n_out), np.int64)
     bias[:n_out] = b.astype(np.int64) + ((1 << (shift - 1)) if shift else 0)
     return np.concatenate([bias.reshape(-1, 4), words], axis=1).ravel()
+
+
+def quad_counts(q) -> dict[str, list[int]]:
+    """The distinct input-quad counts of the fixed-point layers by role (the C
+    instantiates an unrolled Cortex-M4 kernel per count and role)."""
+    def counts(layers):
+        return sorted({pad4(l.n_in) // 4 for l in layers})
+
+    return {"hidden": counts([l for net in q.phi + q.rho for l in net.layers[:-1]]),
+            "phi_hidden": counts([l for net in q.phi for l in net.layers[:-1]]),
+            "phi_last": counts([net.layers[-1] for net in q.phi]),
+            "rho_last": counts([net.layers[-1] for net in q.rho])}
 
 
 def _block(items: list[str], per_line: int) -> str:
@@ -133,7 +146,7 @@ def render(m: ExportModel) -> dict[str, str]:
            "nets": nets, "qnets": qnets, "q": q, "in_scale": q.in_scale,
            "out_scale": 2.0 ** -q.out_frac,
            "min_margin_bits": min(p["margin_bits"] for p in q.proof),
-           "quad_counts": sorted({pad4(l.n_in) // 4 for net in q.phi + q.rho for l in net.layers})}
+           "quad_counts": quad_counts(q)}
     if all(has_rigid_body(cfg, t) for t in cfg.robot_types):
         ctx["vehicles"] = [vehicle(cfg, t) for t in cfg.robot_types]
         ctx["gains"] = [default_gains(v) for v in ctx["vehicles"]]

@@ -121,7 +121,8 @@ def _check_int32(a: np.ndarray, what: str) -> None:
 
 
 def quantize_input(x: np.ndarray, scale: float) -> np.ndarray:
-    """sat16(round_half_up(x * scale)) computed in float32 like the C."""
+    """sat16(floor(x * scale + 0.5)) with x * scale in float32 like the C (which
+    gets the same floor by rounding to nearest, |x * scale| < 2^16)."""
     v = x.astype(np.float32) * np.float32(scale)
     fl = np.floor(v)
     qv = fl.astype(np.int64) + ((v - fl) >= np.float32(0.5))

@@ -59,7 +59,7 @@ def test_instruction_budgets_per_multiply_accumulate(exported, cm):
             assert sixteen.mix["smlad"] > 0
             assert kernels / (17 * phi) < 1.0  # dense kernels: < 1 instruction per MAC
     assert per_phi["ns2_predict_f32"] < 3.0, per_phi  # whole phi evaluation, float
-    assert per_phi["ns2_predict_q15"] < 1.25, per_phi
+    assert per_phi["ns2_predict_q15"] <= 1.0, per_phi  # neighbours two at a time through phi
 
 
 def test_one_tick_budget(exported, onboard):

@@ -58,10 +58,10 @@ def test_fixed_stream_layout(exported):
     blocks = stream.reshape(-1, 4 + 8 * nq)
     half = (1 << (layer.shift - 1)) if layer.shift else 0
     assert np.array_equal(blocks[:, :4].ravel()[:layer.w.shape[0]], layer.b.astype(np.int64) + half)
-    words = blocks[:, 4:].reshape(-1, nq, 4, 2)
+    words = blocks[:, 4:].reshape(-1, 2 * nq, 4)  # [block][input pair][row]
     lo = ((words & 0xFFFF) ^ 0x8000) - 0x8000
     hi = (words - (words & 0xFFFF)) // 65536
-    w = np.stack([lo, hi], -1).reshape(-1, nq, 4, 4).transpose(0, 2, 1, 3).reshape(-1, 4 * nq)
+    w = np.stack([lo, hi], -1).transpose(0, 2, 1, 3).reshape(-1, 4 * nq)  # [block, row][pair, half]
     assert np.array_equal(w[:layer.w.shape[0]], layer.w)
 
 
@@ -138,7 +138,7 @@ def test_proof_holds_on_extreme_inputs(exported):
 
 
 @pytest.mark.skipif(ARM_CC is None, reason="arm-none-eabi-gcc missing: run scripts/install-deps.sh")
-@pytest.mark.parametrize("opt", ["-O2", "-Os"])
+@pytest.mark.parametrize("opt", ["-O2", "-Os", "-O0"])  # -O0: Crazyflie debug builds (portable kernels)
 def test_cross_compiles_for_cortex_m4f_without_fma(exported, tmp_path, opt):
     f = flags()
     inc = [f"-I{REPO / i}" for i in f["NS2_INCLUDES"]] + [f"-I{exported.gen_dir}"]
@@ -149,6 +149,8 @@ def test_cross_compiles_for_cortex_m4f_without_fma(exported, tmp_path, opt):
         assert r.returncode == 0, r.stderr
         dis = subprocess.run(["arm-none-eabi-objdump", "-d", str(obj)], capture_output=True, text=True).stdout
         assert "vfma" not in dis and "vfms" not in dis and "vfnm" not in dis
+        if src.endswith("ns2_q15.c"):  # the SMLAD kernels in optimized builds only
+            assert ("\tsmlad\t" in dis) == (opt != "-O0")
         if src.endswith("ns2_f32.c"):
             # hardware float, not soft-float calls; VMLA is the unfused (twice rounded) form
             assert ("vmul.f32" in dis or "vmla.f32" in dis) and "vadd.f32" in dis

@@ -15,15 +15,19 @@
  *
  * Speed: int16 pairs are packed in int32 words (low half = even index) and
  * multiplied-accumulated two at a time with SMLAD on Cortex-M4 (inline assembly,
- * fully unrolled over the input quads); other targets use a portable C SMLAD
- * with the same result (integer sums are exact).  The bias tables already
- * contain the rounding offset 2^(shift-1).  Four output
- * rows share each loaded input quad; the generated weights are laid out
- * [row block][input quad][row][2 words].  Inputs and rows are zero-padded to
- * multiples of four.  Right shifts of negative numbers are written so that they
- * are defined C.
+ * fully unrolled over the inputs); other targets use a portable C SMLAD with the
+ * same result (integer sums are exact).  The bias tables already contain the
+ * rounding offset 2^(shift-1).  The generated weights are laid out
+ * [block of four output rows][input pair][row]; inputs and rows are zero-padded
+ * to multiples of four.  Four output rows share each loaded input word, and
+ * neighbours of the same type go through phi two at a time, so that each loaded
+ * weight word serves two neighbours (activations interleaved: word 2k is pair k
+ * of the first neighbour, word 2k + 1 that of the second).  Integer sums are
+ * exact, so neither the grouping nor the order changes a bit.  Right shifts of
+ * negative numbers are written so that they are defined C.
  */
 #include <stddef.h>
+#include <string.h>
 
 #include "ns2_internal.h"
 #include "ns2_model_fixed.h"
@@ -76,17 +80,17 @@ static int32_t pack16(int32_t y0, int32_t y1)
     return y1 * 0x10000 + (y0 & 0xFFFF);
 }
 
-/* x -> sat16(round_half_up(x * scale)), scale = 2^f_in; x is already clamped. */
+/* x -> sat16(round_half_up(x * scale)), scale = 2^f_in; x is already clamped.
+ * Adding and subtracting 1.5 * 2^23 rounds |v| < 2^22 to the nearest integer
+ * (ties to even, the default float rounding); a tie that went down is moved up.
+ * The result is floor(v + 0.5), as in the reference. */
 static int32_t quantize(float x, float scale)
 {
-    const float v = x * scale;  /* exact: scale is a power of two; |v| < 2^16 */
-    int32_t q = (int32_t)v;     /* truncation toward zero */
-    float fl = (float)q;        /* exact */
-    if (fl > v) {               /* negative non-integer: floor = trunc - 1 */
-        q -= 1;
-        fl -= 1.0f;
-    }
-    if (v - fl >= 0.5f) {       /* v - floor(v), the same float operation as the reference */
+    const float magic = 12582912.0f; /* 1.5 * 2^23 */
+    const float v = x * scale;       /* exact: scale is a power of two; |v| < 2^16 */
+    const float r = (v + magic) - magic;
+    int32_t q = (int32_t)r; /* exact: r is an integer */
+    if (r - v == -0.5f) {   /* exact difference */
         q += 1;
     }
     return sat16(q);
@@ -104,25 +108,21 @@ static int32_t finish(int32_t acc, uint8_t shift, int relu)
  * int32 sums (phi's last layer, straight into the latent sum h). */
 enum { NS2_OUT_RELU, NS2_OUT_LIN, NS2_OUT_SET, NS2_OUT_ACC };
 
-/* One layer, portable C: per block the four biases, then n_quads input quads.
- * Not inlined into dense_q15: the Cortex-M4 dispatch stays a thin switch. */
+/* One layer, portable C: per block the four biases, then per input pair the
+ * four rows' weight words.  Not inlined into dense_q15: the Cortex-M4 dispatch
+ * stays a thin switch. */
 __attribute__((noinline)) static void dense_q15_c(const ns2_q15_layer_t *layer, const int32_t *x, int32_t *y, int out)
 {
     const int32_t *w = layer->wb;
     const int relu = out == NS2_OUT_RELU;
     for (uint16_t blk = 0; blk < layer->n_blocks; ++blk) {
         int32_t acc[4] = {w[0], w[1], w[2], w[3]};
-        const int32_t *xp = x;
         w += 4;
-        for (uint16_t q = 0; q < layer->n_quads; ++q) {
-            const int32_t x01 = xp[0];
-            const int32_t x23 = xp[1];
-            xp += 2;
+        for (uint16_t p = 0; p < 2u * layer->n_quads; ++p) {
             for (int r = 0; r < 4; ++r) {
-                acc[r] = ns2_smlad_c(w[2 * r], x01, acc[r]);
-                acc[r] = ns2_smlad_c(w[2 * r + 1], x23, acc[r]);
+                acc[r] = ns2_smlad_c(w[r], x[p], acc[r]);
             }
-            w += 8;
+            w += 4;
         }
         if (out == NS2_OUT_SET || out == NS2_OUT_ACC) {
             for (uint16_t r = 0; r < 4u; ++r) {
@@ -136,12 +136,18 @@ __attribute__((noinline)) static void dense_q15_c(const ns2_q15_layer_t *layer, 
     }
 }
 
-#if defined(__ARM_FEATURE_DSP) && __ARM_FEATURE_DSP && defined(__thumb2__) && !defined(NS2_NO_ASM)
+/* The assembly needs an optimized build: at -O0 the compiler keeps a frame
+ * pointer and has too few registers left (Crazyflie debug builds use -O0; they
+ * get the portable kernels, with the same results). */
+#if defined(__ARM_FEATURE_DSP) && __ARM_FEATURE_DSP && defined(__thumb2__) && !defined(NS2_NO_ASM) && \
+    defined(__OPTIMIZE__)
+#define NS2_Q15_ASM 1
 /* Cortex-M4 kernels, one per input-quad count NQ of the model and per output
  * kind (USAT #15 = ReLU + saturation for hidden layers, SSAT #16 for the last).
- * Per block: two LDRD of the biases; per quad (unrolled NQ times by the
- * assembler) one LDRD of the two input words, two LDM of four weight words and
- * eight SMLAD; then ASR (the floor shift), saturation, and the store: two
+ * Per block: two LDRD of the biases; per input quad (unrolled NQ times by the
+ * assembler) one LDRD of the two input words and per word an LDM of the four
+ * rows' weight words and four SMLAD; then ASR (the floor shift), saturation,
+ * and the store: two
  * PKHBT and one STRD, or (set) two STRD of int32 values, or (acc) twice LDRD,
  * two ADD and STRD into the int32 sums.
  * Same arithmetic as dense_q15_c: integer sums are exact, SMLAD is
@@ -159,13 +165,13 @@ __attribute__((noinline)) static void dense_q15_c(const ns2_q15_layer_t *layer, 
                          "ldrd %[x0], %[x1], [%[xp]], #8\n\t"                                   \
                          "ldmia %[wp]!, {r8, r9, r10, r11}\n\t"                                 \
                          "smlad %[a0], r8, %[x0], %[a0]\n\t"                                    \
-                         "smlad %[a0], r9, %[x1], %[a0]\n\t"                                    \
-                         "smlad %[a1], r10, %[x0], %[a1]\n\t"                                   \
-                         "smlad %[a1], r11, %[x1], %[a1]\n\t"                                   \
+                         "smlad %[a1], r9, %[x0], %[a1]\n\t"                                    \
+                         "smlad %[a2], r10, %[x0], %[a2]\n\t"                                   \
+                         "smlad %[a3], r11, %[x0], %[a3]\n\t"                                   \
                          "ldmia %[wp]!, {r8, r9, r10, r11}\n\t"                                 \
-                         "smlad %[a2], r8, %[x0], %[a2]\n\t"                                    \
-                         "smlad %[a2], r9, %[x1], %[a2]\n\t"                                    \
-                         "smlad %[a3], r10, %[x0], %[a3]\n\t"                                   \
+                         "smlad %[a0], r8, %[x1], %[a0]\n\t"                                    \
+                         "smlad %[a1], r9, %[x1], %[a1]\n\t"                                    \
+                         "smlad %[a2], r10, %[x1], %[a2]\n\t"                                   \
                          "smlad %[a3], r11, %[x1], %[a3]\n\t"                                   \
                          ".endr\n\t"                                                            \
                          "sub %[xp], %[xp], #%c[back]\n\t"                                      \
@@ -207,40 +213,220 @@ __attribute__((noinline)) static void dense_q15_c(const ns2_q15_layer_t *layer, 
     "add %[x0], %[x0], %[a2]\n\t"            \
     "add %[x1], %[x1], %[a3]\n\t"            \
     "strd %[x0], %[x1], [%[y]], #8\n\t"
-#define NS2_Q15_KERNELS(NQ)                                \
-    NS2_Q15_KERNEL(NQ, relu, "usat", NS2_Q15_STORE_PACKED) \
-    NS2_Q15_KERNEL(NQ, lin, "ssat", NS2_Q15_STORE_PACKED)  \
-    NS2_Q15_KERNEL(NQ, set, "ssat", NS2_Q15_STORE_SET)     \
+/* only the (input-quad count, output kind) pairs that the model's layers use */
+#define NS2_Q15_RELU_KERNEL(NQ) NS2_Q15_KERNEL(NQ, relu, "usat", NS2_Q15_STORE_PACKED)
+#define NS2_Q15_LIN_KERNEL(NQ) NS2_Q15_KERNEL(NQ, lin, "ssat", NS2_Q15_STORE_PACKED)
+#define NS2_Q15_LAST_PHI_KERNELS(NQ)                      \
+    NS2_Q15_KERNEL(NQ, set, "ssat", NS2_Q15_STORE_SET) \
     NS2_Q15_KERNEL(NQ, acc, "ssat", NS2_Q15_STORE_ADD)
-NS2_Q15_FOR_EACH_QUAD_COUNT(NS2_Q15_KERNELS)
+NS2_Q15_HIDDEN_QUADS(NS2_Q15_RELU_KERNEL)
+NS2_Q15_RHO_LAST_QUADS(NS2_Q15_LIN_KERNEL)
+NS2_Q15_PHI_LAST_QUADS(NS2_Q15_LAST_PHI_KERNELS)
 
-#define NS2_Q15_CASE(NQ)                                                                  \
+/* Two neighbours through one layer (inputs and outputs interleaved, see the top).
+ * Per block: the biases (two LDRD, copied to the second neighbour's rows); per
+ * input pair (unrolled 2 NQ times) one LDRD of the two neighbours' input words,
+ * two LDRD of the four rows' weight words and eight SMLAD, i.e. 17 cycles for
+ * 16 multiply-accumulates; then ASR, saturation and the store: four PKHBT and
+ * one STM of the interleaved outputs (relu), or the sum of the two neighbours'
+ * outputs added into the int32 latent sums (acc).  All fourteen core registers:
+ * x in r0, w in r1, accumulators r2-r5 (first neighbour) and r6-r9 (second),
+ * inputs r10-r11, weights r12/lr; y, the end of w and the shift stay in the
+ * frame (r7 is free: optimized builds keep no frame pointer). */
+#define NS2_Q15_PAIR_KERNEL(NQ, NAME, SAT, STORE)                                               \
+    __attribute__((noinline)) static void dense2_q15_##NQ##_##NAME(                             \
+        const int32_t *x, const int32_t *w, int32_t *y, uint32_t n_blocks, int32_t s)           \
+    {                                                                                           \
+        register const int32_t *xp __asm__("r0") = x;                                           \
+        register const int32_t *wp __asm__("r1") = w;                                           \
+        int32_t *y_mem = y;                                                                     \
+        const int32_t *const w_end = w + n_blocks * (4u + 8u * (NQ));                           \
+        const int32_t s_mem = s;                                                                \
+        __asm__ volatile("1:\n\t"                                                               \
+                         "ldrd r2, r3, [%[wp]], #8\n\t"                                         \
+                         "ldrd r4, r5, [%[wp]], #8\n\t"                                         \
+                         "mov r6, r2\n\t"                                                       \
+                         "mov r7, r3\n\t"                                                       \
+                         "mov r8, r4\n\t"                                                       \
+                         "mov r9, r5\n\t"                                                       \
+                         ".rept %c[np]\n\t"                                                     \
+                         "ldrd r10, r11, [%[xp]], #8\n\t"                                       \
+                         "ldrd r12, lr, [%[wp]], #8\n\t"                                        \
+                         "smlad r2, r12, r10, r2\n\t"                                           \
+                         "smlad r6, r12, r11, r6\n\t"                                           \
+                         "smlad r3, lr, r10, r3\n\t"                                            \
+                         "smlad r7, lr, r11, r7\n\t"                                            \
+                         "ldrd r12, lr, [%[wp]], #8\n\t"                                        \
+                         "smlad r4, r12, r10, r4\n\t"                                           \
+                         "smlad r8, r12, r11, r8\n\t"                                           \
+                         "smlad r5, lr, r10, r5\n\t"                                            \
+                         "smlad r9, lr, r11, r9\n\t"                                            \
+                         ".endr\n\t"                                                            \
+                         "sub %[xp], %[xp], #%c[back]\n\t"                                      \
+                         "ldr r10, %[smem]\n\t"                                                 \
+                         "asr r2, r2, r10\n\t"                                                  \
+                         "asr r3, r3, r10\n\t"                                                  \
+                         "asr r4, r4, r10\n\t"                                                  \
+                         "asr r5, r5, r10\n\t"                                                  \
+                         "asr r6, r6, r10\n\t"                                                  \
+                         "asr r7, r7, r10\n\t"                                                  \
+                         "asr r8, r8, r10\n\t"                                                  \
+                         "asr r9, r9, r10\n\t"                                                  \
+                         SAT " r2, " SAT_BITS_##NAME ", r2\n\t"                                 \
+                         SAT " r3, " SAT_BITS_##NAME ", r3\n\t"                                 \
+                         SAT " r4, " SAT_BITS_##NAME ", r4\n\t"                                 \
+                         SAT " r5, " SAT_BITS_##NAME ", r5\n\t"                                 \
+                         SAT " r6, " SAT_BITS_##NAME ", r6\n\t"                                 \
+                         SAT " r7, " SAT_BITS_##NAME ", r7\n\t"                                 \
+                         SAT " r8, " SAT_BITS_##NAME ", r8\n\t"                                 \
+                         SAT " r9, " SAT_BITS_##NAME ", r9\n\t"                                 \
+                         "ldr r11, %[ymem]\n\t"                                                 \
+                         STORE                                                                  \
+                         "str r11, %[ymem]\n\t"                                                 \
+                         "ldr r12, %[wend]\n\t"                                                 \
+                         "cmp %[wp], r12\n\t"                                                   \
+                         "bne 1b"                                                               \
+                         : [xp] "+r"(xp), [wp] "+r"(wp), [ymem] "+m"(y_mem)                     \
+                         : [np] "i"(2 * (NQ)), [back] "i"(16 * (NQ)), [smem] "m"(s_mem),        \
+                           [wend] "m"(w_end)                                                    \
+                         : "r2", "r3", "r4", "r5", "r6", "r7", "r8", "r9", "r10", "r11", "r12",  \
+                           "lr", "cc", "memory");                                               \
+    }
+#define NS2_Q15_PAIR_STORE_PACKED             \
+    "pkhbt r2, r2, r3, lsl #16\n\t"          \
+    "pkhbt r3, r6, r7, lsl #16\n\t"          \
+    "pkhbt r4, r4, r5, lsl #16\n\t"          \
+    "pkhbt r5, r8, r9, lsl #16\n\t"          \
+    "stmia r11!, {r2, r3, r4, r5}\n\t"
+#define NS2_Q15_PAIR_STORE_ADD                \
+    "add r2, r2, r6\n\t"                     \
+    "add r3, r3, r7\n\t"                     \
+    "add r4, r4, r8\n\t"                     \
+    "add r5, r5, r9\n\t"                     \
+    "ldmia r11, {r6, r7, r8, r9}\n\t"        \
+    "add r6, r6, r2\n\t"                     \
+    "add r7, r7, r3\n\t"                     \
+    "add r8, r8, r4\n\t"                     \
+    "add r9, r9, r5\n\t"                     \
+    "stmia r11!, {r6, r7, r8, r9}\n\t"
+#define NS2_Q15_PAIR_RELU_KERNEL(NQ) NS2_Q15_PAIR_KERNEL(NQ, relu, "usat", NS2_Q15_PAIR_STORE_PACKED)
+#define NS2_Q15_PAIR_ACC_KERNEL(NQ) NS2_Q15_PAIR_KERNEL(NQ, acc, "ssat", NS2_Q15_PAIR_STORE_ADD)
+NS2_Q15_PHI_HIDDEN_QUADS(NS2_Q15_PAIR_RELU_KERNEL)
+NS2_Q15_PHI_LAST_QUADS(NS2_Q15_PAIR_ACC_KERNEL)
+
+#define NS2_Q15_CASE(NQ, NAME)                                                            \
     case NQ:                                                                              \
-        if (out == NS2_OUT_RELU) {                                                        \
-            dense_q15_##NQ##_relu(x, layer->wb, y, layer->n_blocks, (int32_t)layer->shift); \
-        } else if (out == NS2_OUT_LIN) {                                                  \
-            dense_q15_##NQ##_lin(x, layer->wb, y, layer->n_blocks, (int32_t)layer->shift);  \
-        } else if (out == NS2_OUT_SET) {                                                  \
-            dense_q15_##NQ##_set(x, layer->wb, y, layer->n_blocks, (int32_t)layer->shift);  \
-        } else {                                                                          \
-            dense_q15_##NQ##_acc(x, layer->wb, y, layer->n_blocks, (int32_t)layer->shift);  \
-        }                                                                                 \
+        dense_q15_##NQ##_##NAME(x, layer->wb, y, layer->n_blocks, (int32_t)layer->shift); \
         return;
+#define NS2_Q15_CASE_RELU(NQ) NS2_Q15_CASE(NQ, relu)
+#define NS2_Q15_CASE_LIN(NQ) NS2_Q15_CASE(NQ, lin)
+#define NS2_Q15_CASE_SET(NQ) NS2_Q15_CASE(NQ, set)
+#define NS2_Q15_CASE_ACC(NQ) NS2_Q15_CASE(NQ, acc)
 
 static void dense_q15(const ns2_q15_layer_t *layer, const int32_t *x, int32_t *y, int out)
 {
     if (layer->n_blocks == 0u) {
         return;
     }
-    switch (layer->n_quads) {
-        NS2_Q15_FOR_EACH_QUAD_COUNT(NS2_Q15_CASE)
+    switch (out) {
+    case NS2_OUT_RELU:
+        switch (layer->n_quads) {
+            NS2_Q15_HIDDEN_QUADS(NS2_Q15_CASE_RELU)
+        default:
+            break;
+        }
+        break;
+    case NS2_OUT_LIN:
+        switch (layer->n_quads) {
+            NS2_Q15_RHO_LAST_QUADS(NS2_Q15_CASE_LIN)
+        default:
+            break;
+        }
+        break;
+    case NS2_OUT_SET:
+        switch (layer->n_quads) {
+            NS2_Q15_PHI_LAST_QUADS(NS2_Q15_CASE_SET)
+        default:
+            break;
+        }
+        break;
     default:
-        dense_q15_c(layer, x, y, out); /* a count the exporter did not list */
-        return;
+        switch (layer->n_quads) {
+            NS2_Q15_PHI_LAST_QUADS(NS2_Q15_CASE_ACC)
+        default:
+            break;
+        }
+        break;
     }
+    dense_q15_c(layer, x, y, out); /* a count the exporter did not list */
 }
 #else
 #define dense_q15 dense_q15_c
+#endif
+
+/* Two neighbours through one layer, portable: the same sums as the Cortex-M4
+ * pair kernels, inputs and (relu) outputs interleaved, or (acc) both
+ * neighbours' outputs added into the int32 sums y. */
+__attribute__((noinline)) static void dense2_q15_c(const ns2_q15_layer_t *layer, const int32_t *x, int32_t *y, int out)
+{
+    const int32_t *w = layer->wb;
+    for (uint16_t blk = 0; blk < layer->n_blocks; ++blk) {
+        int32_t acc[2][4];
+        for (int r = 0; r < 4; ++r) {
+            acc[0][r] = acc[1][r] = w[r];
+        }
+        w += 4;
+        for (uint16_t p = 0; p < 2u * layer->n_quads; ++p) {
+            for (int r = 0; r < 4; ++r) {
+                acc[0][r] = ns2_smlad_c(w[r], x[2u * p], acc[0][r]);
+                acc[1][r] = ns2_smlad_c(w[r], x[2u * p + 1u], acc[1][r]);
+            }
+            w += 4;
+        }
+        if (out == NS2_OUT_ACC) {
+            for (uint16_t r = 0; r < 4u; ++r) {
+                y[4u * blk + r] += finish(acc[0][r], layer->shift, 0) + finish(acc[1][r], layer->shift, 0);
+            }
+        } else {
+            for (uint16_t k = 0; k < 2u; ++k) {
+                y[4u * blk + k] = pack16(finish(acc[k][0], layer->shift, 1), finish(acc[k][1], layer->shift, 1));
+                y[4u * blk + 2u + k] = pack16(finish(acc[k][2], layer->shift, 1), finish(acc[k][3], layer->shift, 1));
+            }
+        }
+    }
+}
+
+#ifdef NS2_Q15_ASM
+#define NS2_Q15_PAIR_CASE(NQ, NAME)                                                       \
+    case NQ:                                                                              \
+        dense2_q15_##NQ##_##NAME(x, layer->wb, y, layer->n_blocks, (int32_t)layer->shift); \
+        return;
+#define NS2_Q15_PAIR_CASE_RELU(NQ) NS2_Q15_PAIR_CASE(NQ, relu)
+#define NS2_Q15_PAIR_CASE_ACC(NQ) NS2_Q15_PAIR_CASE(NQ, acc)
+
+/* out: NS2_OUT_RELU (interleaved outputs) or NS2_OUT_ACC (both added into y) */
+static void dense2_q15(const ns2_q15_layer_t *layer, const int32_t *x, int32_t *y, int out)
+{
+    if (layer->n_blocks == 0u) {
+        return;
+    }
+    if (out == NS2_OUT_RELU) {
+        switch (layer->n_quads) {
+            NS2_Q15_PHI_HIDDEN_QUADS(NS2_Q15_PAIR_CASE_RELU)
+        default:
+            break;
+        }
+    } else {
+        switch (layer->n_quads) {
+            NS2_Q15_PHI_LAST_QUADS(NS2_Q15_PAIR_CASE_ACC)
+        default:
+            break;
+        }
+    }
+    dense2_q15_c(layer, x, y, out); /* a count the exporter did not list */
+}
+#else
+#define dense2_q15 dense2_q15_c
 #endif
 
 /* The hidden layers of an MLP (ReLU); returns the last hidden activation (in buf). */
@@ -255,13 +441,14 @@ static const int32_t *hidden_q15(const ns2_q15_net_t *net, const int32_t *x, int
     return in;
 }
 
-/* Clamped 6-vector -> 4 packed words (inputs 6 and 7 are zero padding). */
-static void quantize_input(const float x[6], float scale, int32_t xq[4])
+/* Clamped 6-vector -> 4 packed words xq[0], xq[step], xq[2 step], xq[3 step]
+ * (inputs 6 and 7 are zero padding; step 2: one neighbour of an interleaved pair). */
+static void quantize_input(const float x[6], float scale, int32_t *xq, int step)
 {
     xq[0] = pack16(quantize(x[0], scale), quantize(x[1], scale));
-    xq[1] = pack16(quantize(x[2], scale), quantize(x[3], scale));
-    xq[2] = pack16(quantize(x[4], scale), quantize(x[5], scale));
-    xq[3] = 0;
+    xq[step] = pack16(quantize(x[2], scale), quantize(x[3], scale));
+    xq[2 * step] = pack16(quantize(x[4], scale), quantize(x[5], scale));
+    xq[3 * step] = 0;
 }
 
 /* h = phi_t(x) (first input) or h += phi_t(x), x clamped (int32 sums: exact).
@@ -272,8 +459,25 @@ static void phi_add_q15(int32_t h[NS2_HIDDEN_PAD4], uint8_t t, const float x[6],
     int32_t xq[4];
     int32_t buf[2][NS2_Q_WORDS];
     const ns2_q15_net_t *net = &ns2_q15_phi[t];
-    quantize_input(x, ns2_q15_in_scale[t], xq);
+    quantize_input(x, ns2_q15_in_scale[t], xq, 1);
     dense_q15(&net->layers[net->n_layers - 1u], hidden_q15(net, xq, buf), h, first ? NS2_OUT_SET : NS2_OUT_ACC);
+}
+
+/* h += phi_t(xa) + phi_t(xb): two neighbours of the same type t, whose inputs
+ * and activations are interleaved so that each weight word serves both. */
+static void phi2_add_q15(int32_t h[NS2_HIDDEN_PAD4], uint8_t t, const float xa[6], const float xb[6])
+{
+    int32_t xq[8];
+    int32_t buf[2][2 * NS2_Q_WORDS];
+    const ns2_q15_net_t *net = &ns2_q15_phi[t];
+    const int32_t *in = xq;
+    quantize_input(xa, ns2_q15_in_scale[t], xq, 2);
+    quantize_input(xb, ns2_q15_in_scale[t], xq + 1, 2);
+    for (uint8_t l = 0; l + 1u < net->n_layers; ++l) {
+        dense2_q15(&net->layers[l], in, buf[l & 1u], NS2_OUT_RELU);
+        in = buf[l & 1u];
+    }
+    dense2_q15(&net->layers[net->n_layers - 1u], in, h, NS2_OUT_ACC);
 }
 
 /* The latent sum brought to rho's input format, then rho. */
@@ -298,6 +502,7 @@ int16_t ns2_predict_q15(uint8_t robot_type, const float p[3], const float v[3],
     ns2_info_t local;
     ns2_info_t *inf = info != NULL ? info : &local;
     float x[6];
+    float xa[6];
     int32_t h[NS2_HIDDEN_PAD4];
     uint16_t idx[NS2_MAX_NEIGHBORS];
     uint16_t n_used;
@@ -306,12 +511,47 @@ int16_t ns2_predict_q15(uint8_t robot_type, const float p[3], const float v[3],
         return 0;
     }
     phi_add_q15(h, NS2_ENV_TYPE, x, 1);
-    for (uint16_t j = 0; j < n_used; ++j) {
-        const ns2_neighbor_t *nb = &neighbors[idx[j]];
-        ns2_clamp_input(nb->type, nb->rel, x);
-        phi_add_q15(h, nb->type, x, 0);
+    /* the neighbours type by type, two at a time (integer sums: any order is exact) */
+    for (uint8_t t = 0; t < NS2_NUM_ROBOT_TYPES; ++t) {
+        int pending = 0;
+        for (uint16_t j = 0; j < n_used; ++j) {
+            const ns2_neighbor_t *nb = &neighbors[idx[j]];
+            if (nb->type != t) {
+                continue;
+            }
+            if (pending) {
+                ns2_clamp_input(t, nb->rel, x);
+                phi2_add_q15(h, t, xa, x);
+            } else {
+                ns2_clamp_input(t, nb->rel, xa);
+            }
+            pending = !pending;
+        }
+        if (pending) {
+            phi_add_q15(h, t, xa, 0);
+        }
     }
     return rho_q15(robot_type, h);
+}
+
+/* Moves the next input of the same type as input i (a robot neighbour) to i + 1;
+ * 1 if there is one.  Only the fixed-point path reorders a job's inputs. */
+static int pair_up(ns2_job_t *job, uint16_t i)
+{
+    for (uint16_t m = (uint16_t)(i + 1u); m < job->n_inputs; ++m) {
+        if (job->type[m] == job->type[i]) {
+            if (m != i + 1u) {
+                float tmp[6];
+                memcpy(tmp, job->x[m], sizeof tmp);
+                memcpy(job->x[m], job->x[i + 1u], sizeof tmp);
+                memcpy(job->x[i + 1u], tmp, sizeof tmp);
+                job->type[m] = job->type[i + 1u];
+                job->type[i + 1u] = job->type[i];
+            }
+            return 1;
+        }
+    }
+    return 0;
 }
 
 uint16_t ns2_job_step_q15(ns2_job_t *job, uint16_t max_phi)
@@ -319,9 +559,17 @@ uint16_t ns2_job_step_q15(ns2_job_t *job, uint16_t max_phi)
     if (!ns2_job_claim(job, NS2_JOB_Q15)) {
         return 0;
     }
-    for (uint16_t k = 0; k < max_phi && job->next < job->n_inputs; ++k) {
-        phi_add_q15(job->h_q15, job->type[job->next], job->x[job->next], job->next == 0u);
-        job->next++;
+    for (uint16_t k = 0; k < max_phi && job->next < job->n_inputs;) {
+        const uint16_t i = job->next;
+        if (i > 0u && k + 2u <= max_phi && pair_up(job, i)) {
+            phi2_add_q15(job->h_q15, job->type[i], job->x[i], job->x[i + 1u]);
+            job->next = (uint16_t)(i + 2u);
+            k = (uint16_t)(k + 2u);
+        } else {
+            phi_add_q15(job->h_q15, job->type[i], job->x[i], i == 0u);
+            job->next++;
+            k++;
+        }
     }
     return (uint16_t)(job->n_inputs - job->next);
 }
