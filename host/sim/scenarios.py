@@ -100,7 +100,7 @@ def rings(counts, heights, radius: float = 0.5, period: float = 8.0, seed: int =
 
 def near_field(types, diameters, duration: float, z_low=(0.5, 1.0), gap_max: float = 1.2, reach: float = 0.35,
                offset: float = 0.06, center: float = 0.2, t_cross=(2.0, 4.0), t_sweep=(2.0, 4.0),
-               t_pass=(1.25, 5.0), pass_reach: float = 0.8, pass_gap_min: float = 0.03, passes: int = 3,
+               t_pass=(1.25, 5.0), pass_reach: float = 0.8, pass_gap=(0.03, 0.6), passes: int = 3,
                t_move: float = 2.0,
                t_move_pass: float = 2.0, seed: int = 0):
     """Close-range flights of a pair (near-field downwash data), in blocks; in
@@ -117,9 +117,10 @@ def near_field(types, diameters, duration: float, z_low=(0.5, 1.0), gap_max: flo
     the lower robot for only a tenth of a second, with accelerations of at most
     2.5 m/s^2 per robot, the planner's action box).  Gaps are drawn
     log-uniformly (stratified per role) from the tight collision distance
-    r = (D_0 + D_1) / 2 to ``gap_max`` for the sweeps and from ``pass_gap_min``
-    for the passes; a pass below r is offset sideways just enough to keep the
-    distance >= r (the planner's tight sphere allows that).  Each segment's
+    r = (D_0 + D_1) / 2 to ``gap_max`` for the sweeps and in ``pass_gap`` for the
+    passes (where a fast crossing's short, sharp wake is hardest to learn); a
+    pass below r is offset sideways just enough to keep the distance >= r (the
+    planner's tight sphere allows that).  Each segment's
     direction is within 60 degrees of where the last one ended, so the moves
     between segments (heights, roles and centre change there) keep the robots at
     least ``reach`` cos 30 deg apart sideways, never through each other.  Both
@@ -139,11 +140,11 @@ def near_field(types, diameters, duration: float, z_low=(0.5, 1.0), gap_max: flo
     roles = np.repeat(np.arange(blocks) % 2, passes + 1)        # index of the upper robot
     gaps = np.zeros((len(kinds), 2))
     for r in (0, 1):
-        for kind, lo in (("sweep", g_min), ("pass", min(pass_gap_min, g_min))):
+        for kind, lo, hi in (("sweep", g_min, gap_max), ("pass", min(pass_gap[0], g_min), pass_gap[1])):
             idx = np.flatnonzero((roles == r) & (kinds == kind))
             for e in (0, 1):
                 u = (rng.permutation(len(idx)) + rng.uniform(0, 1, len(idx))) / len(idx)
-                gaps[idx, e] = lo * (gap_max / lo) ** u
+                gaps[idx, e] = lo * (hi / lo) ** u
 
     def pose(upper, gap, zl, c, rel):
         p = np.zeros((2, 3))

@@ -27,7 +27,7 @@ LIMITS_2D = Limits(pos_lo=(0.0, -0.9, 0.3), pos_hi=(0.0, 0.9, 2.0))
 LIMITS_3D = Limits(pos_lo=(-0.6, -0.9, 0.3), pos_hi=(0.6, 0.9, 2.0))
 SPACING, HEIGHT = 0.8, 1.0
 CHECK_GAPS = (0.15, 0.3, 0.5, 1.0)      # m, vertical gaps of downwash_check
-NEAR_FIELD_SECONDS = 240.0              # close-range passes per pair of types in default_checkpoint
+NEAR_FIELD_SECONDS = 600.0              # close-range passes per pair of types in default_checkpoint
 
 
 def scenario_problem(cfg: Config, name: str, dims: int) -> Problem:
