@@ -60,7 +60,6 @@ def measure_library(elf: Path, cfg: Config) -> dict:
             "kernel_instructions_per_mac": round(kernel / (17 * phi_macs + rho_macs), 3),
             "instruction_mix_16_neighbors": dict(runs[16].mix.most_common(10)),
             "sliced_15_neighbors": dict(sliced, job_ram_bytes=cm.symbols["job"][1]),  # static ns2_job_t of the image
-            "_per_phi_cycles": per_phi_cyc, "_no_neighbor_cycles": runs[0].cycles,
         }
     return out
 
@@ -185,9 +184,8 @@ def main() -> None:
     step = ctrl["position_step"]["us_at_168MHz"] + ctrl["attitude_step"]["us_at_168MHz"]
     result["controller"] = ctrl
     fixed = lib["fixed"]
-    free = limit * 168 - step * 168 - fixed.pop("_no_neighbor_cycles")
-    per_phi = fixed.pop("_per_phi_cycles")
-    lib["float"].pop("_per_phi_cycles"), lib["float"].pop("_no_neighbor_cycles")
+    free = (limit - step) * cm4_count.CLOCK_HZ / 1e6 - fixed["prediction"]["0_neighbors"]["cycles"]
+    per_phi = fixed["per_phi"]["cycles"]
     result["budget_2ms_tick"] = {
         "budget_us": limit,
         "controller_step_us": round(step, 2),
