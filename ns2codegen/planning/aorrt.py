@@ -54,6 +54,14 @@ class Team:
     FAS: np.ndarray         # [H, m-1, N]
     planned: np.ndarray     # [N] bool
     trajs: list
+    relaxed: np.ndarray = None   # [N] bool: the robot's path is a relaxed (limit-violating) placeholder
+    allow: np.ndarray = None     # [N] g: force above its limit the others may still leave a relaxed robot
+
+    def __post_init__(self):
+        if self.relaxed is None:
+            self.relaxed = np.zeros(len(self.planned), bool)
+        if self.allow is None:
+            self.allow = np.zeros(len(self.planned))
 
     @staticmethod
     def empty(problem: Problem, H: int) -> "Team":
@@ -63,8 +71,10 @@ class Team:
         return Team(P, np.zeros_like(P), np.zeros((H + 1, n)), PS, np.zeros_like(PS), np.zeros((H, m - 1, n)),
                     np.zeros(n, bool), [None] * n)
 
-    def set(self, i: int, traj: Trajectory, fm: ForceModel, types, kappa: float) -> None:
+    def set(self, i: int, traj: Trajectory, fm: ForceModel, types, kappa: float, allow: float | None = None) -> None:
+        """Robot i's path; ``allow`` not None: a relaxed path (see AORRT._relax)."""
         H, m = len(self.P) - 1, self.PS.shape[1] + 1
+        self.relaxed[i], self.allow[i] = allow is not None, allow or 0.0
         self.P[:, i], self.V[:, i] = hold_arrays(traj, H)
         ps, vs = substates(traj.p[:-1], traj.v[:-1], traj.accel(kappa), traj.dt, m)
         self.PS[:, :, i] = self.P[:H, None, i]
@@ -123,12 +133,14 @@ class Stage1Result:
     costs: list                 # c^(i)
     trees: list                 # last successful Tree per robot (figures)
     order_history: list         # permutation of every AO iteration
-    accept_history: list        # (iteration, robot, cost, team P, V, FA before acceptance, trajectory)
+    accept_history: list        # (round, robot, cost, team P, V, FA, relaxed mask before acceptance, trajectory)
     iterations: int
     time_s: float
     time_per_robot_s: list
     samples_per_robot: list     # samples drawn by the RRT runs of every robot
     hit_time_limit: bool        # the wall-clock safety net stopped a run (outcome machine-dependent)
+    relaxations: list = field(default_factory=list)   # (round, robot, slack g) of every relaxed path
+    promotions: list = field(default_factory=list)    # (round, robot): relaxed paths that became valid
 
 
 class AORRT:
@@ -158,12 +170,14 @@ class AORRT:
         present[:, i] = True
         return self.fm.team_np(self.types, P, V, present), FA
 
-    def _valid(self, team: Team, i: int, k_prev, p_prev, v_prev, a, k, p, v):
+    def _valid(self, team: Team, i: int, k_prev, p_prev, v_prev, a, k, p, v, slack: float = 0.0):
         """StateValid (line state_valid) for candidates of robot i that move from
         (p_prev, v_prev) at step k_prev with acceleration a to (p, v) at step k;
         returns (valid [B], own force at k [B], rejected only by a neighbour's force
         check [B]).  Force limits are checked at k and at fa_substeps - 1 points
-        inside the step."""
+        inside the step.  ``slack`` (g) widens every force bound and trust region (a
+        relaxed search, see ``run``); a neighbour whose path is relaxed keeps its bound
+        but has no trust region (its forces are no reference: it is re-planned)."""
         lim = self.pb.limits
         ax = self.ax
         ok = (k <= len(team.P) - 1)
@@ -182,19 +196,22 @@ class AORRT:
         F, FA = self._forces(team, i, np.repeat(kk, m) - (q > 0), q, P, V)
         F, FA = F.reshape(b, m, -1), FA.reshape(b, m, -1)
         fa_i[idx] = F[:, 0, i]
-        good = np.all(np.abs(F[:, :, i]) <= self.fa_max[i], 1)
+        good = np.all(np.abs(F[:, :, i]) <= self.fa_max[i] + slack, 1)
         nb = np.zeros(b, bool)
         for j in np.flatnonzero(team.planned):
             if j == i:
                 continue
             d = segment_distance(p_prev[idx], p[idx], team.P[k_prev[idx], j], team.P[kk, j])
             good &= d >= self.r[i, j]
-            nb |= np.any((np.abs(F[:, :, j]) > self.fa_max[j]) | (np.abs(F[:, :, j] - FA[:, :, j]) > lim.b_fa_g), 1)
+            bad = np.abs(F[:, :, j]) > self.fa_max[j] + team.allow[j] + slack
+            if not team.relaxed[j]:
+                bad |= np.abs(F[:, :, j] - FA[:, :, j]) > lim.b_fa_g + slack
+            nb |= np.any(bad, 1)
         ok[idx] = good & ~nb
         nbr_bad[idx] = good & nb
         return ok, fa_i, nbr_bad
 
-    def _tail_valid(self, team: Team, i: int, k_end: int, p_end: np.ndarray) -> bool:
+    def _tail_valid(self, team: Team, i: int, k_end: int, p_end: np.ndarray, slack: float = 0.0) -> bool:
         """A robot that reached its goal rests there; the rest of the horizon must stay
         valid for it and for its neighbours (else the solution is not accepted)."""
         H = len(team.P) - 1
@@ -203,7 +220,7 @@ class AORRT:
         k = np.arange(k_end + 1, H + 1)
         p = np.repeat(p_end[None], len(k), 0)
         z = np.zeros_like(p)
-        ok, _, _ = self._valid(team, i, k - 1, p, z, z, k, p, z)
+        ok, _, _ = self._valid(team, i, k - 1, p, z, z, k, p, z, slack)
         return bool(ok.all())
 
     # ------------------------------------------------------------------ one RRT
@@ -211,11 +228,14 @@ class AORRT:
         par = self.par
         return np.column_stack([p[:, self.ax], par.w_v * v[:, self.ax], par.w_fa * fa[:, None], par.w_c * c[:, None]])
 
-    def rrt(self, team: Team, i: int, c_bound: float, deadline: float):
+    def rrt(self, team: Team, i: int, c_bound: float, deadline: float, slack: float = 0.0,
+            max_samples: int | None = None):
         """Lines rrt_start..rrt_end for robot i with cost bound c_bound: at most
         ``max_samples`` samples and ``max_nodes`` nodes (``deadline``, wall clock,
-        only as a safety net); returns (Trajectory or None, Tree, samples drawn)."""
+        only as a safety net); returns (Trajectory or None, Tree, samples drawn).
+        ``slack`` > 0: the relaxed search of ``run`` (force limits widened)."""
         par, lim, ax = self.par, self.pb.limits, self.ax
+        max_samples = par.max_samples if max_samples is None else max_samples
         rng = self.rng
         start, goal = self.pb.starts()[i], self.pb.goals()[i]
         tree = Tree.alloc(par.max_nodes + par.batch)
@@ -227,7 +247,7 @@ class AORRT:
         kd, built = None, 0
         n_samples = 0
         na = len(ax)
-        while tree.n < par.max_nodes and n_samples < par.max_samples:
+        while tree.n < par.max_nodes and n_samples < max_samples:
             if time.perf_counter() >= deadline:
                 self.hit_time_limit = True
                 break
@@ -237,7 +257,7 @@ class AORRT:
             xr[:, ax] = rng.uniform(self.lo[ax], self.hi[ax], (b, na))
             vr = np.zeros((b, 3))
             vr[:, ax] = rng.uniform(-lim.v_max, lim.v_max, (b, na))
-            far = rng.uniform(-self.fa_max[i], self.fa_max[i], b)
+            far = rng.uniform(-self.fa_max[i] - slack, self.fa_max[i] + slack, b)
             cr = rng.uniform(0.0, c_bound, b) if np.isfinite(c_bound) else np.zeros(b)
             gb = (n_samples + np.arange(b)) % par.goal_bias_every == 0
             xr[gb], vr[gb], far[gb], cr[gb] = goal, 0.0, 0.0, 0.0
@@ -259,7 +279,8 @@ class AORRT:
             k_new = tree.k[near] + 1
             c_new = tree.c[near] + np.linalg.norm(u, axis=1) * par.dt
             a = accel(u, tree.fa[near], self.kappa[i])
-            ok, fa_new, nbr_bad = self._valid(team, i, tree.k[near], tree.p[near], tree.v[near], a, k_new, p_new, v_new)
+            ok, fa_new, nbr_bad = self._valid(team, i, tree.k[near], tree.p[near], tree.v[near], a, k_new, p_new, v_new,
+                                              slack)
             ok &= c_new < c_bound
             for e in np.flatnonzero(nbr_bad)[:max(0, 3000 - len(tree.rejected))]:
                 tree.rejected.append((tree.p[near[e]].copy(), p_new[e].copy()))
@@ -271,7 +292,7 @@ class AORRT:
             at_goal = (np.linalg.norm(p_new[sel] - goal, axis=1) <= par.eps_p) & \
                       (np.linalg.norm(v_new[sel], axis=1) <= par.eps_v)
             for leaf in idx[at_goal][np.argsort(c_new[sel][at_goal])]:
-                if self._tail_valid(team, i, int(tree.k[leaf]), tree.p[leaf]):
+                if self._tail_valid(team, i, int(tree.k[leaf]), tree.p[leaf], slack):
                     traj = tree.path(int(leaf))
                     traj.dt = par.dt
                     return traj, tree, n_samples
@@ -288,6 +309,48 @@ class AORRT:
                 raise PlanningError(f"infeasible limits: at the {what} robot {i} ({self.pb.robots[i].type}) feels "
                                     f"|f_a| = {abs(F[i]):.2f} g > f_a,max = {self.fa_max[i]:.2f} g")
 
+    def _relax(self, team: Team, i: int, deadline: float, samples: list) -> float | None:
+        """Relax-and-repair for robot i, which has no valid path against the team: the
+        smallest slack s of ``relax_levels_g`` with which RRT finds a path (every force
+        bound and trust region widened by s; box, speed and collision stay hard).  The
+        path enters the team marked relaxed: the others then re-plan first (cost bounds
+        reset) and must keep its force within its limit + ``relax_keep`` s (no trust
+        region), i.e. they make room for it, and it is re-planned with the true limits
+        afterwards (relaxed again, with a smaller slack, if there is not yet room
+        enough: a continuation towards a valid team).  Sequential planning alone cannot
+        solve a crossing in which both robots must deviate (two large robots in the yz
+        plane need more than a metre of vertical gap: neither can open it alone).
+        Returns the slack used, or None."""
+        par = self.par
+        for s in par.relax_levels_g:
+            traj, _, drawn = self.rrt(team, i, np.inf, deadline, slack=float(s),
+                                      max_samples=min(par.relax_samples, par.max_samples))
+            samples[i] += drawn
+            if traj is not None:
+                team.set(i, traj, self.fm, self.types, float(self.kappa[i]), allow=par.relax_keep * float(s))
+                return float(s)
+        return None
+
+    def _promoted(self, team: Team, i: int) -> Trajectory | None:
+        """A relaxed path of robot i that the others have made room for: the same
+        states, the actions re-derived for the forces of the current team (u = a -
+        kappa f_a,z-hat e_z, so the dynamics hold exactly), accepted when the action box
+        and every robot's force limit hold over the whole horizon (knots and points
+        inside the steps).  Box, speed and collision were hard when it was planned and
+        for everyone who re-planned around it.  None when it does not qualify."""
+        tr = team.trajs[i]
+        T = tr.T
+        fa = team.FA[:T + 1, i].copy()
+        u = accel(tr.u, tr.fa[:-1], self.kappa[i]) - accel(np.zeros_like(tr.u), fa[:-1], self.kappa[i])
+        if np.abs(u).max(initial=0.0) > self.pb.limits.u_max:
+            return None
+        limit = self.fa_max + np.where(team.relaxed, team.allow, 0.0)
+        limit[i] = self.fa_max[i]
+        on = team.planned
+        if np.any(np.abs(team.FA[:, on]) > limit[on]) or np.any(np.abs(team.FAS[:, :, on]) > limit[on]):
+            return None
+        return Trajectory(tr.p.copy(), tr.v.copy(), fa, u, tr.dt)
+
     def run(self) -> Stage1Result:
         self.pb.validate()
         self.check_endpoints()
@@ -302,31 +365,49 @@ class AORRT:
         trees = [None] * n
         per_robot = [0.0] * n
         samples = [0] * n
-        orders, accepts = [], []
+        orders, accepts, relaxations, promotions = [], [], [], []
         since_improved = 0
-        it = 0
+        it = ao_it = 0
         while True:
             order = self.rng.permutation(n)     # RandomShuffle
+            # robots without a valid path go last: the others first make room for them
+            need = [team.trajs[i] is None or team.relaxed[i] for i in range(n)]
+            order = np.array([i for i in order if not need[i]] + [i for i in order if need[i]], int)
             orders.append(order.tolist())
             improved = False
             for i in order:
+                i = int(i)
                 ts = time.perf_counter()
                 deadline = min(ts + par.rrt_time_s, deadline_total)
-                traj, tree, drawn = self.rrt(team, int(i), costs[i], deadline)
-                per_robot[i] += time.perf_counter() - ts
-                samples[i] += drawn
+                traj = self._promoted(team, i) if team.relaxed[i] else None
+                tree = trees[i]
                 if traj is not None:
-                    accepts.append((it, int(i), traj.effort(), team.P.copy(), team.V.copy(), team.FA.copy(), traj.copy()))
+                    promotions.append((it, i))
+                else:
+                    traj, tree, drawn = self.rrt(team, i, costs[i], deadline)
+                    samples[i] += drawn
+                if traj is not None:
+                    accepts.append((it, i, traj.effort(), team.P.copy(), team.V.copy(), team.FA.copy(),
+                                    team.relaxed.copy(), traj.copy()))
                     costs[i] = traj.effort()     # c^(i) <- c (line cost_update)
-                    trees[i] = tree.trimmed()
-                    team.set(int(i), traj, self.fm, self.types, float(self.kappa[i]))
+                    if tree is not None:
+                        trees[i] = tree.trimmed()
+                    team.set(i, traj, self.fm, self.types, float(self.kappa[i]))
                     improved = True
+                elif team.trajs[i] is None or team.relaxed[i]:
+                    slack = self._relax(team, i, deadline, samples)
+                    if slack is not None:
+                        relaxations.append((it, i, slack))
+                        for j in range(n):      # the others may change homotopy class to make room
+                            costs[j] = np.inf
+                per_robot[i] += time.perf_counter() - ts
             it += 1
-            missing = [int(i) for i in range(n) if team.trajs[i] is None]
+            missing = [i for i in range(n) if team.trajs[i] is None or team.relaxed[i]]
             since_improved = 0 if improved else since_improved + 1
             out_of_time = time.perf_counter() >= deadline_total
             self.hit_time_limit |= out_of_time
             if missing:
+                ao_it = since_improved = 0
                 if out_of_time:
                     raise PlanningError(
                         f"no path found for robot(s) {missing} within the {par.total_time_s:.0f} s safety time limit "
@@ -336,14 +417,15 @@ class AORRT:
                         f"no path found for robot(s) {missing} in {par.max_rounds} rounds of at most "
                         f"{par.max_samples} samples per robot (goal unreachable under the limits, or too few samples)")
                 continue
-            if it >= par.ao_iterations or since_improved >= par.ao_patience or out_of_time:
+            ao_it += 1
+            if ao_it >= par.ao_iterations or since_improved >= par.ao_patience or out_of_time:
                 break               # TerminationCondition1
         # refresh every robot's forces jointly with the final team (they were stored
         # as they were at acceptance time)
         for i, tr in enumerate(team.trajs):
             tr.fa = team.FA[:tr.T + 1, i].copy()
         return Stage1Result(list(team.trajs), costs, trees, orders, accepts, it, time.perf_counter() - t0, per_robot,
-                            samples, self.hit_time_limit)
+                            samples, self.hit_time_limit, relaxations, promotions)
 
 
 def post_process(trajs: list, kappa: np.ndarray) -> list:

@@ -7,7 +7,8 @@ One convex program per robot per iteration, eq. (scp), the others fixed:
     s.t. p, v: eq. (planning-discreteDynamics) with a_k = u_k + kappa fa_k e_z
          fa_k = f_a-hat(x_bar_k) + A_k (x_k - x_bar_k)                 eq. (planning-xdot-approx)
          u_k in U;  x_k in X_delta (box + |fa_k| <= f_a,max, widened by delta >= 0)
-         <p_bar^(ij)_k, p_k - p_bar^(j)_k> >= r^(I(i)I(j)) ||p_bar^(ij)_k||   (convexified collision)
+         <p_bar^(ij)_k, p_k - p_bar^(j)_k> >= r^(I(i)I(j)) ||p_bar^(ij)_k||   (convexified collision,
+                                                 also at the points inside the steps)
          x_0 = x_s
          |C^(j)_k (x_k - x_bar_k)| <= b_fa, |f_a^(j)(x_bar_k) + C^(j)_k (x_k - x_bar_k)| <= f_a,max^(j) + delta
          |x_k - x_bar_k| <= b_x,  |u_k - u_bar_k| <= b_u                   (trust regions)
@@ -151,6 +152,13 @@ def solve_cp(pb: Problem, fm: ForceModel, trajs: list, i: int, par: SCPParams, r
         if len(ks):
             nrm = rel[ks][:, ax] / np.maximum(dist[ks], 1e-9)[:, None]
             cons.append(cp.sum(cp.multiply(nrm, p[ks] - P[ks, j][:, ax]), axis=1) >= r[i, j] + par.collision_margin)
+        for rows, dpq, _ in subs:   # also at the points inside the steps: a fast crossing cuts corners
+            rel = Ps[rows, i] - Ps[rows, j]
+            dist = np.linalg.norm(rel, axis=1)
+            ks = np.flatnonzero(dist < r[i, j] + 2.0 * par.b_p + 0.3)
+            if len(ks):
+                nrm = rel[ks][:, ax] / np.maximum(dist[ks], 1e-9)[:, None]
+                cons.append(cp.sum(cp.multiply(nrm, dpq[ks] + rel[ks][:, ax]), axis=1) >= r[i, j] + par.collision_margin)
         if np.any(dP[j]) or np.any(dV[j]):
             cons += [cp.abs(lin(j)) <= lim.b_fa_g, cp.abs(F[:, j] + lin(j)) <= fa_max[j] + slack(T + 1)]
         for rows, dpq, dvq in subs:
