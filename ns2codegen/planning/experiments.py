@@ -142,6 +142,9 @@ def run_trial(pb: Problem, fm: ForceModel, gen_dir, seed: int, rrt: RRTParams, s
     rec = {"seed": seed, "error": None, "types": [r.type for r in pb.robots], "timings": res.timings(),
            "stage1_costs": [float(c) for c in res.stage1.costs], "scp_merit": res.stage2.merit_history,
            "stage1_samples_per_robot": res.stage1.samples_per_robot, "stage1_hit_time_limit": res.stage1.hit_time_limit,
+           "stage1_rounds": res.stage1.iterations,
+           "stage1_relaxations": [{"round": r, "robot": i, "slack_g": g} for r, i, g in res.stage1.relaxations],
+           "stage1_promotions": [{"round": r, "robot": i} for r, i in res.stage1.promotions],
            "scp_iterations": res.stage2.iterations, "scp_converged": res.stage2.converged,
            "check": {"robots": chk["robots"]},
            "track": {"worst_error_m": tr["worst_error_m"], "worst_fa_g": tr["worst_fa_g"]}}
