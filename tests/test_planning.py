@@ -24,13 +24,15 @@ LIMITS = Limits(pos_lo=(0.0, -0.9, 0.3), pos_hi=(0.0, 0.9, 2.0))
 
 class StrongDownwash(torch.nn.Module):
     """Artificial downwash with the deep set's call interface: a neighbour above
-    pushes down with a Gaussian plume, 40 g from a large robot, 8 g from a small one."""
+    pushes down with a Gaussian plume, 40 g from a large robot, 8 g from a small one;
+    with ``decay`` (m) it fades with the vertical gap dz as exp(-dz / decay)."""
 
-    def __init__(self, cfg, small_g: float = 8.0, large_g: float = 40.0, width: float = 0.15):
+    def __init__(self, cfg, small_g: float = 8.0, large_g: float = 40.0, width: float = 0.15,
+                 decay: float | None = None):
         super().__init__()
         self.env = cfg.env_index
         self.amp = torch.tensor([small_g if t == "small" else large_g for t in cfg.robot_types])
-        self.width = width
+        self.width, self.decay = width, decay
 
     def forward(self, robot_type, sample_of, nbr_type, nbr_state):
         rob = nbr_type != self.env
@@ -38,6 +40,8 @@ class StrongDownwash(torch.nn.Module):
         above = torch.sigmoid((s[:, 2] - 0.05) / 0.03)
         plume = torch.exp(-(s[:, 0] ** 2 + s[:, 1] ** 2) / (2 * self.width ** 2))
         contrib = -self.amp[nbr_type[rob]] * above * plume
+        if self.decay is not None:
+            contrib = contrib * torch.exp(-torch.clamp(s[:, 2], min=0.0) / self.decay)
         return torch.zeros(robot_type.shape[0]).index_add(0, sample_of[rob], contrib)
 
 
@@ -201,25 +205,6 @@ def test_homotopy_keeps_small_robot_out_from_under_the_large_one(cfg):
     assert any(below), below
 
 
-class DecayingDownwash(torch.nn.Module):
-    """Artificial downwash that fades with the vertical gap: amp exp(-dz / decay) in a
-    Gaussian plume, 30 g under a large robot (10 g at a 0.55 m gap), 8 g under a small one."""
-
-    def __init__(self, cfg, small_g: float = 8.0, large_g: float = 30.0, width: float = 0.15, decay: float = 0.5):
-        super().__init__()
-        self.env = cfg.env_index
-        self.amp = torch.tensor([small_g if t == "small" else large_g for t in cfg.robot_types])
-        self.width, self.decay = width, decay
-
-    def forward(self, robot_type, sample_of, nbr_type, nbr_state):
-        rob = nbr_type != self.env
-        s = nbr_state[rob]
-        above = torch.sigmoid((s[:, 2] - 0.05) / 0.03)
-        plume = torch.exp(-(s[:, 0] ** 2 + s[:, 1] ** 2) / (2 * self.width ** 2))
-        contrib = -self.amp[nbr_type[rob]] * above * plume * torch.exp(-torch.clamp(s[:, 2], min=0.0) / self.decay)
-        return torch.zeros(robot_type.shape[0]).index_add(0, sample_of[rob], contrib)
-
-
 def test_relax_and_repair_solves_a_crossing_that_needs_both_robots_to_deviate(cfg):
     """Two large robots swap in the yz plane; the lower one stays within 10 g only with
     a vertical gap >= 0.55 m at the crossing, and in the box z in [0.55, 1.45] each can
@@ -230,7 +215,7 @@ def test_relax_and_repair_solves_a_crossing_that_needs_both_robots_to_deviate(cf
     lim = Limits(pos_lo=(0.0, -0.9, 0.55), pos_hi=(0.0, 0.9, 1.45))
     pb = Problem(cfg, [Robot("large", (0.0, -0.4, 1.0), (0.0, 0.4, 1.0)),
                        Robot("large", (0.0, 0.4, 1.0), (0.0, -0.4, 1.0))], lim)
-    fm = ForceModel(cfg, DecayingDownwash(cfg))
+    fm = ForceModel(cfg, StrongDownwash(cfg, large_g=30.0, decay=0.5))   # 10 g under a large robot at 0.55 m
     P = np.array([[[0, 0, 1.0], [0, 0, 1.55]]])
     assert fm.team_np(pb.type_index(), P, np.zeros_like(P))[0, 0] == pytest.approx(-10.0, abs=0.2)
     par = RRTParams(max_nodes=4000, max_samples=20000, max_rounds=6, ao_iterations=1, seed=5)

@@ -61,14 +61,7 @@ class Team:
     FAS: np.ndarray         # [H, m-1, N]
     planned: np.ndarray     # [N] bool
     trajs: list
-    relaxed: np.ndarray = None   # [N] bool: the robot's path is a relaxed (limit-violating) placeholder
-    allow: np.ndarray = None     # [N] g: force above its limit the others may still leave a relaxed robot
-
-    def __post_init__(self):
-        if self.relaxed is None:
-            self.relaxed = np.zeros(len(self.planned), bool)
-        if self.allow is None:
-            self.allow = np.zeros(len(self.planned))
+    relaxed: np.ndarray     # [N] bool: the robot's path is a relaxed (limit-violating) placeholder
 
     @staticmethod
     def empty(problem: Problem, H: int) -> "Team":
@@ -76,12 +69,16 @@ class Team:
         P = np.repeat(problem.starts()[None], H + 1, 0)
         PS = np.repeat(P[:H, None], m - 1, 1)
         return Team(P, np.zeros_like(P), np.zeros((H + 1, n)), PS, np.zeros_like(PS), np.zeros((H, m - 1, n)),
-                    np.zeros(n, bool), [None] * n)
+                    np.zeros(n, bool), [None] * n, np.zeros(n, bool))
 
-    def set(self, i: int, traj: Trajectory, fm: ForceModel, types, kappa: float, allow: float | None = None) -> None:
-        """Robot i's path; ``allow`` not None: a relaxed path (see AORRT._relax)."""
+    def needs_path(self, i: int) -> bool:
+        """Robot i has no valid path yet (none, or a relaxed placeholder)."""
+        return self.trajs[i] is None or bool(self.relaxed[i])
+
+    def set(self, i: int, traj: Trajectory, fm: ForceModel, types, kappa: float, relaxed: bool = False) -> None:
+        """Robot i's path (``relaxed``: a placeholder, see AORRT._relax)."""
         H, m = len(self.P) - 1, self.PS.shape[1] + 1
-        self.relaxed[i], self.allow[i] = allow is not None, allow or 0.0
+        self.relaxed[i] = relaxed
         self.P[:, i], self.V[:, i] = hold_arrays(traj, H)
         ps, vs = substates(traj.p[:-1], traj.v[:-1], traj.accel(kappa), traj.dt, m)
         self.PS[:, :, i] = self.P[:H, None, i]
@@ -210,7 +207,7 @@ class AORRT:
                 continue
             d = segment_distance(p_prev[idx], p[idx], team.P[k_prev[idx], j], team.P[kk, j])
             good &= d >= self.r[i, j]
-            bad = np.abs(F[:, :, j]) > self.fa_max[j] + team.allow[j] + slack
+            bad = np.abs(F[:, :, j]) > self.fa_max[j] + slack
             if not team.relaxed[j]:
                 bad |= np.abs(F[:, :, j] - FA[:, :, j]) > lim.b_fa_g + slack
             nb |= np.any(bad, 1)
@@ -321,11 +318,10 @@ class AORRT:
         smallest slack s of ``relax_levels_g`` with which RRT finds a path (every force
         bound and trust region widened by s; box, speed and collision stay hard).  The
         path enters the team marked relaxed: the others then re-plan first (cost bounds
-        reset) and must keep its force within its limit + ``relax_keep`` s (no trust
-        region), i.e. they make room for it, and it is re-planned with the true limits
-        afterwards (relaxed again, with a smaller slack, if there is not yet room
-        enough: a continuation towards a valid team).  Sequential planning alone cannot
-        solve a crossing in which both robots must deviate (two large robots in the yz
+        reset) and must keep its force within its true limit (no trust region), i.e.
+        they make room for it; then it is promoted (``_promoted``) or re-planned with
+        the true limits (and relaxed again if there is not yet room).  Sequential
+        planning alone cannot solve a crossing in which both robots must deviate (two large robots in the yz
         plane need more than a metre of vertical gap: neither can open it alone).
         Returns the slack used, or None."""
         par = self.par
@@ -334,7 +330,7 @@ class AORRT:
                                       max_samples=min(par.relax_samples, par.max_samples))
             samples[i] += drawn
             if traj is not None:
-                team.set(i, traj, self.fm, self.types, float(self.kappa[i]), allow=par.relax_keep * float(s))
+                team.set(i, traj, self.fm, self.types, float(self.kappa[i]), relaxed=True)
                 return float(s)
         return None
 
@@ -348,13 +344,11 @@ class AORRT:
         tr = team.trajs[i]
         T = tr.T
         fa = team.FA[:T + 1, i].copy()
-        u = accel(tr.u, tr.fa[:-1], self.kappa[i]) - accel(np.zeros_like(tr.u), fa[:-1], self.kappa[i])
+        u = tr.accel(self.kappa[i]) - accel(np.zeros_like(tr.u), fa[:-1], self.kappa[i])
         if np.abs(u).max(initial=0.0) > self.pb.limits.u_max:
             return None
-        limit = self.fa_max + np.where(team.relaxed, team.allow, 0.0)
-        limit[i] = self.fa_max[i]
         on = team.planned
-        if np.any(np.abs(team.FA[:, on]) > limit[on]) or np.any(np.abs(team.FAS[:, :, on]) > limit[on]):
+        if np.any(np.abs(team.FA[:, on]) > self.fa_max[on]) or np.any(np.abs(team.FAS[:, :, on]) > self.fa_max[on]):
             return None
         return Trajectory(tr.p.copy(), tr.v.copy(), fa, u, tr.dt)
 
@@ -378,16 +372,15 @@ class AORRT:
         while True:
             order = self.rng.permutation(n)     # RandomShuffle
             # robots without a valid path go last: the others first make room for them
-            need = [team.trajs[i] is None or team.relaxed[i] for i in range(n)]
-            order = np.array([i for i in order if not need[i]] + [i for i in order if need[i]], int)
+            order = np.array([i for i in order if not team.needs_path(i)] + [i for i in order if team.needs_path(i)],
+                             int)
             orders.append(order.tolist())
             improved = False
             for i in order:
                 i = int(i)
                 ts = time.perf_counter()
                 deadline = min(ts + par.rrt_time_s, deadline_total)
-                traj = self._promoted(team, i) if team.relaxed[i] else None
-                tree = trees[i]
+                traj, tree = (self._promoted(team, i) if team.relaxed[i] else None), None
                 if traj is not None:
                     promotions.append((it, i))
                 else:
@@ -401,7 +394,7 @@ class AORRT:
                         trees[i] = tree.trimmed()
                     team.set(i, traj, self.fm, self.types, float(self.kappa[i]))
                     improved = True
-                elif team.trajs[i] is None or team.relaxed[i]:
+                elif team.needs_path(i):
                     slack = self._relax(team, i, deadline, samples)
                     if slack is not None:
                         relaxations.append((it, i, slack))
@@ -409,7 +402,7 @@ class AORRT:
                             costs[j] = np.inf
                 per_robot[i] += time.perf_counter() - ts
             it += 1
-            missing = [i for i in range(n) if team.trajs[i] is None or team.relaxed[i]]
+            missing = [i for i in range(n) if team.needs_path(i)]
             since_improved = 0 if improved else since_improved + 1
             out_of_time = time.perf_counter() >= deadline_total
             self.hit_time_limit |= out_of_time

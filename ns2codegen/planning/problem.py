@@ -60,7 +60,6 @@ class RRTParams:
     max_rounds: int = 20            # Stage 1 fails after this many rounds with a robot still without a path
     relax_levels_g: tuple = (2.0, 4.0, 8.0, 16.0, 32.0)   # relax-and-repair slacks (g), tried in turn
     relax_samples: int = MAX_SAMPLES // 4   # per relaxed RRT run
-    relax_keep: float = 0.0         # others keep a relaxed robot within its limit + relax_keep * its slack
     ao_iterations: int = 3          # AO-RRT outer iterations (cost bound decreases)
     ao_patience: int = 1            # stop after this many iterations without improvement
     rrt_time_s: float = 60.0        # safety net per RRT run (wall clock)

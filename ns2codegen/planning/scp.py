@@ -146,19 +146,14 @@ def solve_cp(pb: Problem, fm: ForceModel, trajs: list, i: int, par: SCPParams, r
     for j in range(pb.n):
         if j == i:
             continue
-        rel = P[:, i] - P[:, j]
-        dist = np.linalg.norm(rel, axis=1)
-        ks = np.flatnonzero(dist < r[i, j] + 2.0 * par.b_p + 0.3)
-        if len(ks):
-            nrm = rel[ks][:, ax] / np.maximum(dist[ks], 1e-9)[:, None]
-            cons.append(cp.sum(cp.multiply(nrm, p[ks] - P[ks, j][:, ax]), axis=1) >= r[i, j] + par.collision_margin)
-        for rows, dpq, _ in subs:   # also at the points inside the steps: a fast crossing cuts corners
-            rel = Ps[rows, i] - Ps[rows, j]
+        # at the knots and at the points inside the steps (a fast crossing cuts corners)
+        for ref_i, ref_j, d_pos in [(P[:, i], P[:, j], dp)] + [(Ps[rows, i], Ps[rows, j], dpq) for rows, dpq, _ in subs]:
+            rel = ref_i - ref_j
             dist = np.linalg.norm(rel, axis=1)
             ks = np.flatnonzero(dist < r[i, j] + 2.0 * par.b_p + 0.3)
-            if len(ks):
+            if len(ks):     # <n, p_i - p_j> with p_i - p_j = (p_i - p_bar_i) + (p_bar_i - p_j)
                 nrm = rel[ks][:, ax] / np.maximum(dist[ks], 1e-9)[:, None]
-                cons.append(cp.sum(cp.multiply(nrm, dpq[ks] + rel[ks][:, ax]), axis=1) >= r[i, j] + par.collision_margin)
+                cons.append(cp.sum(cp.multiply(nrm, d_pos[ks] + rel[ks][:, ax]), axis=1) >= r[i, j] + par.collision_margin)
         if np.any(dP[j]) or np.any(dV[j]):
             cons += [cp.abs(lin(j)) <= lim.b_fa_g, cp.abs(F[:, j] + lin(j)) <= fa_max[j] + slack(T + 1)]
         for rows, dpq, dvq in subs:
