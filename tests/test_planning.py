@@ -10,14 +10,14 @@ import pytest
 import torch
 
 from ns2codegen.planning.aorrt import AORRT, post_process
-from ns2codegen.planning.dynamics import hold_arrays, step
+from ns2codegen.planning.dynamics import hold_arrays, step, team_substates
 from ns2codegen.planning.forces import ForceModel, single_thread
 from ns2codegen.planning.output import MAX_PIECES, POLY4D_BYTES, eval_pieces, poly4d_bytes, read_poly4d, write_plan
 from ns2codegen.planning.problem import Limits, PlanningError, Problem, Robot, RRTParams, SCPParams
 from ns2codegen.planning.scp import scp
 from ns2codegen.planning.verify import check_solution
 
-RRT = RRTParams(max_nodes=4000, max_samples=30000, ao_iterations=2, seed=3)
+RRT = RRTParams(max_nodes=4000, max_samples=30000, ao_iterations=2, seed=3, joint_tries=0)   # the paper's Stage 1
 SWAP_SL = [Robot("small", (0.0, -0.4, 1.0), (0.0, 0.4, 1.0)), Robot("large", (0.0, 0.4, 1.0), (0.0, -0.4, 1.0))]
 LIMITS = Limits(pos_lo=(0.0, -0.9, 0.3), pos_hi=(0.0, 0.9, 2.0))
 
@@ -62,6 +62,37 @@ def _fine_min_distance(pa, pb, sub=10):
     a = pa[:-1, None] + s * (pa[1:, None] - pa[:-1, None])
     b = pb[:-1, None] + s * (pb[1:, None] - pb[:-1, None])
     return float(np.linalg.norm(a - b, axis=2).min())
+
+
+def _check_joint_paths(pb, fm, trajs, par):
+    """The rules of the composite-state search (joint.py), re-checked on its paths:
+    one length for all, start and goal, box, speed and action limits, dynamics exact
+    with the forces stored, those forces the model's for the whole team at every
+    knot, every robot within its force limit at the knots and inside the steps, and
+    no pair closer than r at any time."""
+    lim, kappa, types = pb.limits, pb.kappa(), pb.type_index()
+    lo, hi = pb.box()
+    ax = list(pb.axes)
+    assert len({t.T for t in trajs}) == 1
+    for i, tr in enumerate(trajs):
+        assert np.allclose(tr.p[0], pb.starts()[i]) and np.linalg.norm(tr.p[-1] - pb.goals()[i]) <= par.eps_p + 1e-9
+        assert np.linalg.norm(tr.v[-1]) <= par.eps_v + 1e-9
+        assert np.all(tr.p[:, ax] >= lo[ax] - 1e-9) and np.all(tr.p[:, ax] <= hi[ax] + 1e-9)
+        assert np.abs(tr.v).max() <= lim.v_max + 1e-9 and np.abs(tr.u).max() <= lim.u_max + 1e-9
+        p1, v1 = step(tr.p[:-1], tr.v[:-1], tr.u, tr.fa[:-1], kappa[i], par.dt)
+        np.testing.assert_allclose(tr.p[1:], p1, atol=1e-9)
+        np.testing.assert_allclose(tr.v[1:], v1, atol=1e-9)
+    P = np.stack([t.p for t in trajs], 1)
+    F = fm.team_np(types, P, np.stack([t.v for t in trajs], 1))
+    np.testing.assert_allclose(np.stack([t.fa for t in trajs], 1), F, atol=1e-4)
+    Ps, Vs = team_substates(trajs, kappa, lim.fa_substeps)
+    Fs = fm.team_np(types, Ps, Vs)
+    fa_max = pb.fa_max()
+    assert np.all(np.abs(F) <= fa_max + 1e-4) and np.all(np.abs(Fs) <= fa_max + 1e-4)
+    r = pb.r_pair()
+    for i in range(pb.n):
+        for j in range(i + 1, pb.n):
+            assert _fine_min_distance(P[:, i], P[:, j]) >= r[i, j] - 1e-9
 
 
 def test_stage1_path_respects_every_validity_rule(cfg, fm, stage1):
@@ -200,7 +231,8 @@ def test_homotopy_keeps_small_robot_out_from_under_the_large_one(cfg):
     below = []
     for seed in range(4):
         with single_thread():
-            s1 = AORRT(pb, ForceModel(cfg, None), RRTParams(max_nodes=4000, ao_iterations=1, seed=seed)).run()
+            s1 = AORRT(pb, ForceModel(cfg, None), RRTParams(max_nodes=4000, ao_iterations=1, seed=seed,
+                                                            joint_tries=0)).run()
         below.append(_crossing_z(s1.trajs)[0] < 0)
     assert any(below), below
 
@@ -218,7 +250,7 @@ def test_relax_and_repair_solves_a_crossing_that_needs_both_robots_to_deviate(cf
     fm = ForceModel(cfg, StrongDownwash(cfg, large_g=30.0, decay=0.5))   # 10 g under a large robot at 0.55 m
     P = np.array([[[0, 0, 1.0], [0, 0, 1.55]]])
     assert fm.team_np(pb.type_index(), P, np.zeros_like(P))[0, 0] == pytest.approx(-10.0, abs=0.2)
-    par = RRTParams(max_nodes=4000, max_samples=20000, max_rounds=6, ao_iterations=1, seed=5)
+    par = RRTParams(max_nodes=4000, max_samples=20000, max_rounds=6, ao_iterations=1, seed=5, joint_tries=0)
     with single_thread():
         with pytest.raises(PlanningError, match="no path found"):
             AORRT(pb, fm, RRTParams(**{**par.__dict__, "relax_levels_g": ()})).run()
@@ -238,6 +270,29 @@ def test_relax_and_repair_solves_a_crossing_that_needs_both_robots_to_deviate(cf
         p1, v1 = step(tr.p[:-1], tr.v[:-1], tr.u, tr.fa[:-1], pb.kappa()[i], par.dt)
         np.testing.assert_allclose(tr.p[1:], p1, atol=1e-9)      # promoted paths: dynamics exact
         assert np.abs(tr.u).max() <= lim.u_max + 1e-9
+
+
+def test_joint_search_solves_an_exchange_that_sequential_planning_cannot(cfg):
+    """Three robots (small, large, large) rotate places in the yz plane under a strong
+    downwash that fades slowly with the gap: the large robot that crosses both others
+    must pass under them while they climb out of its way, in turn.  Sequential planning
+    with relax-and-repair finds no team in 4 rounds; the composite-state search
+    (joint.py) does, and its paths and the final team respect every limit."""
+    pb = Problem(cfg, [Robot("small", (0.0, -0.4, 1.0), (0.0, 0.0, 1.0)),
+                       Robot("large", (0.0, 0.0, 1.0), (0.0, 0.4, 1.0)),
+                       Robot("large", (0.0, 0.4, 1.0), (0.0, -0.4, 1.0))], LIMITS)
+    fm = ForceModel(cfg, StrongDownwash(cfg, large_g=30.0, decay=0.7))   # 10 g under a large robot at 0.77 m
+    par = RRTParams(max_nodes=4000, max_samples=20000, max_rounds=4, ao_iterations=1, seed=3)
+    with single_thread():
+        with pytest.raises(PlanningError, match="no path found"):
+            AORRT(pb, fm, RRTParams(**{**par.__dict__, "joint_tries": 0})).run()
+        res = AORRT(pb, fm, par).run()
+    assert res.joint_round == 0 and res.joint_samples > 0
+    _check_joint_paths(pb, fm, res.joint_trajs, par)
+    chk = check_solution(pb, fm, res.trajs)
+    for rep in chk["robots"]:
+        assert rep["worst_fa_g"] <= rep["fa_max_g"] + 1e-4 and rep["min_clearance_m"] >= 0.0
+        assert rep["box_violation_m"] == 0.0 and rep["speed_violation_mps"] == 0.0
 
 
 def test_bad_input_is_refused_quickly(cfg):

@@ -46,6 +46,7 @@ from scipy.spatial import cKDTree
 
 from .dynamics import Trajectory, accel, hold_arrays, segment_distance, step, substates
 from .forces import ForceModel
+from .joint import joint_rrt
 from .problem import PlanningError, Problem, RRTParams
 
 
@@ -75,6 +76,12 @@ class Team:
         """Robot i has no valid path yet (none, or a relaxed placeholder)."""
         return self.trajs[i] is None or bool(self.relaxed[i])
 
+    def over_limit(self, i: int, fa_max: float) -> bool:
+        """Robot i's path is over its force limit f_a,max in the current team (a relaxed
+        neighbour pushed it there), at a knot or inside a step."""
+        return bool(self.planned[i]) and bool(np.abs(self.FA[:, i]).max() > fa_max
+                                              or np.abs(self.FAS[:, :, i]).max(initial=0.0) > fa_max)
+
     def set(self, i: int, traj: Trajectory, fm: ForceModel, types, kappa: float, relaxed: bool = False) -> None:
         """Robot i's path (``relaxed``: a placeholder, see AORRT._relax)."""
         H, m = len(self.P) - 1, self.PS.shape[1] + 1
@@ -103,18 +110,19 @@ class Tree:
     c: np.ndarray
     parent: np.ndarray
     u: np.ndarray
+    excess: np.ndarray      # g: the largest force excess on the path from the root (<= 0: valid)
     n: int = 0
     rejected: list = field(default_factory=list)   # edges rejected by a neighbour's force check
 
     @staticmethod
     def alloc(size: int) -> "Tree":
         return Tree(np.zeros((size, 3)), np.zeros((size, 3)), np.zeros(size), np.zeros(size, int),
-                    np.zeros(size), np.full(size, -1), np.zeros((size, 3)))
+                    np.zeros(size), np.full(size, -1), np.zeros((size, 3)), np.full(size, -np.inf))
 
-    def add(self, p, v, fa, k, c, parent, u) -> np.ndarray:
+    def add(self, p, v, fa, k, c, parent, u, excess) -> np.ndarray:
         idx = np.arange(self.n, self.n + len(p))
         self.p[idx], self.v[idx], self.fa[idx], self.k[idx] = p, v, fa, k
-        self.c[idx], self.parent[idx], self.u[idx] = c, parent, u
+        self.c[idx], self.parent[idx], self.u[idx], self.excess[idx] = c, parent, u, excess
         self.n += len(p)
         return idx
 
@@ -127,8 +135,8 @@ class Tree:
 
     def trimmed(self) -> "Tree":
         s = slice(0, self.n)
-        return Tree(self.p[s], self.v[s], self.fa[s], self.k[s], self.c[s], self.parent[s], self.u[s], self.n,
-                    self.rejected)
+        return Tree(self.p[s], self.v[s], self.fa[s], self.k[s], self.c[s], self.parent[s], self.u[s],
+                    self.excess[s], self.n, self.rejected)
 
 
 @dataclass
@@ -143,8 +151,11 @@ class Stage1Result:
     time_per_robot_s: list
     samples_per_robot: list     # samples drawn by the RRT runs of every robot
     hit_time_limit: bool        # the wall-clock safety net stopped a run (outcome machine-dependent)
-    relaxations: list = field(default_factory=list)   # (round, robot, slack g) of every relaxed path
+    relaxations: list = field(default_factory=list)   # (round, robot, force excess g) of every relaxed path
     promotions: list = field(default_factory=list)    # (round, robot): relaxed paths that became valid
+    joint_round: int | None = None  # the round in which the composite-state search (joint.py) planned the team
+    joint_samples: int = 0          # samples drawn by the composite-state search
+    joint_trajs: list | None = None  # its paths, as it found them (AO iterations may improve them after)
 
 
 class AORRT:
@@ -153,7 +164,7 @@ class AORRT:
         self.types = problem.type_index()
         self.kappa = problem.kappa()
         self.r = problem.r_pair()
-        self.fa_max = problem.fa_max()
+        self.fa_max = problem.fa_plan()      # f_a,max less the model-error margin
         self.lo, self.hi = problem.box()
         self.ax = list(problem.axes)
         self.rng = np.random.default_rng(params.seed)
@@ -174,24 +185,26 @@ class AORRT:
         present[:, i] = True
         return self.fm.team_np(self.types, P, V, present), FA
 
-    def _valid(self, team: Team, i: int, k_prev, p_prev, v_prev, a, k, p, v, slack: float = 0.0):
+    def _excess(self, team: Team, i: int, k_prev, p_prev, v_prev, a, k, p, v):
         """StateValid (line state_valid) for candidates of robot i that move from
-        (p_prev, v_prev) at step k_prev with acceleration a to (p, v) at step k;
-        returns (valid [B], own force at k [B], rejected only by a neighbour's force
-        check [B]).  Force limits are checked at k and at fa_substeps - 1 points
-        inside the step.  ``slack`` (g) widens every force bound and trust region (a
-        relaxed search, see ``run``); a neighbour whose path is relaxed keeps its bound
-        but has no trust region (its forces are no reference: it is re-planned)."""
+        (p_prev, v_prev) at step k_prev with acceleration a to (p, v) at step k, as
+        margins: returns (hard [B]: box, speed and collision hold; own force at k [B];
+        own excess [B]; neighbours' excess [B]).  An excess (g) is how far a force is
+        over its bound: robot i's |f_a| over f_a,max^(i), and for every neighbour j
+        its |f_a^(j)| over f_a,max^(j) and its change over the trust region b_fa (a
+        neighbour whose path is relaxed has no trust region: its forces are no
+        reference, it is re-planned).  Forces are checked at k and at fa_substeps - 1
+        points inside the step; the state is valid when both excesses are <= 0."""
         lim = self.pb.limits
         ax = self.ax
-        ok = (k <= len(team.P) - 1)
-        ok &= np.all((p[:, ax] >= self.lo[ax]) & (p[:, ax] <= self.hi[ax]), 1)
-        ok &= np.all(np.abs(v) <= lim.v_max + 1e-12, 1)
-        fa_i = np.zeros(len(p))
-        nbr_bad = np.zeros(len(p), bool)
-        idx = np.flatnonzero(ok)
+        B = len(p)
+        hard = (k <= len(team.P) - 1)
+        hard &= np.all((p[:, ax] >= self.lo[ax]) & (p[:, ax] <= self.hi[ax]), 1)
+        hard &= np.all(np.abs(v) <= lim.v_max + 1e-12, 1)
+        fa_i, own, nbr = np.zeros(B), np.full(B, np.inf), np.full(B, np.inf)
+        idx = np.flatnonzero(hard)
         if len(idx) == 0:
-            return ok, fa_i, nbr_bad
+            return hard, fa_i, own, nbr
         kk, b, m = k[idx], len(idx), lim.fa_substeps
         ps, vs = substates(p_prev[idx], v_prev[idx], a[idx], self.par.dt, m)     # [b, m-1, 3]
         P = np.concatenate([p[idx][:, None], ps], 1).reshape(-1, 3)
@@ -200,32 +213,33 @@ class AORRT:
         F, FA = self._forces(team, i, np.repeat(kk, m) - (q > 0), q, P, V)
         F, FA = F.reshape(b, m, -1), FA.reshape(b, m, -1)
         fa_i[idx] = F[:, 0, i]
-        good = np.all(np.abs(F[:, :, i]) <= self.fa_max[i] + slack, 1)
-        nb = np.zeros(b, bool)
+        own[idx] = np.abs(F[:, :, i]).max(1) - self.fa_max[i]
+        good = np.ones(b, bool)
+        ex = np.full(b, -np.inf)
         for j in np.flatnonzero(team.planned):
             if j == i:
                 continue
             d = segment_distance(p_prev[idx], p[idx], team.P[k_prev[idx], j], team.P[kk, j])
             good &= d >= self.r[i, j]
-            bad = np.abs(F[:, :, j]) > self.fa_max[j] + slack
+            ex = np.maximum(ex, np.abs(F[:, :, j]).max(1) - self.fa_max[j])
             if not team.relaxed[j]:
-                bad |= np.abs(F[:, :, j] - FA[:, :, j]) > lim.b_fa_g + slack
-            nb |= np.any(bad, 1)
-        ok[idx] = good & ~nb
-        nbr_bad[idx] = good & nb
-        return ok, fa_i, nbr_bad
+                ex = np.maximum(ex, np.abs(F[:, :, j] - FA[:, :, j]).max(1) - lim.b_fa_g)
+        hard[idx] = good
+        nbr[idx] = ex
+        return hard, fa_i, own, nbr
 
-    def _tail_valid(self, team: Team, i: int, k_end: int, p_end: np.ndarray, slack: float = 0.0) -> bool:
-        """A robot that reached its goal rests there; the rest of the horizon must stay
-        valid for it and for its neighbours (else the solution is not accepted)."""
+    def _tail_excess(self, team: Team, i: int, k_end: int, p_end: np.ndarray) -> float:
+        """A robot that reached its goal rests there; the largest force excess over the
+        rest of the horizon, for it and its neighbours (inf if the rest is not
+        collision-free).  The solution is accepted only if it fits the slack."""
         H = len(team.P) - 1
         if k_end >= H:
-            return True
+            return -np.inf
         k = np.arange(k_end + 1, H + 1)
         p = np.repeat(p_end[None], len(k), 0)
         z = np.zeros_like(p)
-        ok, _, _ = self._valid(team, i, k - 1, p, z, z, k, p, z, slack)
-        return bool(ok.all())
+        hard, _, own, nbr = self._excess(team, i, k - 1, p, z, z, k, p, z)
+        return float(np.maximum(own, nbr).max()) if hard.all() else np.inf
 
     # ------------------------------------------------------------------ one RRT
     def _key(self, p, v, fa, c):
@@ -236,8 +250,10 @@ class AORRT:
             max_samples: int | None = None):
         """Lines rrt_start..rrt_end for robot i with cost bound c_bound: at most
         ``max_samples`` samples and ``max_nodes`` nodes (``deadline``, wall clock,
-        only as a safety net); returns (Trajectory or None, Tree, samples drawn).
-        ``slack`` > 0: the relaxed search of ``run`` (force limits widened)."""
+        only as a safety net); returns (Trajectory or None, Tree, samples drawn, the
+        path's largest force excess in g).  A node is valid when the largest excess on
+        its path from the root (``_excess``) is at most ``slack``: 0 for a true
+        search, > 0 for the relaxed search of ``_relax``."""
         par, lim, ax = self.par, self.pb.limits, self.ax
         max_samples = par.max_samples if max_samples is None else max_samples
         rng = self.rng
@@ -245,7 +261,7 @@ class AORRT:
         tree = Tree.alloc(par.max_nodes + par.batch)
         fa0 = self._forces(team, i, np.array([0]), np.array([0]), start[None], np.zeros((1, 3)))[0][0, i]
         tree.add(start[None], np.zeros((1, 3)), np.array([fa0]), np.array([0]), np.array([0.0]), np.array([-1]),
-                 np.zeros((1, 3)))
+                 np.zeros((1, 3)), np.array([-np.inf]))
         keys = np.zeros((par.max_nodes + par.batch, len(ax) * 2 + 2))
         keys[:1] = self._key(tree.p[:1], tree.v[:1], tree.fa[:1], tree.c[:1])
         kd, built = None, 0
@@ -283,24 +299,28 @@ class AORRT:
             k_new = tree.k[near] + 1
             c_new = tree.c[near] + np.linalg.norm(u, axis=1) * par.dt
             a = accel(u, tree.fa[near], self.kappa[i])
-            ok, fa_new, nbr_bad = self._valid(team, i, tree.k[near], tree.p[near], tree.v[near], a, k_new, p_new, v_new,
-                                              slack)
-            ok &= c_new < c_bound
+            hard, fa_new, own, nbr = self._excess(team, i, tree.k[near], tree.p[near], tree.v[near], a, k_new,
+                                                  p_new, v_new)
+            ex_new = np.maximum(tree.excess[near], np.maximum(own, nbr))
+            ok = hard & (ex_new <= slack) & (c_new < c_bound)
+            nbr_bad = hard & (own <= slack) & (nbr > slack)
             for e in np.flatnonzero(nbr_bad)[:max(0, 3000 - len(tree.rejected))]:
                 tree.rejected.append((tree.p[near[e]].copy(), p_new[e].copy()))
             sel = np.flatnonzero(ok)
             if len(sel) == 0:
                 continue
-            idx = tree.add(p_new[sel], v_new[sel], fa_new[sel], k_new[sel], c_new[sel], near[sel], u[sel])
+            idx = tree.add(p_new[sel], v_new[sel], fa_new[sel], k_new[sel], c_new[sel], near[sel], u[sel],
+                           ex_new[sel])
             keys[idx] = self._key(p_new[sel], v_new[sel], fa_new[sel], c_new[sel])
             at_goal = (np.linalg.norm(p_new[sel] - goal, axis=1) <= par.eps_p) & \
                       (np.linalg.norm(v_new[sel], axis=1) <= par.eps_v)
             for leaf in idx[at_goal][np.argsort(c_new[sel][at_goal])]:
-                if self._tail_valid(team, i, int(tree.k[leaf]), tree.p[leaf], slack):
+                tail = self._tail_excess(team, i, int(tree.k[leaf]), tree.p[leaf])
+                if tail <= slack:
                     traj = tree.path(int(leaf))
                     traj.dt = par.dt
-                    return traj, tree, n_samples
-        return None, tree, n_samples
+                    return traj, tree, n_samples, max(float(tree.excess[leaf]), tail)
+        return None, tree, n_samples, np.inf
 
     # ------------------------------------------------------------------ AO-RRT
     def check_endpoints(self) -> None:
@@ -314,25 +334,53 @@ class AORRT:
                                     f"|f_a| = {abs(F[i]):.2f} g > f_a,max = {self.fa_max[i]:.2f} g")
 
     def _relax(self, team: Team, i: int, deadline: float, samples: list) -> float | None:
-        """Relax-and-repair for robot i, which has no valid path against the team: the
-        smallest slack s of ``relax_levels_g`` with which RRT finds a path (every force
-        bound and trust region widened by s; box, speed and collision stay hard).  The
-        path enters the team marked relaxed: the others then re-plan first (cost bounds
-        reset) and must keep its force within its true limit (no trust region), i.e.
-        they make room for it; then it is promoted (``_promoted``) or re-planned with
-        the true limits (and relaxed again if there is not yet room).  Sequential
-        planning alone cannot solve a crossing in which both robots must deviate (two large robots in the yz
-        plane need more than a metre of vertical gap: neither can open it alone).
-        Returns the slack used, or None."""
+        """Relax-and-repair for robot i, which has no valid path against the team: a
+        path that exceeds the force bounds and trust regions as little as it can find
+        (box, speed and collision stay hard).  The smallest slack s of
+        ``relax_levels_g`` with which RRT finds a path, then ``relax_refine`` searches
+        with the slack cut to ``relax_shrink`` times the best path's excess (a
+        decreasing bound, as AO-RRT does for the cost): a least-violating path keeps
+        clear of the others as far as it can, so it leaves them room.  The path enters
+        the team marked relaxed: the others then re-plan first (cost bounds reset) and
+        must keep its force within its true limit (no trust region), i.e. they make
+        room for it; then it is promoted (``_promoted``) or re-planned with the true
+        limits (and relaxed again if there is not yet room).  Sequential planning alone
+        cannot solve a crossing in which both robots must deviate (two large robots in
+        the yz plane need more than a metre of vertical gap: neither can open it alone).
+        Returns the excess (g) of the path taken, or None."""
         par = self.par
+        n_max = min(par.relax_samples, par.max_samples)
+        best, excess = None, np.inf
         for s in par.relax_levels_g:
-            traj, _, drawn = self.rrt(team, i, np.inf, deadline, slack=float(s),
-                                      max_samples=min(par.relax_samples, par.max_samples))
+            best, _, drawn, excess = self.rrt(team, i, np.inf, deadline, slack=float(s), max_samples=n_max)
             samples[i] += drawn
-            if traj is not None:
-                team.set(i, traj, self.fm, self.types, float(self.kappa[i]), relaxed=True)
-                return float(s)
-        return None
+            if best is not None:
+                break
+        if best is None:
+            return None
+        for _ in range(par.relax_refine):
+            if excess <= 0.0:
+                break
+            traj, _, drawn, ex = self.rrt(team, i, np.inf, deadline, slack=par.relax_shrink * excess,
+                                          max_samples=n_max)
+            samples[i] += drawn
+            if traj is None:
+                break
+            best, excess = traj, ex
+        team.set(i, best, self.fm, self.types, float(self.kappa[i]), relaxed=True)
+        return float(excess)
+
+    def _joint(self, deadline: float):
+        """The composite-state RRT of joint.py: up to ``joint_tries`` fresh trees (a
+        tree that filled up without reaching the goals is stuck in the composite space;
+        a new one usually is not).  Returns (trajectories or None, samples drawn)."""
+        par, drawn = self.par, 0
+        for _ in range(par.joint_tries):
+            trajs, d = joint_rrt(self, deadline, par.joint_samples, par.joint_nodes)
+            drawn += d
+            if trajs is not None:
+                return trajs, drawn
+        return None, drawn
 
     def _promoted(self, team: Team, i: int) -> Trajectory | None:
         """A relaxed path of robot i that the others have made room for: the same
@@ -352,7 +400,7 @@ class AORRT:
             return None
         return Trajectory(tr.p.copy(), tr.v.copy(), fa, u, tr.dt)
 
-    def run(self) -> Stage1Result:
+    def run(self, initial: list | None = None) -> Stage1Result:
         self.pb.validate()
         self.check_endpoints()
         par, n = self.par, self.pb.n
@@ -362,11 +410,14 @@ class AORRT:
         t0 = time.perf_counter()
         deadline_total = t0 + par.total_time_s
         team = Team.empty(self.pb, par.max_steps)
+        for i, tr in enumerate(initial or []):      # a guess: placeholders to promote or re-plan
+            team.set(i, tr, self.fm, self.types, float(self.kappa[i]), relaxed=True)
         costs = [np.inf] * n
         trees = [None] * n
         per_robot = [0.0] * n
         samples = [0] * n
         orders, accepts, relaxations, promotions = [], [], [], []
+        joint_tried, joint_round, joint_samples, joint_trajs = False, None, 0, None
         since_improved = 0
         it = ao_it = 0
         while True:
@@ -384,7 +435,7 @@ class AORRT:
                 if traj is not None:
                     promotions.append((it, i))
                 else:
-                    traj, tree, drawn = self.rrt(team, i, costs[i], deadline)
+                    traj, tree, drawn, _ = self.rrt(team, i, costs[i], deadline)
                     samples[i] += drawn
                 if traj is not None:
                     accepts.append((it, i, traj.effort(), team.P.copy(), team.V.copy(), team.FA.copy(),
@@ -394,10 +445,27 @@ class AORRT:
                         trees[i] = tree.trimmed()
                     team.set(i, traj, self.fm, self.types, float(self.kappa[i]))
                     improved = True
-                elif team.needs_path(i):
-                    slack = self._relax(team, i, deadline, samples)
-                    if slack is not None:
-                        relaxations.append((it, i, slack))
+                elif team.needs_path(i) or team.over_limit(i, self.fa_max[i]):
+                    if joint_round is None and not joint_tried and par.joint_tries > 0:
+                        # the first conflict: all robots at once (joint.py)
+                        joint_tried = True
+                        tj = time.perf_counter()
+                        trajs, drawn = self._joint(deadline_total)
+                        joint_samples += drawn
+                        for j in range(n):
+                            per_robot[j] += (time.perf_counter() - tj) / n
+                        if trajs is not None:
+                            joint_trajs = [tr.copy() for tr in trajs]
+                            for j, tr in enumerate(trajs):
+                                team.set(j, tr, self.fm, self.types, float(self.kappa[j]))
+                                costs[j] = tr.effort()
+                            joint_round, improved = it, True
+                            break
+                    # no valid path, or a relaxed neighbour has pushed this robot's path over
+                    # its limit and no re-plan fits: it gives way as little as it can, too
+                    excess = self._relax(team, i, deadline, samples)
+                    if excess is not None:
+                        relaxations.append((it, i, excess))
                         for j in range(n):      # the others may change homotopy class to make room
                             costs[j] = np.inf
                 per_robot[i] += time.perf_counter() - ts
@@ -425,7 +493,8 @@ class AORRT:
         for i, tr in enumerate(team.trajs):
             tr.fa = team.FA[:tr.T + 1, i].copy()
         return Stage1Result(list(team.trajs), costs, trees, orders, accepts, it, time.perf_counter() - t0, per_robot,
-                            samples, self.hit_time_limit, relaxations, promotions)
+                            samples, self.hit_time_limit, relaxations, promotions, joint_round, joint_samples,
+                            joint_trajs)
 
 
 def post_process(trajs: list, kappa: np.ndarray) -> list:

@@ -23,8 +23,16 @@ from .verify import check_solution
 
 SCENARIOS = {"SL": ("small", "large"), "SS": ("small", "small"), "LL": ("large", "large"),
              "SSL": ("small", "small", "large"), "SLL": ("small", "large", "large")}
-LIMITS_2D = Limits(pos_lo=(0.0, -0.9, 0.3), pos_hi=(0.0, 0.9, 2.0))
-LIMITS_3D = Limits(pos_lo=(-0.6, -0.9, 0.3), pos_hi=(0.6, 0.9, 2.0))
+# Clearance beyond the tight spheres: closer than about 0.3 m between centres the
+# simulator's downwash grows faster than the model can follow (the 0.15 m column of
+# downwash_check: 15-26 g predicted, 21-42 g true; spectral normalization bounds the
+# model's slope by gamma), and plans that pass there are over the limits in flight.
+# Beyond it the model still reads up to about 1-3 g low (the 0.3 m column); the
+# planner keeps FA_MARGIN of every force limit free for that.
+NEAR_FIELD_M = 0.15
+FA_MARGIN = 0.1
+LIMITS_2D = Limits(pos_lo=(0.0, -0.9, 0.3), pos_hi=(0.0, 0.9, 2.0), clearance_m=NEAR_FIELD_M, fa_margin=FA_MARGIN)
+LIMITS_3D = Limits(pos_lo=(-0.6, -0.9, 0.3), pos_hi=(0.6, 0.9, 2.0), clearance_m=NEAR_FIELD_M, fa_margin=FA_MARGIN)
 SPACING, HEIGHT = 0.8, 1.0
 CHECK_GAPS = (0.15, 0.3, 0.5, 1.0)      # m, vertical gaps of downwash_check
 NEAR_FIELD_SECONDS = 600.0              # close-range passes per pair of types in default_checkpoint
@@ -143,7 +151,7 @@ def run_trial(pb: Problem, fm: ForceModel, gen_dir, seed: int, rrt: RRTParams, s
            "stage1_costs": [float(c) for c in res.stage1.costs], "scp_merit": res.stage2.merit_history,
            "stage1_samples_per_robot": res.stage1.samples_per_robot, "stage1_hit_time_limit": res.stage1.hit_time_limit,
            "stage1_rounds": res.stage1.iterations,
-           "stage1_relaxations": [{"round": r, "robot": i, "slack_g": g} for r, i, g in res.stage1.relaxations],
+           "stage1_relaxations": [{"round": r, "robot": i, "excess_g": g} for r, i, g in res.stage1.relaxations],
            "stage1_promotions": [{"round": r, "robot": i} for r, i in res.stage1.promotions],
            "scp_iterations": res.stage2.iterations, "scp_converged": res.stage2.converged,
            "check": {"robots": chk["robots"]},

@@ -39,6 +39,8 @@ class Limits:
     fa_max_g: dict = field(default_factory=lambda: {"small": 5.0, "large": 10.0})  # f_a,max per type
     b_fa_g: float = 3.0                      # trust region on a neighbour's force change
     fa_substeps: int = 4                     # force limits also checked at dt/4, dt/2, 3dt/4 of every step
+    clearance_m: float = 0.0                 # added to the tight collision distance of every pair (see r_pair)
+    fa_margin: float = 0.0                   # share of f_a,max the planner keeps free for model error (see fa_plan)
 
 
 MAX_SAMPLES = 40000
@@ -60,6 +62,11 @@ class RRTParams:
     max_rounds: int = 20            # Stage 1 fails after this many rounds with a robot still without a path
     relax_levels_g: tuple = (2.0, 4.0, 8.0, 16.0, 32.0)   # relax-and-repair slacks (g), tried in turn
     relax_samples: int = MAX_SAMPLES // 4   # per relaxed RRT run
+    relax_refine: int = 3           # searches for a less violating relaxed path (slack cut each time)
+    relax_shrink: float = 0.6       # the next slack is this times the best relaxed path's force excess
+    joint_tries: int = 4            # composite-state RRT (joint.py) at the first conflict: fresh trees, 0: off
+    joint_samples: int = 100000     # per composite-state tree
+    joint_nodes: int = 20000
     ao_iterations: int = 3          # AO-RRT outer iterations (cost bound decreases)
     ao_patience: int = 1            # stop after this many iterations without improvement
     rrt_time_s: float = 60.0        # safety net per RRT run (wall clock)
@@ -114,15 +121,23 @@ class Problem:
         return np.array([float(self.cfg.vehicle(r.type).get("diameter_m", 0.12)) / 2.0 for r in self.robots])
 
     def r_pair(self) -> np.ndarray:
-        """Tight sphere collision distance r^(I(i) I(j)) = (D_i + D_j) / 2."""
+        """Sphere collision distance r^(I(i) I(j)) = (D_i + D_j) / 2 + clearance: the
+        tight spheres of the paper with clearance 0; a clearance keeps plans out of
+        the near field, where a learned model is least reliable (see experiments.py)."""
         r = self.radius()
-        return r[:, None] + r[None, :]
+        return r[:, None] + r[None, :] + self.limits.clearance_m
 
     def fa_max(self) -> np.ndarray:
         try:
             return np.array([float(self.limits.fa_max_g[r.type]) for r in self.robots])
         except KeyError as e:
             raise PlanningError(f"no interaction force limit f_a,max for robot type {e}") from e
+
+    def fa_plan(self) -> np.ndarray:
+        """The force bound the planner enforces: (1 - fa_margin) f_a,max, so that a
+        model that reads low by up to that share still keeps the flight within f_a,max
+        (the limit every result is reported against)."""
+        return (1.0 - self.limits.fa_margin) * self.fa_max()
 
     def starts(self) -> np.ndarray:
         return np.array([r.start for r in self.robots], float)
@@ -143,6 +158,10 @@ class Problem:
             raise PlanningError(f"unknown robot types {unknown}; the config has {self.cfg.robot_types}")
         if not (lim.v_max > 0 and lim.u_max > 0 and lim.b_fa_g > 0):
             raise PlanningError("infeasible limits: v_max, u_max and b_fa must be positive")
+        if not (0.0 <= lim.fa_margin < 1.0):
+            raise PlanningError(f"fa_margin must be in [0, 1), got {lim.fa_margin}")
+        if not (np.isfinite(lim.clearance_m) and lim.clearance_m >= 0):
+            raise PlanningError(f"clearance_m must be >= 0, got {lim.clearance_m}")
         if not (isinstance(lim.fa_substeps, int) and lim.fa_substeps >= 1):
             raise PlanningError("fa_substeps must be a positive integer")
         fa_max = self.fa_max()

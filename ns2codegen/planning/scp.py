@@ -56,7 +56,7 @@ def merit(pb: Problem, fm: ForceModel, trajs: list, par: SCPParams) -> tuple[flo
     """Team merit with the true (nonlinear) learned forces of the whole team."""
     P, V = _team_arrays(trajs)
     F = fm.team_np(pb.type_index(), P, V)
-    kappa, fa_max, r = pb.kappa(), pb.fa_max(), pb.r_pair()
+    kappa, fa_max, r = pb.kappa(), pb.fa_plan(), pb.r_pair()
     F_sub = fm.team_np(pb.type_index(), *team_substates(trajs, kappa, pb.limits.fa_substeps)) \
         if pb.limits.fa_substeps > 1 else np.zeros((0, pb.n))
     lo, hi = pb.box()
@@ -94,7 +94,7 @@ def solve_cp(pb: Problem, fm: ForceModel, trajs: list, i: int, par: SCPParams, r
     types = pb.type_index()
     P, V = _team_arrays(trajs)
     F, dP, dV = fm.jacobians(types, P, V, i)
-    kappa, fa_max, r = pb.kappa()[i], pb.fa_max(), pb.r_pair()
+    kappa, fa_max, r = pb.kappa()[i], pb.fa_plan(), pb.r_pair()
     lo, hi = pb.box()
     lim = pb.limits
     pbar, vbar, ubar = tr.p[:, ax], tr.v[:, ax], tr.u[:, ax]
