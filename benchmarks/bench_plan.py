@@ -1,5 +1,6 @@
 """Planning benchmark (JSON on stdout): planning time per robot of Stage 1
-(AO-RRT) and Stage 2 (SCP) for the 3-robot cases SSL and SLL, in 2-D (yz) and 3-D,
+(AO-RRT; the samples of the per-robot trees, and those of the composite-state
+search when a case needs it) and Stage 2 (SCP) for the 3-robot cases SSL and SLL, in 2-D (yz) and 3-D,
 with the learned model (build/plan/model.pt when `ns2 plan` made it, else a small
 model trained here on the analytic downwash data) and with f_a = 0.  Stage 1 stops
 on sample counts, so the plans (and the samples drawn) are the same on every
@@ -41,7 +42,7 @@ def main() -> None:
             for name in ("SSL", "SLL"):
                 pb = scenario_problem(cfg, name, dims)
                 for mode, fm in models.items():
-                    s1, s2, n1, failed = [], [], [], 0
+                    s1, s2, n1, nj, failed = [], [], [], [], 0
                     for seed in SEEDS:
                         try:
                             res = plan(pb, fm, RRTParams(seed=seed), SCPParams(seed=seed))
@@ -50,11 +51,13 @@ def main() -> None:
                             continue
                         s1.append(np.mean(res.stage1.time_per_robot_s))
                         n1.append(np.mean(res.stage1.samples_per_robot))
+                        nj.append(res.stage1.joint_samples)
                         s2.append(np.mean(res.stage2.time_per_robot_s))
                     result["cases"][f"{dims}D {name} {mode}"] = {
                         "stage1_s_per_robot": round(float(np.mean(s1)), 3) if s1 else None,
                         "stage2_s_per_robot": round(float(np.mean(s2)), 3) if s2 else None,
                         "stage1_samples_per_robot": int(np.mean(n1)) if n1 else None,
+                        "stage1_joint_samples": int(np.mean(nj)) if nj else None,
                         "no_plan_within_limits": failed}
     print(json.dumps({"planning": result}, indent=2))
 

@@ -295,6 +295,43 @@ def test_joint_search_solves_an_exchange_that_sequential_planning_cannot(cfg):
         assert rep["box_violation_m"] == 0.0 and rep["speed_violation_mps"] == 0.0
 
 
+def test_force_margin_and_clearance_are_kept(cfg):
+    """Limits.fa_margin_g: the planner keeps f_a,max - margin (Stage 1 and SCP);
+    Limits.clearance_m: every pair stays that much beyond the tight spheres."""
+    lim = Limits(pos_lo=LIMITS.pos_lo, pos_hi=LIMITS.pos_hi, fa_margin_g=1.5, clearance_m=0.1)
+    pb = Problem(cfg, SWAP_SL, lim)
+    tight = Problem(cfg, SWAP_SL, LIMITS)
+    np.testing.assert_allclose(pb.fa_plan(), pb.fa_max() - 1.5)
+    np.testing.assert_allclose(pb.r_pair(), tight.r_pair() + 0.1)
+    fm = ForceModel(cfg, StrongDownwash(cfg))
+    from ns2codegen.planning.planner import plan
+
+    res = plan(pb, fm, RRTParams(max_nodes=4000, max_samples=20000, ao_iterations=1, seed=2), SCPParams(max_iterations=4))
+    for trajs in (res.stage1.trajs, res.trajs):
+        chk = check_solution(pb, fm, trajs)
+        for i, rep in enumerate(chk["robots"]):
+            assert rep["worst_fa_g"] <= rep["fa_max_g"] - 1.5 + 0.05, rep
+            assert rep["min_clearance_m"] >= -1e-6     # measured against r_pair, clearance included
+    for bad, msg in (({"fa_margin_g": -1.0}, "fa_margin_g"), ({"fa_margin_g": 5.0}, "fa_margin_g must be positive"),
+                     ({"clearance_m": -0.1}, "clearance_m")):
+        with pytest.raises(PlanningError, match=msg):
+            Problem(cfg, SWAP_SL, Limits(pos_lo=LIMITS.pos_lo, pos_hi=LIMITS.pos_hi, **bad)).validate()
+
+
+def test_planning_model_config_sees_the_long_range_downwash(cfg):
+    from ns2codegen.planning.experiments import PLAN_VOLUME_TOP, planning_config
+
+    pc = planning_config(cfg)
+    k = cfg.num_robot_types
+    for r in range(k):
+        for t in range(k):
+            lo, hi = cfg.volume(r, t)
+            plo, phi = pc.volume(r, t)
+            assert plo == lo and phi[:2] == hi[:2] and phi[2] == max(hi[2], PLAN_VOLUME_TOP)
+    assert pc.robot_types == cfg.robot_types and pc.raw["model"] == cfg.raw["model"]
+    assert PLAN_VOLUME_TOP <= cfg.input_box(0)[2][1]      # inside the neighbour input box (not clamped)
+
+
 def test_bad_input_is_refused_quickly(cfg):
     fm = ForceModel(cfg, StrongDownwash(cfg))
     with pytest.raises(PlanningError, match="collision at the start"):

@@ -34,7 +34,7 @@ def teams(cfg: Config, max_size: int = 3) -> list[tuple[str, ...]]:
 
 
 def fly(cfg: Config, team, gen_dir, kind: str, duration: float, seed: int, learned=None,
-        rng: np.random.Generator | None = None) -> Flight:
+        rng: np.random.Generator | None = None, near_gap_max: float = 1.2) -> Flight:
     n = len(team)
     if kind == "swap":
         heights = 0.4 + 0.25 * np.arange(n)
@@ -43,7 +43,7 @@ def fly(cfg: Config, team, gen_dir, kind: str, duration: float, seed: int, learn
         if n != 2:
             raise ValueError(f"near-field flights are for pairs of robots, got a team of {n}")
         sp, start, _ = near_field(list(team), [cfg.vehicle(t).get("diameter_m", 0.12) for t in team], duration,
-                                  seed=seed)
+                                  gap_max=near_gap_max, seed=seed)
     elif kind == "random":
         sp, start = random_walk(n, seed=seed)
     else:
@@ -57,9 +57,10 @@ def fly(cfg: Config, team, gen_dir, kind: str, duration: float, seed: int, learn
 
 
 def collect(cfg: Config, gen_dir, seconds_per_team: float, seed: int = 0, learned=None,
-            team_list=None, usd_dir=None, near_field_seconds: float = 0.0) -> Dataset:
+            team_list=None, usd_dir=None, near_field_seconds: float = 0.0, near_gap_max: float = 1.2) -> Dataset:
     """Half random walk, half swaps per team (single robots only random walk), plus
-    ``near_field_seconds`` of close-range passes per pair of robots; with
+    ``near_field_seconds`` of close-range passes per pair of robots (vertical gaps up
+    to ``near_gap_max``); with
     ``usd_dir`` the (noisy) logs are also written there as Crazyflie uSD files with a
     flights.toml, the input of ``ns2 logs-to-data``."""
     flights, entries = [], []
@@ -70,7 +71,7 @@ def collect(cfg: Config, gen_dir, seconds_per_team: float, seed: int = 0, learne
             plan.append(("near", near_field_seconds))
         for j, (kind, seconds) in enumerate(plan):
             s = seed * 1000 + 10 * k + j
-            flights.append(fly(cfg, team, gen_dir, kind, seconds, seed=s, learned=learned))
+            flights.append(fly(cfg, team, gen_dir, kind, seconds, seed=s, learned=learned, near_gap_max=near_gap_max))
             if usd_dir is not None:
                 entries.append(write_flight(Path(usd_dir), f"{''.join(t[0] for t in team)}_{kind}_{s}",
                                             list(team), flights[-1].__dict__, seed=s))

@@ -8,6 +8,7 @@ forces.py       the learned interaction force f_a,z-hat of every robot from its
 dynamics.py     double integrator + learned force, eqs. (planning-dynamics) and
                 (planning-discreteDynamics); team forces along trajectories
 aorrt.py        Stage 1: sequential AO-RRT with the others as dynamic obstacles
+joint.py        Stage 1 fallback: one RRT in the composite state of the whole team
 scp.py          Stage 2: sequential convex programming, eq. (scp), cvxpy + Clarabel
 verify.py       independent check of a team solution (box, collisions, force bounds)
 planner.py      Algorithm "planning": Stage 1, post-processing, Stage 2, timings

@@ -16,12 +16,15 @@ the new state: |f_a^(j)| <= f_a,max^(j) and |f_a^(j) - previous f_a^(j)| <= b_fa
 (trust region).  AO-RRT repeats the search with the decreasing cost bound c^(i)
 until the termination condition (iterations, patience).
 
-Relax-and-repair (``_relax``, ``_promoted``): a robot without a valid path that
-finds none takes a relaxed path (force limits widened by the smallest slack that
-works) as a placeholder; the others re-plan first and make room for it, then it is
-promoted (same states, actions re-derived for the new forces) or re-planned.  This
-solves crossings where both robots must deviate, which one-at-a-time planning
-cannot (each plan is made with the other's fixed).
+At the first robot that finds no path, the whole team is planned at once by the
+composite-state search of joint.py (``_joint``); its paths then go through the AO
+iterations like any others.  If that fails too, relax-and-repair (``_relax``,
+``_promoted``): a robot without a valid path that finds none takes a relaxed,
+least-violating path (force limits widened by the smallest slack that works, then
+cut while a path is found) as a placeholder; the others re-plan first and make
+room for it, then it is promoted (same states, actions re-derived for the new
+forces) or re-planned.  Both solve crossings in which several robots must deviate,
+which one-at-a-time planning cannot (each plan is made with the others' fixed).
 
 Stopping rules are counts, so a seed gives the same plan on every machine: an
 RRT run ends after ``max_samples`` samples or ``max_nodes`` nodes, Stage 1 after

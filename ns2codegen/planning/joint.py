@@ -80,7 +80,7 @@ def joint_rrt(s, deadline: float, max_samples: int, max_nodes: int):
             j = d_new.argmin(1)
             near = np.where(d_new[np.arange(b), j] < d_kd, built + j, near)
         p0, v0, f0 = P[near], V[near], FA[near]
-        # one action per robot: uniform, or a PD step toward the goals for goal samples
+        # one action per robot: uniform, or (a share STEER) a PD step toward the sample plus noise
         u = np.zeros((b, n, 3))
         u[..., ax] = rng.uniform(-lim.u_max, lim.u_max, (b, n, na))
         pd = KP * (pr - p0) - KD * v0 - accel(np.zeros_like(v0), f0, kappa)

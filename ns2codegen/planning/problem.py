@@ -40,7 +40,7 @@ class Limits:
     b_fa_g: float = 3.0                      # trust region on a neighbour's force change
     fa_substeps: int = 4                     # force limits also checked at dt/4, dt/2, 3dt/4 of every step
     clearance_m: float = 0.0                 # added to the tight collision distance of every pair (see r_pair)
-    fa_margin: float = 0.0                   # share of f_a,max the planner keeps free for model error (see fa_plan)
+    fa_margin_g: float = 0.0                 # g of f_a,max the planner keeps free for model error (see fa_plan)
 
 
 MAX_SAMPLES = 40000
@@ -134,10 +134,10 @@ class Problem:
             raise PlanningError(f"no interaction force limit f_a,max for robot type {e}") from e
 
     def fa_plan(self) -> np.ndarray:
-        """The force bound the planner enforces: (1 - fa_margin) f_a,max, so that a
-        model that reads low by up to that share still keeps the flight within f_a,max
-        (the limit every result is reported against)."""
-        return (1.0 - self.limits.fa_margin) * self.fa_max()
+        """The force bound the planner enforces: f_a,max - fa_margin_g, so that a model
+        that reads low by up to that margin still keeps the flight within f_a,max (the
+        limit every result is reported against)."""
+        return self.fa_max() - self.limits.fa_margin_g
 
     def starts(self) -> np.ndarray:
         return np.array([r.start for r in self.robots], float)
@@ -158,8 +158,11 @@ class Problem:
             raise PlanningError(f"unknown robot types {unknown}; the config has {self.cfg.robot_types}")
         if not (lim.v_max > 0 and lim.u_max > 0 and lim.b_fa_g > 0):
             raise PlanningError("infeasible limits: v_max, u_max and b_fa must be positive")
-        if not (0.0 <= lim.fa_margin < 1.0):
-            raise PlanningError(f"fa_margin must be in [0, 1), got {lim.fa_margin}")
+        if not (np.isfinite(lim.fa_margin_g) and lim.fa_margin_g >= 0):
+            raise PlanningError(f"fa_margin_g must be >= 0, got {lim.fa_margin_g}")
+        if not np.all(self.fa_plan() > 0):
+            raise PlanningError(f"infeasible limits: f_a,max - fa_margin_g must be positive, got "
+                                f"{self.fa_plan().tolist()}")
         if not (np.isfinite(lim.clearance_m) and lim.clearance_m >= 0):
             raise PlanningError(f"clearance_m must be >= 0, got {lim.clearance_m}")
         if not (isinstance(lim.fa_substeps, int) and lim.fa_substeps >= 1):
