@@ -373,17 +373,25 @@ class AORRT:
         team.set(i, best, self.fm, self.types, float(self.kappa[i]), relaxed=True)
         return float(excess)
 
-    def _joint(self, deadline: float):
+    def _joint(self, team: Team, costs: list, per_robot: list, deadline: float):
         """The composite-state RRT of joint.py: up to ``joint_tries`` fresh trees (a
         tree that filled up without reaching the goals is stuck in the composite space;
-        a new one usually is not).  Returns (trajectories or None, samples drawn)."""
-        par, drawn = self.par, 0
+        a new one usually is not).  Its paths replace the team's (costs updated, the
+        time shared among the robots).  Returns (copies of the paths as found, or
+        None; samples drawn)."""
+        par, drawn, t0 = self.par, 0, time.perf_counter()
+        trajs = None
         for _ in range(par.joint_tries):
             trajs, d = joint_rrt(self, deadline, par.joint_samples, par.joint_nodes)
             drawn += d
             if trajs is not None:
-                return trajs, drawn
-        return None, drawn
+                break
+        for j, tr in enumerate(trajs or []):
+            team.set(j, tr, self.fm, self.types, float(self.kappa[j]))
+            costs[j] = tr.effort()
+        for j in range(self.pb.n):
+            per_robot[j] += (time.perf_counter() - t0) / self.pb.n
+        return (None if trajs is None else [tr.copy() for tr in trajs]), drawn
 
     def _promoted(self, team: Team, i: int) -> Trajectory | None:
         """A relaxed path of robot i that the others have made room for: the same
@@ -403,7 +411,7 @@ class AORRT:
             return None
         return Trajectory(tr.p.copy(), tr.v.copy(), fa, u, tr.dt)
 
-    def run(self, initial: list | None = None) -> Stage1Result:
+    def run(self) -> Stage1Result:
         self.pb.validate()
         self.check_endpoints()
         par, n = self.par, self.pb.n
@@ -413,8 +421,6 @@ class AORRT:
         t0 = time.perf_counter()
         deadline_total = t0 + par.total_time_s
         team = Team.empty(self.pb, par.max_steps)
-        for i, tr in enumerate(initial or []):      # a guess: placeholders to promote or re-plan
-            team.set(i, tr, self.fm, self.types, float(self.kappa[i]), relaxed=True)
         costs = [np.inf] * n
         trees = [None] * n
         per_robot = [0.0] * n
@@ -449,21 +455,16 @@ class AORRT:
                     team.set(i, traj, self.fm, self.types, float(self.kappa[i]))
                     improved = True
                 elif team.needs_path(i) or team.over_limit(i, self.fa_max[i]):
-                    if joint_round is None and not joint_tried and par.joint_tries > 0:
+                    if not joint_tried and par.joint_tries > 0:
                         # the first conflict: all robots at once (joint.py)
                         joint_tried = True
-                        tj = time.perf_counter()
-                        trajs, drawn = self._joint(deadline_total)
+                        per_robot[i] += time.perf_counter() - ts
+                        joint_trajs, drawn = self._joint(team, costs, per_robot, deadline_total)
                         joint_samples += drawn
-                        for j in range(n):
-                            per_robot[j] += (time.perf_counter() - tj) / n
-                        if trajs is not None:
-                            joint_trajs = [tr.copy() for tr in trajs]
-                            for j, tr in enumerate(trajs):
-                                team.set(j, tr, self.fm, self.types, float(self.kappa[j]))
-                                costs[j] = tr.effort()
+                        if joint_trajs is not None:
                             joint_round, improved = it, True
                             break
+                        ts = time.perf_counter()
                     # no valid path, or a relaxed neighbour has pushed this robot's path over
                     # its limit and no re-plan fits: it gives way as little as it can, too
                     excess = self._relax(team, i, deadline, samples)
