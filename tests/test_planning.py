@@ -357,6 +357,8 @@ def test_bad_input_is_refused_quickly(cfg):
     assert time.perf_counter() - t0 < 5.0
     with pytest.raises(PlanningError, match="max_samples must be a positive integer"):
         AORRT(Problem(cfg, SWAP_SL, LIMITS), fm, RRTParams(max_samples=0)).run()
+    with pytest.raises(PlanningError, match="joint_tries must be an integer >= 0"):
+        AORRT(Problem(cfg, SWAP_SL, LIMITS), fm, RRTParams(joint_tries=-1)).run()
 
 
 def test_stage1_is_deterministic_for_a_seed(cfg, fm):

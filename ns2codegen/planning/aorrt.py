@@ -415,9 +415,12 @@ class AORRT:
         self.pb.validate()
         self.check_endpoints()
         par, n = self.par, self.pb.n
-        for name in ("max_samples", "max_nodes", "max_rounds", "ao_iterations", "batch"):
+        for name in ("max_samples", "max_nodes", "max_rounds", "ao_iterations", "batch", "joint_samples",
+                     "joint_nodes"):
             if not (isinstance(getattr(par, name), int) and getattr(par, name) >= 1):
                 raise PlanningError(f"RRT parameter {name} must be a positive integer, got {getattr(par, name)!r}")
+        if not (isinstance(par.joint_tries, int) and par.joint_tries >= 0):
+            raise PlanningError(f"RRT parameter joint_tries must be an integer >= 0, got {par.joint_tries!r}")
         t0 = time.perf_counter()
         deadline_total = t0 + par.total_time_s
         team = Team.empty(self.pb, par.max_steps)
