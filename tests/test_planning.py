@@ -64,6 +64,13 @@ def _fine_min_distance(pa, pb, sub=10):
     return float(np.linalg.norm(a - b, axis=2).min())
 
 
+def _assert_team_within_limits(pb, fm, trajs):
+    """verify.check_solution of a team: every force limit, clearance, box and speed."""
+    for rep in check_solution(pb, fm, trajs)["robots"]:
+        assert rep["worst_fa_g"] <= rep["fa_max_g"] + 1e-4 and rep["min_clearance_m"] >= 0.0
+        assert rep["box_violation_m"] == 0.0 and rep["speed_violation_mps"] == 0.0
+
+
 def _check_joint_paths(pb, fm, trajs, par):
     """The rules of the composite-state search (joint.py), re-checked on its paths:
     one length for all, start and goal, box, speed and action limits, dynamics exact
@@ -256,10 +263,7 @@ def test_relax_and_repair_solves_a_crossing_that_needs_both_robots_to_deviate(cf
             AORRT(pb, fm, RRTParams(**{**par.__dict__, "relax_levels_g": ()})).run()
         res = AORRT(pb, fm, par).run()
     assert res.relaxations              # the relaxed path was needed
-    chk = check_solution(pb, fm, res.trajs)
-    for rep in chk["robots"]:
-        assert rep["worst_fa_g"] <= rep["fa_max_g"] + 1e-4 and rep["min_clearance_m"] >= 0.0
-        assert rep["box_violation_m"] == 0.0 and rep["speed_violation_mps"] == 0.0
+    _assert_team_within_limits(pb, fm, res.trajs)
     dz, _ = _crossing_z(res.trajs)
     assert abs(dz) >= 0.5                       # the gap is open where they cross ...
     H = max(t.T for t in res.trajs)
@@ -289,10 +293,7 @@ def test_joint_search_solves_an_exchange_that_sequential_planning_cannot(cfg):
         res = AORRT(pb, fm, par).run()
     assert res.joint_round == 0 and res.joint_samples > 0
     _check_joint_paths(pb, fm, res.joint_trajs, par)
-    chk = check_solution(pb, fm, res.trajs)
-    for rep in chk["robots"]:
-        assert rep["worst_fa_g"] <= rep["fa_max_g"] + 1e-4 and rep["min_clearance_m"] >= 0.0
-        assert rep["box_violation_m"] == 0.0 and rep["speed_violation_mps"] == 0.0
+    _assert_team_within_limits(pb, fm, res.trajs)
 
 
 def test_force_margin_and_clearance_are_kept(cfg):

@@ -406,8 +406,7 @@ class AORRT:
         u = tr.accel(self.kappa[i]) - accel(np.zeros_like(tr.u), fa[:-1], self.kappa[i])
         if np.abs(u).max(initial=0.0) > self.pb.limits.u_max:
             return None
-        on = team.planned
-        if np.any(np.abs(team.FA[:, on]) > self.fa_max[on]) or np.any(np.abs(team.FAS[:, :, on]) > self.fa_max[on]):
+        if any(team.over_limit(j, self.fa_max[j]) for j in range(self.pb.n)):
             return None
         return Trajectory(tr.p.copy(), tr.v.copy(), fa, u, tr.dt)
 
