@@ -9,7 +9,7 @@
 #                 network (narrower intermediate layers, H and L of the paper)
 #   make firmware cross-build the library for the STM32F405 and print its size
 PYTHON ?= python3
-NS2 := $(PYTHON) -m ns2codegen.cli
+NS2 := $(PYTHON) -m ns2cli
 GEN := firmware/generated
 DEFAULT := build/default
 ONBOARD := build/onboard

@@ -16,10 +16,10 @@ import numpy as np
 from ns2codegen.checkpoint import save_checkpoint
 from ns2codegen.config import Config
 from ns2codegen.data.analytic import downwash_dataset
-from ns2codegen.planning.experiments import scenario_problem
-from ns2codegen.planning.forces import ForceModel, load_force_model
-from ns2codegen.planning.planner import plan
-from ns2codegen.planning.problem import PlanningError, RRTParams, SCPParams
+from ns2exp.planning import scenario_problem
+from ns2plan.forces import ForceModel, load_force_model
+from ns2plan.planner import plan
+from ns2plan.problem import PlanningError, RRTParams, SCPParams
 from ns2codegen.train import train
 
 SEEDS = (0,)

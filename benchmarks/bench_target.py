@@ -2,7 +2,7 @@
 Cortex-M4 (unicorn), executed instructions and estimated cycles (cost model in
 ns2host/cm4_count.py) per phi and rho evaluation and per full prediction with
 1, 4, 15 and 16 neighbours, float and fixed point; microseconds at 168 MHz; the
-2 ms-tick budget (ns2host/budget.py), for the paper's network and for the
+2 ms-tick budget (host/budget.py), for the paper's network and for the
 one-tick on-board variant (ns2codegen.config.ONBOARD_WIDTHS); emlearn's
 generated C for the same layer sizes side by side; flash, RAM and worst-case
 stack from the cross build.

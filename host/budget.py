@@ -12,7 +12,10 @@ import numpy as np
 
 from ns2codegen.config import Config
 
+from ns2codegen.vehicle import vehicle
+
 from . import cm4_count, target
+from .cbuild import CModel
 from .target import NBR_DT
 
 TICK_US, BUDGET_FRACTION = 2000.0, 0.2
@@ -47,11 +50,9 @@ def controller_runs(gen: Path, cfg: Config) -> dict[str, cm4_count.Run]:
     """One position step (100 Hz) and one attitude step (500 Hz) of the firmware
     controller, in a hovering, slightly perturbed state (second call: the
     derivative filters are primed)."""
-    from .sim.cloop import CLoopSwarm
-
-    sw = CLoopSwarm(cfg, ["small"], gen, [[0, 0, 1.0]])
-    ffi = sw.c.ffi
-    c = ffi.addressof(sw.ctrl, 0)
+    host = CModel(gen)
+    ffi = host.ffi
+    c = host.controller([vehicle(cfg, "small")])
     cm = cm4_count.Cm4(target.build_controller_image(gen))
     ctrl = cm.write(bytes(ffi.sizeof("ns2_ctrl_t")))
     cm.call("ns2_ctrl_init", ctrl, cm.write(bytes(ffi.buffer(ffi.addressof(c[0], "veh")))),

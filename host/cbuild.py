@@ -20,6 +20,7 @@ from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
+from ns2codegen.errors import Ns2Error
 
 REPO = Path(__file__).resolve().parent.parent
 BUILD_ROOT = Path(os.environ.get("NS2_BUILD_DIR", REPO / "build")) / "host"
@@ -89,7 +90,7 @@ double ns2_host_ns_per_call(int fixed, uint32_t reps, uint8_t robot_type, const 
 """
 
 
-class BuildError(RuntimeError):
+class BuildError(Ns2Error, RuntimeError):
     """The C library does not compile."""
 
 
@@ -230,6 +231,24 @@ class CModel:
         self.info_dtype = np.dtype({"names": ["status", "n_used", "n_invalid", "n_outside", "n_truncated"],
                                     "formats": [np.int32] + [np.uint16] * 4,
                                     "offsets": [0, 4, 6, 8, 10], "itemsize": ffi.sizeof("ns2_info_t")})
+
+    def controller(self, vehicles) -> object:
+        """``ns2_ctrl_t[len(vehicles)]``, each initialised (``ns2_ctrl_init``) for one
+        ns2codegen.vehicle.Vehicle with its default gains, as the app does."""
+        from ns2codegen.vehicle import default_gains
+
+        ffi, lib = self.ffi, self.lib
+        ctrl = ffi.new("ns2_ctrl_t[]", len(vehicles))
+        for i, veh in enumerate(vehicles):
+            v = ffi.new("ns2_vehicle_t *")
+            v.mass_kg, v.inertia, v.arm_m, v.kappa_m = veh.mass, list(veh.inertia), veh.arm, veh.kappa
+            setattr(v, "lambda", veh.lam)  # 'lambda' is a Python keyword
+            v.f_max_N, v.psi2 = veh.f_max, list(veh.psi2)
+            g = ffi.new("ns2_gains_t *")
+            for k, val in default_gains(veh).items():
+                setattr(g, k, val)
+            lib.ns2_ctrl_init(ffi.addressof(ctrl, i), v, g)
+        return ctrl
 
     def neighbors(self, types, rels) -> np.ndarray:
         a = np.zeros(len(types), self.nbr_dtype)

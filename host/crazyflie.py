@@ -14,6 +14,7 @@ import shutil
 import subprocess
 import tempfile
 from pathlib import Path
+from ns2codegen.errors import Ns2Error
 
 REPO = Path(__file__).resolve().parent.parent
 BUILD = Path(os.environ.get("NS2_BUILD_DIR", REPO / "build"))
@@ -22,7 +23,7 @@ TARBALL_NAME = f"crazyflie-firmware-{COMMIT}.tar.xz"
 SHARED = Path(os.environ.get("NS2_SHARED_DIR", REPO.parent / "shared"))
 
 
-class FirmwareMissing(RuntimeError):
+class FirmwareMissing(Ns2Error, RuntimeError):
     """The crazyflie-firmware tree or its tarball is not where it should be."""
 
 

@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from ns2codegen.errors import Ns2Error
 
 SYNC = b"\xa5\x5a"
 PREDICT, PING, RESULT, PONG, ERROR = 0x01, 0x02, 0x81, 0x82, 0xEE
@@ -27,7 +28,7 @@ MAX_NEIGHBORS = 32
 ERROR_CODES = {1: "bad CRC", 2: "bad length", 3: "unknown type", 4: "malformed body"}
 
 
-class HilError(RuntimeError):
+class HilError(Ns2Error, RuntimeError):
     """The target answered wrongly or not at all."""
 
 

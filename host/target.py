@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from .cbuild import REPO, BUILD_ROOT, GENERATED, BuildError, flags
+from ns2codegen.errors import Ns2Error
 
 ARM_CC = os.environ.get("ARM_CC", "arm-none-eabi-gcc")
 TARGET_DIR = REPO / "firmware" / "target"
@@ -123,7 +124,7 @@ def encode_queries(q) -> bytes:
     return b"".join(parts)
 
 
-class TargetError(RuntimeError):
+class TargetError(Ns2Error, RuntimeError):
     """The emulated target failed or produced no complete result."""
 
 

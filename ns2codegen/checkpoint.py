@@ -18,6 +18,7 @@ import torch
 from .config import Config, ConfigError
 from .fileio import atomic_write_bytes
 from .model import HeteroDeepSet
+from .errors import Ns2Error
 
 FORMAT = "ns2codegen-checkpoint"
 VERSION = 1
@@ -26,7 +27,7 @@ VERSION = 1
 NORMALIZATION = {"input": "none: x_ij in m and m/s (world frame)", "output": "none: f_a,z in grams"}
 
 
-class CheckpointError(ValueError):
+class CheckpointError(Ns2Error, ValueError):
     """The checkpoint cannot be used (corrupt, truncated, inconsistent, non-finite)."""
 
 

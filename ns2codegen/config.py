@@ -14,13 +14,14 @@ import re
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
+from .errors import Ns2Error
 
 DEFAULT_CONFIG = Path(__file__).resolve().parent.parent / "config" / "default.toml"
 
 # Model overrides of the one-tick on-board variant: the paper's H = 20 and L = 4
 # with narrower intermediate layers (phi 6-16-24-24-H, rho H-24-24-24-1), whose
 # whole prediction with 15 neighbours plus a controller step fits 20 % of a 2 ms
-# tick on the STM32F405 (ns2host.budget); the paper: "the learning performance is
+# tick on the STM32F405 (host/budget.py, ns2host.budget); the paper: "the learning performance is
 # not sensitive to ... the number of weights in intermediate layers".
 ONBOARD_WIDTHS = {"width": 24, "phi_first": 16}
 
@@ -33,7 +34,7 @@ _C_KEYWORDS = {
 }
 
 
-class ConfigError(ValueError):
+class ConfigError(Ns2Error, ValueError):
     """The configuration is malformed or inconsistent."""
 
 

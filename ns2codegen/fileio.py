@@ -4,6 +4,7 @@ from __future__ import annotations
 import os
 import tempfile
 from pathlib import Path
+from .errors import Ns2Error
 
 
 def file_mode() -> int:
@@ -13,7 +14,7 @@ def file_mode() -> int:
     return 0o666 & ~umask
 
 
-class OutputError(OSError):
+class OutputError(Ns2Error, OSError):
     """An output location cannot be written."""
 
 

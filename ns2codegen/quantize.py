@@ -31,13 +31,14 @@ from .checkpoint import Checkpoint
 from .config import Config
 from .model import lipschitz_bound
 from .queries import Queries, random_queries
+from .errors import Ns2Error
 
 INT32_MAX = 2**31 - 1
 HEADROOM = 2.0
 CALIBRATION_QUERIES = 20000
 
 
-class QuantizationError(ValueError):
+class QuantizationError(Ns2Error, ValueError):
     """No fixed-point format satisfies the overflow proof."""
 
 

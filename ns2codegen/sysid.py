@@ -39,9 +39,10 @@ import numpy as np
 from .config import dump_toml
 from .data.labels import V_NORM, first_order_delay
 from .fileio import atomic_write_bytes
+from .errors import Ns2Error
 
 
-class SysidError(ValueError):
+class SysidError(Ns2Error, ValueError):
     """Load-cell data that cannot be used (missing columns, too few rows, ...)."""
 
 

@@ -5,7 +5,7 @@ import sys
 
 
 def ns2(*args):
-    return subprocess.run([sys.executable, "-m", "ns2codegen.cli", *map(str, args)],
+    return subprocess.run([sys.executable, "-m", "ns2cli", *map(str, args)],
                           capture_output=True, text=True)
 
 

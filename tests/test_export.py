@@ -25,7 +25,7 @@ ARM_CC = shutil.which("arm-none-eabi-gcc")
 
 
 def _cli(*args, cwd=None):
-    return subprocess.run([sys.executable, "-m", "ns2codegen.cli", *map(str, args)],
+    return subprocess.run([sys.executable, "-m", "ns2cli", *map(str, args)],
                           capture_output=True, text=True, cwd=cwd)
 
 

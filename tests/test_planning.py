@@ -1,4 +1,4 @@
-"""Interaction-aware motion planner (ns2codegen/planning): Stage 1 AO-RRT, Stage 2
+"""Interaction-aware motion planner (planner/): Stage 1 AO-RRT, Stage 2
 SCP, outputs and tracking.  Every rule is re-checked on the result here."""
 from __future__ import annotations
 
@@ -9,13 +9,13 @@ import numpy as np
 import pytest
 import torch
 
-from ns2codegen.planning.aorrt import AORRT, post_process
-from ns2codegen.planning.dynamics import hold_arrays, step, team_substates
-from ns2codegen.planning.forces import ForceModel, single_thread
-from ns2codegen.planning.output import MAX_PIECES, POLY4D_BYTES, eval_pieces, poly4d_bytes, read_poly4d, write_plan
-from ns2codegen.planning.problem import Limits, PlanningError, Problem, Robot, RRTParams, SCPParams
-from ns2codegen.planning.scp import scp
-from ns2codegen.planning.verify import check_solution
+from ns2plan.aorrt import AORRT, post_process
+from ns2plan.dynamics import hold_arrays, step, team_substates
+from ns2plan.forces import ForceModel, single_thread
+from ns2plan.output import MAX_PIECES, POLY4D_BYTES, eval_pieces, poly4d_bytes, read_poly4d, write_plan
+from ns2plan.problem import Limits, PlanningError, Problem, Robot, RRTParams, SCPParams
+from ns2plan.scp import scp
+from ns2plan.verify import check_solution
 
 RRT = RRTParams(max_nodes=4000, max_samples=30000, ao_iterations=2, seed=3, joint_tries=0)   # the paper's Stage 1
 SWAP_SL = [Robot("small", (0.0, -0.4, 1.0), (0.0, 0.4, 1.0)), Robot("large", (0.0, 0.4, 1.0), (0.0, -0.4, 1.0))]
@@ -181,7 +181,7 @@ def test_scp_decreases_cost_monotonically_and_reaches_goal(cfg, fm, refined):
 
 
 def test_plan_output_and_tracking(cfg, exported, refined, tmp_path):
-    from ns2codegen.planning.tracking import track
+    from ns2exp.tracking import track
 
     pb, _, out = refined
     rep = write_plan(tmp_path, out.trajs, [r.type for r in pb.robots], pb.kappa())
@@ -222,7 +222,7 @@ def test_homotopy_keeps_small_robot_out_from_under_the_large_one(cfg):
     assert F[0] < -30 and F[1] == pytest.approx(0.0, abs=0.5)
     F = nn.team_np(pb.type_index(), P[:, ::-1], np.zeros_like(P))[0]
     assert -9 < F[1] < -6
-    from ns2codegen.planning.planner import plan
+    from ns2plan.planner import plan
 
     res = plan(pb, nn, RRT, SCPParams(max_iterations=4))
     for trajs in (res.stage1.trajs, res.trajs):
@@ -305,7 +305,7 @@ def test_force_margin_and_clearance_are_kept(cfg):
     np.testing.assert_allclose(pb.fa_plan(), pb.fa_max() - 1.5)
     np.testing.assert_allclose(pb.r_pair(), tight.r_pair() + 0.1)
     fm = ForceModel(cfg, StrongDownwash(cfg))
-    from ns2codegen.planning.planner import plan
+    from ns2plan.planner import plan
 
     res = plan(pb, fm, RRTParams(max_nodes=4000, max_samples=20000, ao_iterations=1, seed=2), SCPParams(max_iterations=4))
     for trajs in (res.stage1.trajs, res.trajs):
@@ -320,7 +320,7 @@ def test_force_margin_and_clearance_are_kept(cfg):
 
 
 def test_planning_model_config_sees_the_long_range_downwash(cfg):
-    from ns2codegen.planning.experiments import PLAN_VOLUME_TOP, planning_config
+    from ns2exp.planning import PLAN_VOLUME_TOP, planning_config
 
     pc = planning_config(cfg)
     k = cfg.num_robot_types
@@ -406,7 +406,7 @@ def test_poly4d_layout_matches_the_firmware_struct(tmp_path):
 def test_cli_plan_problem_file(cfg, exported, tmp_path):
     from click.testing import CliRunner
 
-    from ns2codegen.cli import main
+    from ns2cli import main
 
     prob = {"robots": [{"type": "small", "start": [0, -0.4, 1.0], "goal": [0, 0.4, 1.0]}],
             "axes": "yz", "limits": {"pos_lo": [0, -0.9, 0.3], "pos_hi": [0, 0.9, 2.0]}}

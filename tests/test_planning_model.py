@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 import torch
 
-from ns2codegen.planning.experiments import CHECK_GAPS, downwash_check, downwash_table
-from ns2codegen.planning.forces import ForceModel
+from ns2exp.planning import CHECK_GAPS, downwash_check, downwash_table
+from ns2plan.forces import ForceModel
 from ns2host.sim.collect import collect, fly
 from ns2host.sim.scenarios import near_field
 

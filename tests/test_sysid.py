@@ -99,7 +99,7 @@ def write_csv(path, cols: dict) -> None:
 
 
 def ns2(*args):
-    return subprocess.run([sys.executable, "-m", "ns2codegen.cli", *map(str, args)], capture_output=True, text=True)
+    return subprocess.run([sys.executable, "-m", "ns2cli", *map(str, args)], capture_output=True, text=True)
 
 
 def test_sysid_file_drives_config_labels_and_the_controller(cfg, exported, tmp_path):

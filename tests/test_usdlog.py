@@ -188,7 +188,7 @@ def test_simulated_logs_aligned_and_labelled_against_the_truth(cfg, sim_logs):
 
 
 def ns2(*args):
-    return subprocess.run([sys.executable, "-m", "ns2codegen.cli", *map(str, args)], capture_output=True, text=True)
+    return subprocess.run([sys.executable, "-m", "ns2cli", *map(str, args)], capture_output=True, text=True)
 
 
 def test_end_to_end_logs_to_data_train_export(cfg, sim_logs, tmp_path, monkeypatch):

@@ -1,7 +1,11 @@
-"""Quadrotor swarm simulator (RotorPy-style: one module per concern).
+"""ns2host.sim: the quadrotor swarm simulator (RotorPy-style: one module per concern).
 
-vehicle.py   parameters from the config file, actuation matrix B0, motor maps
-dynamics.py  rigid-body dynamics with the first-order motor delay, eq. (dynamics),
-             vectorized over robots, RK4
-cloop.py     C-in-the-loop: the firmware controller (built for the host) per robot
+vehicle.py    vehicle parameters (those of ns2codegen.vehicle), actuation matrix B0
+dynamics.py   rigid-body dynamics with the first-order motor delay, eq. (dynamics),
+              vectorized over robots, RK4 in C (host/ns2_sim.c)
+aero.py       the ground-truth interaction forces (downwash, ground effect, drag)
+cloop.py      C-in-the-loop: the firmware controller and inference per robot
+scenarios.py  swaps, random walks, rings, near-field passes
+collect.py    data collection: simulated flights -> uSD logs -> labelled data set
+usdlogs.py    the simulator's flight logs as Crazyflie uSD-card files
 """

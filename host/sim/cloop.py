@@ -16,7 +16,7 @@ from ns2codegen.data.labels import psi1_newtons
 from ..cbuild import CModel
 from .aero import calibrated
 from .dynamics import Dynamics, SwarmState
-from .vehicle import G, base_type, default_gains, vehicle
+from .vehicle import G, base_type, vehicle
 
 ATT_HZ, POS_HZ = 500, 100
 
@@ -71,16 +71,7 @@ class CLoopSwarm:
         self.substeps = substeps
         ffi, lib = self.c.ffi, self.c.lib
         n = len(types)
-        self.ctrl = ffi.new("ns2_ctrl_t[]", n)
-        for i, veh in enumerate(self.vehicles):
-            v = ffi.new("ns2_vehicle_t *")
-            v.mass_kg, v.inertia, v.arm_m, v.kappa_m = veh.mass, list(veh.inertia), veh.arm, veh.kappa
-            setattr(v, "lambda", veh.lam)  # 'lambda' is a Python keyword
-            v.f_max_N, v.psi2 = veh.f_max, list(veh.psi2)
-            g = ffi.new("ns2_gains_t *")
-            for k, val in default_gains(veh).items():
-                setattr(g, k, val)
-            lib.ns2_ctrl_init(ffi.addressof(self.ctrl, i), v, g)
+        self.ctrl = self.c.controller(self.vehicles)
         assert ffi.sizeof("ns2_ctrl_state_t") == 13 * 4 and ffi.sizeof("ns2_setpoint_t") == 13 * 4
         self.states = np.zeros((n, 13), np.float32)   # ns2_ctrl_state_t: p, v, q, w
         self.sps = np.zeros((n, 13), np.float32)      # ns2_setpoint_t: p, v, a, yaw, w

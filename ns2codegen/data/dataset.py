@@ -26,11 +26,12 @@ from pathlib import Path
 import numpy as np
 
 from ..fileio import file_mode
+from ..errors import Ns2Error
 
 FORMAT = "ns2codegen-dataset-v1"
 
 
-class DatasetError(ValueError):
+class DatasetError(Ns2Error, ValueError):
     """The data set file is malformed."""
 
 

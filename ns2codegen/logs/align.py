@@ -42,6 +42,7 @@ from ..config import Config, read_toml
 from ..data.dataset import Dataset
 from ..data.from_logs import Flight, flights_to_dataset
 from .usdlog import FIXED_FREQUENCY_NAME, UsdLog, UsdLogError, read
+from ..errors import Ns2Error
 
 VARIABLES = {
     "p": ("stateEstimate.x", "stateEstimate.y", "stateEstimate.z"),          # m
@@ -56,7 +57,7 @@ PWM_ON = 0.05          # normalized PWM: motors running
 MIN_PIECE = 20         # samples
 
 
-class LogError(ValueError):
+class LogError(Ns2Error, ValueError):
     """Logs that cannot be turned into a flight (missing variables, no sync, ...)."""
 
 

@@ -41,6 +41,7 @@ from pathlib import Path
 import numpy as np
 
 from ..fileio import atomic_write_bytes
+from ..errors import Ns2Error
 
 MAGIC = 0xBC
 VERSION = 2
@@ -50,7 +51,7 @@ TYPE_CHARS = "BbHhIife"
 _ENTRY_HEAD = struct.Struct("<HQ")  # event id, timestamp (us)
 
 
-class UsdLogError(ValueError):
+class UsdLogError(Ns2Error, ValueError):
     """The file is not a readable uSD log (bad header, corrupt, truncated)."""
 
 

@@ -1,4 +1,4 @@
-"""Interaction-aware multi-robot motion planning (paper, section "Interaction-Aware
+"""ns2plan: interaction-aware multi-robot motion planning (paper, section "Interaction-Aware
 Multi-Robot Planning", Algorithm "planning"), one module per concern:
 
 problem.py      robots, start/goal, limits and planner parameters as plain data
@@ -13,6 +13,4 @@ scp.py          Stage 2: sequential convex programming, eq. (scp), cvxpy + Clara
 verify.py       independent check of a team solution (box, collisions, force bounds)
 planner.py      Algorithm "planning": Stage 1, post-processing, Stage 2, timings
 output.py       Crazyflie piecewise polynomials (high-level commander upload), CSV
-tracking.py     flying the plan in the simulator with the C controller in the loop
-experiments.py  the paper's planning experiments (SL, SS, LL, SSL, SLL; NN vs BL)
 """

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .problem import GRAMS_TO_N, Problem
+from ns2plan.problem import GRAMS_TO_N, Problem
 
 
 def plan_setpoints(trajs: list, kappa, t_pre: float):

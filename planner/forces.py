@@ -19,7 +19,7 @@ import contextlib
 import numpy as np
 import torch
 
-from ..config import Config
+from ns2codegen.config import Config
 
 
 @contextlib.contextmanager
@@ -123,11 +123,11 @@ def load_force_model(cfg: Config, checkpoint=None) -> ForceModel:
     """The deep set of a checkpoint (NN) or, with ``checkpoint=None``, f_a = 0 (BL)."""
     if checkpoint is None:
         return ForceModel(cfg, None)
-    from ..checkpoint import load_checkpoint
+    from ns2codegen.checkpoint import load_checkpoint
 
     ck = load_checkpoint(checkpoint)
     if ck.cfg.robot_types != cfg.robot_types:
-        from ..checkpoint import CheckpointError
+        from ns2codegen.checkpoint import CheckpointError
 
         raise CheckpointError(f"{checkpoint}: robot types {ck.cfg.robot_types} differ from the config's "
                               f"{cfg.robot_types}")

@@ -11,13 +11,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..config import Config
+from ns2codegen.config import Config
+from ns2codegen.errors import Ns2Error
 
 G = 9.81
 GRAMS_TO_N = G / 1000.0
 
 
-class PlanningError(RuntimeError):
+class PlanningError(Ns2Error, RuntimeError):
     """Bad planning input (collision at the start, goal outside the box, infeasible
     limits) or no solution within the time limits."""
 

@@ -15,12 +15,12 @@ from pathlib import Path
 
 import numpy as np
 
-from ..config import Config
-from ..fileio import atomic_write_bytes, atomic_write_files
-from .forces import ForceModel, load_force_model
-from .planner import PlanResult, plan
-from .problem import Limits, PlanningError, Problem, Robot, RRTParams, SCPParams
-from .verify import check_solution
+from ns2codegen.config import Config
+from ns2codegen.fileio import atomic_write_bytes, atomic_write_files
+from ns2plan.forces import ForceModel, load_force_model
+from ns2plan.planner import PlanResult, plan
+from ns2plan.problem import Limits, PlanningError, Problem, Robot, RRTParams, SCPParams
+from ns2plan.verify import check_solution
 
 SCENARIOS = {"SL": ("small", "large"), "SS": ("small", "small"), "LL": ("large", "large"),
              "SSL": ("small", "small", "large"), "SLL": ("small", "large", "large")}
@@ -63,7 +63,7 @@ def downwash_check(cfg: Config, fm: ForceModel, gaps=CHECK_GAPS, z: float = HEIG
     from ns2host.sim.aero import calibrated
     from ns2host.sim.vehicle import vehicle
 
-    from .problem import GRAMS_TO_N
+    from ns2plan.problem import GRAMS_TO_N
 
     rows = []
     for lower in cfg.robot_types:
@@ -110,10 +110,10 @@ def default_checkpoint(cfg: Config, folder: Path, seconds_per_team: float = 60.0
     (ns2 sim collect) plus close-range passes of every pair of types (the near-field
     downwash that the planner's plans fly through), then training (ns2 train), all
     with ``planning_config(cfg)``."""
-    from ..checkpoint import load_checkpoint, save_checkpoint
-    from ..data.analytic import downwash_dataset
-    from ..export import export
-    from ..train import train
+    from ns2codegen.checkpoint import load_checkpoint, save_checkpoint
+    from ns2codegen.data.analytic import downwash_dataset
+    from ns2codegen.export import export
+    from ns2codegen.train import train
     from ns2host.sim.collect import collect
 
     cfg = planning_config(cfg)
@@ -185,7 +185,7 @@ def run_trial(pb: Problem, fm: ForceModel, gen_dir, seed: int, rrt: RRTParams, s
 
 def planning_experiments(cfg: Config, checkpoint, gen_dir, out_dir, scenarios=None, dims=(2, 3), trials: int = 5,
                          rrt: RRTParams = RRTParams(), scp_params: SCPParams = SCPParams(), log=print) -> dict:
-    from .output import write_plan
+    from ns2plan.output import write_plan
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -262,7 +262,7 @@ def example_figure(pb: Problem, examples: dict, path: Path) -> None:
     import matplotlib.pyplot as plt
     from matplotlib.collections import LineCollection
 
-    from .problem import GRAMS_TO_N
+    from ns2plan.problem import GRAMS_TO_N
 
     fig, axes = plt.subplots(2, 3, figsize=(14, 7))
     nn, nn_log = examples["NN"]
@@ -367,8 +367,8 @@ def load_problem(cfg: Config, path) -> Problem:
 
 def plan_problem_file(cfg: Config, path, checkpoint, out_dir, rrt: RRTParams, scp_params: SCPParams) -> dict:
     """Plan one problem file; write the Crazyflie files and plan.json (check + timings)."""
-    from .output import write_plan
-    from .verify import is_valid
+    from ns2plan.output import write_plan
+    from ns2plan.verify import is_valid
 
     pb = load_problem(cfg, path)
     fm = load_force_model(cfg, checkpoint)

@@ -13,9 +13,9 @@ import numpy as np
 
 from ns2codegen.config import Config
 
-from .cloop import CLoopSwarm
-from .scenarios import rings, swap
-from .vehicle import G
+from ns2host.sim.cloop import CLoopSwarm
+from ns2host.sim.scenarios import rings, swap
+from ns2host.sim.vehicle import G
 
 # case -> (robots from the bottom up); the bottom robot is the one measured
 SWAP_CASES = {
@@ -47,7 +47,7 @@ def heat_maps(cfg: Config, gen_dir, out: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from ..cbuild import CModel
+    from ns2host.cbuild import CModel
     from ns2codegen.queries import Queries
 
     c = CModel(gen_dir)

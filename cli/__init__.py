@@ -1,4 +1,4 @@
-"""`ns2` command line: gen-data, train, export (and later sim/plan)."""
+"""`ns2` command line, the top layer: it may import every other package."""
 from __future__ import annotations
 
 import json
@@ -7,25 +7,17 @@ from pathlib import Path
 
 import click
 
-from .config import ONBOARD_WIDTHS, Config, ConfigError
+from ns2codegen.config import ONBOARD_WIDTHS, Config, ConfigError
+from ns2codegen.errors import Ns2Error
 
 
 class _Errors(click.Group):
-    """Turn the package's expected errors into a one-line message and exit code 1."""
+    """Every expected error (``Ns2Error``) becomes one line and exit status 1."""
 
     def invoke(self, ctx):
-        from .checkpoint import CheckpointError
-        from .data.dataset import DatasetError
-        from .fileio import OutputError
-        from .logs.align import LogError
-        from .logs.usdlog import UsdLogError
-        from .quantize import QuantizationError
-        from .sysid import SysidError
-
         try:
             return super().invoke(ctx)
-        except (ConfigError, CheckpointError, DatasetError, OutputError, QuantizationError, LogError, UsdLogError,
-                SysidError) as e:
+        except Ns2Error as e:
             raise click.ClickException(str(e)) from e
 
 
@@ -54,7 +46,7 @@ _vehicle_option = click.option(
 @click.option("--out", type=click.Path(dir_okay=False), required=True)
 def gen_data(kind, samples_per_scenario, seed, noise, config_path, out):
     """Generate an analytic training data set (.npz, format in README)."""
-    from .data import analytic
+    from ns2codegen.data import analytic
 
     cfg = _config(config_path)
     if kind == "downwash":
@@ -67,7 +59,7 @@ def gen_data(kind, samples_per_scenario, seed, noise, config_path, out):
 
 
 def _parent_ok(path) -> None:
-    from .fileio import OutputError
+    from ns2codegen.fileio import OutputError
 
     parent = Path(path).resolve().parent
     if not parent.is_dir():
@@ -98,9 +90,9 @@ def train(data_paths, config_path, out, epochs, seed, batch_size, lr, hidden, la
     """Train the heterogeneous deep set; writes a checkpoint and prints the report."""
     from tqdm import tqdm
 
-    from .checkpoint import save_checkpoint
-    from .data.dataset import Dataset
-    from .train import train as run
+    from ns2codegen.checkpoint import save_checkpoint
+    from ns2codegen.data.dataset import Dataset
+    from ns2codegen.train import train as run
 
     cfg = _config(config_path, vehicle_files)
     overrides = dict(ONBOARD_WIDTHS) if onboard else {}
@@ -129,7 +121,7 @@ def train(data_paths, config_path, out, epochs, seed, batch_size, lr, hidden, la
               show_default=True)
 def export(checkpoint, out_dir):
     """Export CHECKPOINT to C headers (float + fixed point) and a manifest."""
-    from .export import export as run
+    from ns2codegen.export import export as run
 
     man = run(checkpoint, out_dir)
     err = man["fixed_vs_float_error_g"]
@@ -151,7 +143,7 @@ def export(checkpoint, out_dir):
 def sysid(type_name, static_csv, step_csv, mass_g, out):
     """Fit psi_1, psi_2, psi_3 and lambda (Table cfprops) from load-cell data; write the
     vehicle parameter file and one plot per fit next to it."""
-    from . import sysid as sid
+    from ns2codegen import sysid as sid
 
     static = sid.read_csv(static_csv, ("pwm", "vbat_V", "force_g"), ("force_max_g",))
     step = sid.read_csv(step_csv, ("time_s", "pwm", "vbat_V", "force_g")) if step_csv else None
@@ -173,7 +165,7 @@ def sysid(type_name, static_csv, step_csv, mass_g, out):
 def logs_to_data(folder, out, config_path, vehicle_files, allow_truncated, z_min):
     """Crazyflie uSD logs of FOLDER (listed in FOLDER/flights.toml) -> data set (.npz):
     clock alignment, common time base, labels f_a,z, neighbours by the interaction volume."""
-    from .logs.align import logs_to_dataset
+    from ns2codegen.logs.align import logs_to_dataset
 
     cfg = _config(config_path, vehicle_files)
     _parent_ok(out)
@@ -196,8 +188,8 @@ def hil(port, qemu, gen_dir, queries, seed, timeout):
     from ns2host import target
     from ns2host.cbuild import CModel
 
-    from .checkpoint import CheckpointError
-    from .queries import random_queries
+    from ns2codegen.checkpoint import CheckpointError
+    from ns2codegen.queries import random_queries
 
     if bool(port) == bool(qemu):
         raise click.UsageError("give exactly one of --port or --qemu")
@@ -261,7 +253,7 @@ def sim_collect(gen_dir, seconds_per_team, learned, seed, usd_dir, vehicle_files
 @click.option("--learned", type=click.Choice(["float", "fixed"]), default="fixed", show_default=True)
 def sim_swaps(gen_dir, out_dir, swaps, learned):
     """Swap experiments S2S, L2S, SS2L, SL2S, LL2S: baseline vs learned; table and plots."""
-    from ns2host.sim.experiments import swap_experiments
+    from ns2exp.swarm import swap_experiments
 
     res = swap_experiments(Config.load(), gen_dir, out_dir, swaps=swaps, learned=learned)
     click.echo((Path(out_dir) / "swaps.md").read_text())
@@ -275,7 +267,7 @@ def sim_swaps(gen_dir, out_dir, swaps, learned):
 @click.option("--learned", type=click.Choice(["float", "fixed"]), default="fixed", show_default=True)
 def sim_rings(gen_dir, out_dir, duration, learned):
     """5-robot intertwined rings and the 16-robot three rings: baseline vs learned."""
-    from ns2host.sim.experiments import ring_experiments
+    from ns2exp.swarm import ring_experiments
 
     ring_experiments(Config.load(), gen_dir, out_dir, duration=duration, learned=learned)
     click.echo((Path(out_dir) / "rings.md").read_text())
@@ -298,8 +290,8 @@ def sim_rings(gen_dir, out_dir, duration, learned):
                    "iteration counts stop them first, so a seed gives the same plan on any machine)")
 def plan_cmd(checkpoint, problem_path, baseline, out_dir, scenarios, dims, trials, max_samples, time_limit):
     """Interaction-aware motion planning (AO-RRT + SCP): the paper's experiments, or one problem."""
-    from .planning import experiments as ex
-    from .planning.problem import PlanningError, RRTParams, SCPParams
+    from ns2exp import planning as ex
+    from ns2plan.problem import PlanningError, RRTParams, SCPParams
 
     cfg = Config.load()
     rrt = RRTParams(total_time_s=time_limit, rrt_time_s=min(RRTParams.rrt_time_s, time_limit))
@@ -319,7 +311,7 @@ def plan_cmd(checkpoint, problem_path, baseline, out_dir, scenarios, dims, trial
         unknown = [s for s in names if s not in ex.SCENARIOS]
         if unknown:
             raise click.UsageError(f"unknown scenarios {unknown}; choose from {list(ex.SCENARIOS)}")
-        from .export import export as run_export
+        from ns2codegen.export import export as run_export
 
         gen = Path(out_dir) / "gen"
         run_export(checkpoint, gen)

@@ -45,7 +45,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..fileio import atomic_write_bytes, atomic_write_files
+from ns2codegen.fileio import atomic_write_bytes, atomic_write_files
 from .dynamics import Trajectory
 
 DEG = 7

@@ -1,0 +1,3 @@
+from ns2cli import main
+
+main()

@@ -1,0 +1,7 @@
+"""The one base class of every expected error (bad input file or field, missing tool,
+failed build).  The CLI turns an ``Ns2Error`` into one line and exit status 1; anything
+else is a bug and keeps its traceback."""
+
+
+class Ns2Error(Exception):
+    """An expected failure, with a message that names the file and field."""

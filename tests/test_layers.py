@@ -1,0 +1,96 @@
+"""The packages import one way only: core <- host <- simulator / planner <- experiments <- CLI.
+
+Every import in every module, at module level and inside functions, is checked
+against the layer table (AST, so an import hidden in a function counts too)."""
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parent.parent
+
+# package -> (folder, layers it may import besides itself)
+LAYERS = {
+    "ns2codegen": ("ns2codegen", set()),
+    "ns2host": ("host", {"ns2codegen"}),
+    "ns2host.sim": ("host/sim", {"ns2codegen", "ns2host"}),
+    "ns2plan": ("planner", {"ns2codegen"}),
+    "ns2exp": ("experiments", {"ns2codegen", "ns2host", "ns2host.sim", "ns2plan"}),
+    "ns2cli": ("cli", {"ns2codegen", "ns2host", "ns2host.sim", "ns2plan", "ns2exp"}),
+}
+ALL = set(LAYERS)
+
+
+def _layer_of(module: str) -> str | None:
+    """The layer an absolute module name belongs to (the longest matching package)."""
+    best = None
+    for pkg in LAYERS:
+        if module == pkg or module.startswith(pkg + "."):
+            if best is None or len(pkg) > len(best):
+                best = pkg
+    return best
+
+
+def _module_name(pkg: str, path: Path) -> str:
+    rel = path.relative_to(REPO / LAYERS[pkg][0]).with_suffix("")
+    parts = [p for p in rel.parts if p != "__init__"]
+    return ".".join([pkg, *parts])
+
+
+def _imports(path: Path, module: str) -> list[tuple[int, str]]:
+    is_pkg = path.name == "__init__.py"
+    out = []
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import):
+            out += [(node.lineno, a.name) for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = module.split(".")
+                base = base if is_pkg else base[:-1]
+                base = base[:len(base) - (node.level - 1)]
+                name = ".".join(base + ([node.module] if node.module else []))
+            else:
+                name = node.module or ""
+            out.append((node.lineno, name))
+    return out
+
+
+def _files(pkg: str):
+    folder = REPO / LAYERS[pkg][0]
+    for path in sorted(folder.rglob("*.py")):
+        owner = _layer_of(_module_name(pkg, path)) if pkg == "ns2host" else pkg
+        if owner == pkg:
+            yield path
+
+
+def test_packages_import_one_way_only():
+    bad = []
+    n_files = 0
+    for pkg, (_, allowed) in LAYERS.items():
+        for path in _files(pkg):
+            n_files += 1
+            module = _module_name(pkg, path)
+            for line, name in _imports(path, module):
+                target = _layer_of(name)
+                if target is None or target == pkg:
+                    continue
+                if target not in allowed:
+                    bad.append(f"{path.relative_to(REPO)}:{line} ({pkg}) imports {name} ({target})")
+    assert n_files > 40, n_files
+    assert not bad, "imports against the layer order:\n" + "\n".join(bad)
+
+
+def test_layer_check_catches_a_hidden_upward_import(tmp_path):
+    """The checker itself: an import inside a function, and a relative one, are seen."""
+    src = "def f():\n    from ns2plan.problem import Problem\n    return Problem\nfrom ..sim import cloop\n"
+    p = REPO / "host" / "crazyflie.py"
+    names = [n for _, n in _imports(_write(tmp_path, src), "ns2host.sim.x")]
+    assert "ns2plan.problem" in names and "ns2host.sim" in names
+    assert _layer_of("ns2host.sim.cloop") == "ns2host.sim" and _layer_of("ns2host.cbuild") == "ns2host"
+    assert _layer_of(_module_name("ns2host", p)) == "ns2host"
+
+
+def _write(tmp_path: Path, src: str) -> Path:
+    f = tmp_path / "x.py"
+    f.write_text(src)
+    return f
