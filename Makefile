@@ -28,17 +28,17 @@ build/.deps-stamp: pyproject.toml scripts/install-deps.sh
 	@touch $@
 
 # ---------------------------------------------------------------- pipeline
-$(DEFAULT)/data.npz: config/default.toml | deps
+$(DEFAULT)/data.npz: ns2codegen/default.toml | deps
 	@mkdir -p $(DEFAULT)
 	$(NS2) gen-data --kind downwash --samples-per-scenario 2000 --seed 0 --out $@
 
-$(DEFAULT)/model.pt: $(DEFAULT)/data.npz config/default.toml
+$(DEFAULT)/model.pt: $(DEFAULT)/data.npz ns2codegen/default.toml
 	$(NS2) train --data $< --out $@
 
 export: deps $(CHECKPOINT)
 	$(NS2) export $(CHECKPOINT) --out $(GEN)
 
-$(ONBOARD)/model.pt: $(DEFAULT)/data.npz config/default.toml
+$(ONBOARD)/model.pt: $(DEFAULT)/data.npz ns2codegen/default.toml
 	@mkdir -p $(ONBOARD)
 	$(NS2) train --data $< --out $@ --onboard
 

@@ -22,8 +22,9 @@ from pathlib import Path
 import numpy as np
 from ns2codegen.errors import Ns2Error
 
-REPO = Path(__file__).resolve().parent.parent
-BUILD_ROOT = Path(os.environ.get("NS2_BUILD_DIR", REPO / "build")) / "host"
+REPO = Path(__file__).resolve().parent.parent   # the source checkout (see firmware_sources)
+BUILD = Path(os.environ.get("NS2_BUILD_DIR", REPO / "build"))
+BUILD_ROOT = BUILD / "host"
 GENERATED = ("ns2_model_config.h", "ns2_model_float.h", "ns2_model_fixed.h")
 # host-only helpers, plus the controller vector loop shared with the QEMU image
 HOST_SOURCES = ["host/ns2_host.c", "firmware/target/ns2_ctrl_vectors.c"]
@@ -94,10 +95,20 @@ class BuildError(Ns2Error, RuntimeError):
     """The C library does not compile."""
 
 
+def firmware_sources() -> Path:
+    """The checkout's ``firmware/`` folder: ns2host compiles the C sources of a source
+    checkout, which an installed wheel does not carry."""
+    fw = REPO / "firmware"
+    if not (fw / "flags.mk").is_file():
+        raise BuildError(f"{fw}/flags.mk not found: the host build, target tools and simulator compile the "
+                         f"firmware C of a source checkout (clone the repository, pip install -e '.[all]')")
+    return fw
+
+
 def flags() -> dict[str, list[str]]:
     """Variables of firmware/flags.mk as lists."""
     out = {}
-    for line in (REPO / "firmware" / "flags.mk").read_text().splitlines():
+    for line in (firmware_sources() / "flags.mk").read_text().splitlines():
         m = re.match(r"^(NS2_\w+)\s*:=\s*(.*)$", line)
         if m:
             out[m.group(1)] = m.group(2).split()

@@ -16,8 +16,7 @@ import tempfile
 from pathlib import Path
 from ns2codegen.errors import Ns2Error
 
-REPO = Path(__file__).resolve().parent.parent
-BUILD = Path(os.environ.get("NS2_BUILD_DIR", REPO / "build"))
+from .cbuild import BUILD, REPO
 COMMIT = "2a18fc29"
 TARBALL_NAME = f"crazyflie-firmware-{COMMIT}.tar.xz"
 SHARED = Path(os.environ.get("NS2_SHARED_DIR", REPO.parent / "shared"))

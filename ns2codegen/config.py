@@ -1,6 +1,6 @@
 """Configuration: robot types, vehicle parameters, model dimensions, interaction volume.
 
-Plain data loaded from a TOML file (``config/default.toml``).  Robot types are
+Plain data loaded from a TOML file (the package's ``default.toml`` unless given).  Robot types are
 data, not code: adding a ``[[robot_types]]`` entry adds a phi and a rho net and
 a type id in the generated C headers.  The environment is always the last
 neighbour type (paper, Example "small and large robots, and the environment").
@@ -16,12 +16,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from .errors import Ns2Error
 
-DEFAULT_CONFIG = Path(__file__).resolve().parent.parent / "config" / "default.toml"
+DEFAULT_CONFIG = Path(__file__).resolve().parent / "default.toml"  # package data
 
 # Model overrides of the one-tick on-board variant: the paper's H = 20 and L = 4
 # with narrower intermediate layers (phi 6-16-24-24-H, rho H-24-24-24-1), whose
 # whole prediction with 15 neighbours plus a controller step fits 20 % of a 2 ms
-# tick on the STM32F405 (host/budget.py, ns2host.budget); the paper: "the learning performance is
+# tick on the STM32F405 (ns2host.budget, host/budget.py); the paper: "the learning performance is
 # not sensitive to ... the number of weights in intermediate layers".
 ONBOARD_WIDTHS = {"width": 24, "phi_first": 16}
 

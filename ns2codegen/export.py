@@ -25,7 +25,7 @@ from .queries import random_queries
 from .quantize import ExportModel, from_checkpoint
 from .vehicle import default_gains, has_rigid_body, vehicle
 
-TEMPLATES = Path(__file__).resolve().parent.parent / "templates"
+TEMPLATES = Path(__file__).resolve().parent / "templates"  # package data
 HEADERS = ("ns2_model_config.h", "ns2_model_float.h", "ns2_model_fixed.h", "ns2_vehicles.h")
 MANIFEST = "ns2_model_manifest.json"
 ERROR_QUERIES = 20000

@@ -1,5 +1,5 @@
 #!/bin/sh
-# Install everything ns2codegen needs on a fresh Debian-like machine:
+# Install everything ns2codegen needs (every extra, editable) on a fresh Debian-like machine:
 # Python packages (torch pinned to the local CPU wheel first) and, when
 # missing, the ARM cross toolchain and QEMU (apt-get, needs root).
 set -eu
@@ -7,7 +7,7 @@ PYTHON=${PYTHON:-python3}
 if ! "$PYTHON" -c "import torch" 2>/dev/null; then
     "$PYTHON" -m pip install "torch==2.13.0"
 fi
-"$PYTHON" -m pip install -e ".[test,bench]"
+"$PYTHON" -m pip install -e ".[all,test,bench]"
 if ! command -v arm-none-eabi-gcc >/dev/null 2>&1 || ! command -v qemu-system-arm >/dev/null 2>&1; then
     SUDO=""
     [ "$(id -u)" -eq 0 ] || SUDO="sudo"
