@@ -121,8 +121,9 @@ def default_checkpoint(cfg: Config, folder: Path, seconds_per_team: float = 60.0
     ck = folder / "model.pt"
     if ck.is_file() and load_checkpoint(ck).cfg.to_json() == cfg.to_json():
         return ck
-    log(f"no checkpoint given: training one on simulated flights ({seconds_per_team:.0f} s per team, "
-        f"{near_field_seconds:.0f} s of close-range passes per pair) into {ck}")
+    log(f"no checkpoint given: training the planning model on simulated flights ({seconds_per_team:.0f} s per "
+        f"team, {near_field_seconds:.0f} s of close-range passes per pair) into {ck}; this takes several minutes "
+        f"(about 5 on one core); give --checkpoint to skip")
     boot = downwash_dataset(cfg, 300, seed=0)       # the controller build needs some exported model
     m0, rep0 = train(cfg, boot, epochs=1)
     save_checkpoint(folder / "boot.pt", m0, cfg, {"seed": 0, "data_hash": boot.content_hash(), "report": rep0})
@@ -184,7 +185,10 @@ def run_trial(pb: Problem, fm: ForceModel, gen_dir, seed: int, rrt: RRTParams, s
 
 
 def planning_experiments(cfg: Config, checkpoint, gen_dir, out_dir, scenarios=None, dims=(2, 3), trials: int = 5,
-                         rrt: RRTParams = RRTParams(), scp_params: SCPParams = SCPParams(), log=print) -> dict:
+                         rrt: RRTParams = RRTParams(), scp_params: SCPParams = SCPParams(), log=print,
+                         progress=None) -> dict:
+    """Every scenario in every dimension, ``trials`` seeds with NN and with BL
+    (``progress(1)`` after every trial); writes plan.json, plan.md and the figures."""
     from ns2plan.output import write_plan
 
     out = Path(out_dir)
@@ -202,6 +206,8 @@ def planning_experiments(cfg: Config, checkpoint, gen_dir, out_dir, scenarios=No
                 for trial in range(trials):
                     rec, res, flight = run_trial(pb, fm, gen_dir, trial, rrt, scp_params)
                     recs.append(rec)
+                    if progress is not None:
+                        progress(1)
                     if res is not None and mode not in examples:
                         examples[mode] = (res, flight)
                         write_plan(out / "trajectories" / f"{d}d_{name}_{mode}", res.trajs,

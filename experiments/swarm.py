@@ -80,7 +80,8 @@ def heat_maps(cfg: Config, gen_dir, out: Path) -> None:
     plt.close(fig)
 
 
-def swap_experiments(cfg: Config, gen_dir, out_dir, swaps: int = 6, cases=None, learned: str = "fixed") -> dict:
+def swap_experiments(cfg: Config, gen_dir, out_dir, swaps: int = 6, cases=None, learned: str = "fixed",
+                     progress=None) -> dict:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -92,6 +93,8 @@ def swap_experiments(cfg: Config, gen_dir, out_dir, swaps: int = 6, cases=None, 
     for case in cases:
         bl = run_swaps(cfg, gen_dir, case, None, swaps)
         nn = run_swaps(cfg, gen_dir, case, learned, swaps)
+        if progress is not None:
+            progress(1)
         results[case] = {"BL": bl["worst_z_error_m"], "NN": nn["worst_z_error_m"],
                          "BL_median_m": float(np.median(bl["worst_z_error_m"])),
                          "NN_median_m": float(np.median(nn["worst_z_error_m"]))}
@@ -137,8 +140,10 @@ RING_CASES = {
 }
 
 
-def ring_experiments(cfg: Config, gen_dir, out_dir, duration: float = 16.0, learned: str = "fixed") -> dict:
-    """Worst-case z error of every robot, BL vs NN, mean and max per type."""
+def ring_experiments(cfg: Config, gen_dir, out_dir, duration: float = 16.0, learned: str = "fixed",
+                     progress=None) -> dict:
+    """Worst-case z error of every robot, BL vs NN, mean and max per type (``progress(1)``
+    after every flight)."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     results = {}
@@ -148,6 +153,8 @@ def ring_experiments(cfg: Config, gen_dir, out_dir, duration: float = 16.0, lear
         for mode in (None, learned):
             sp, start = rings([len(g) for g in groups], heights, radius=0.5, period=8.0)
             log = CLoopSwarm(cfg, team, gen_dir, start, aero=True, learned=mode).run(duration, sp)
+            if progress is not None:
+                progress(1)
             late = log["t"] > 2.0
             worst = np.abs(log["p"][late, :, 2] - log["p_d"][late, :, 2]).max(axis=0)
             res["BL" if mode is None else "NN"] = {

@@ -178,8 +178,9 @@ class HilClient:
         return Result(*struct.unpack("<iIhHHHH", body))
 
 
-def run(client: HilClient, queries, cmodel) -> dict:
-    """Run ``queries`` on the target; compare with the host C bit for bit."""
+def run(client: HilClient, queries, cmodel, progress=None) -> dict:
+    """Run ``queries`` on the target; compare with the host C bit for bit (``progress(1)``
+    after every query)."""
     f_host, info = cmodel.predict(queries, fixed=False)
     q_host, _ = cmodel.predict(queries, fixed=True)
     mismatches = []
@@ -193,6 +194,8 @@ def run(client: HilClient, queries, cmodel) -> dict:
         got = (r.status, r.f32_bits, r.q15, r.n_used, r.n_invalid, r.n_outside, r.n_truncated)
         if got != host:
             mismatches.append({"query": i, "target": got, "host": host})
+        if progress is not None:
+            progress(1)
     lat = np.array(client.stats.latencies_s) * 1e3
     return {"queries": len(queries), "mismatches": len(mismatches), "first_mismatches": mismatches[:5],
             "requests": client.stats.requests, "retries": client.stats.retries,

@@ -4,9 +4,12 @@ Output (deterministic: the same checkpoint gives byte-identical files):
   ns2_model_config.h   types, dimensions, interaction volume, input boxes
   ns2_model_float.h    float32 weights as exact hexadecimal literals
   ns2_model_fixed.h    int16/int32 tables, Q formats, shifts
+  ns2_vehicles.h       vehicle parameters and default gains of the controller
   ns2_model_manifest.json  hash, dims, Q formats, Lipschitz bound, overflow proof,
                        measured |fixed - float| error
-All four are staged first and renamed into place only when all were written.
+  ns2_config.toml      the whole config the model was trained with (``export_config``
+                       reads it back: every command given an export folder uses it)
+All are staged first and renamed into place only when all were written.
 """
 from __future__ import annotations
 
@@ -19,7 +22,7 @@ import numpy as np
 
 from . import __version__
 from .checkpoint import load_checkpoint
-from .config import VEHICLE_KEYS, c_identifier
+from .config import VEHICLE_KEYS, Config, ConfigError, c_identifier, dump_toml
 from .fileio import atomic_write_files
 from .queries import random_queries
 from .quantize import ExportModel, from_checkpoint
@@ -28,6 +31,7 @@ from .vehicle import default_gains, has_rigid_body, vehicle
 TEMPLATES = Path(__file__).resolve().parent / "templates"  # package data
 HEADERS = ("ns2_model_config.h", "ns2_model_float.h", "ns2_model_fixed.h", "ns2_vehicles.h")
 MANIFEST = "ns2_model_manifest.json"
+CONFIG_FILE = "ns2_config.toml"
 ERROR_QUERIES = 20000
 
 
@@ -161,6 +165,7 @@ def manifest(m: ExportModel, errors: dict) -> dict:
     meta = m.meta
     return {
         "generator": f"ns2codegen {__version__}",
+        "config_file": CONFIG_FILE,
         "model_hash": m.model_hash,
         "data_hash": meta.get("data_hash"),
         "seed": meta.get("seed"),
@@ -205,5 +210,14 @@ def export(checkpoint: str | Path, out_dir: str | Path) -> dict:
     files = render(m)
     man = manifest(m, measure_errors(m))
     files[MANIFEST] = json.dumps(man, indent=2, sort_keys=True) + "\n"
+    files[CONFIG_FILE] = dump_toml(m.cfg.raw, f"ns2codegen {__version__}: the config of model {m.model_hash}")
     atomic_write_files(Path(out_dir), files)
     return man
+
+
+def export_config(gen_dir: str | Path) -> Config:
+    """The config an export folder was made with (its ``ns2_config.toml``)."""
+    path = Path(gen_dir) / CONFIG_FILE
+    if not path.is_file():
+        raise ConfigError(f"{path} not found: {gen_dir} is not an export folder (run `ns2 export` into it)")
+    return Config.load(path)

@@ -115,7 +115,7 @@ def test_sysid_file_drives_config_labels_and_the_controller(cfg, exported, tmp_p
     write_csv(tmp_path / "step.csv", simulated_step(true, rng))
     out = tmp_path / "small_sysid.toml"
     r = ns2("sysid", "--type", "small", "--static", tmp_path / "static.csv", "--step", tmp_path / "step.csv",
-            "--mass-g", "34", "--out", out)
+            "--mass-g", "34", "--out", out, "--json")
     assert r.returncode == 0, r.stderr
     rep = json.loads(r.stdout)
     print(json.dumps(rep["fit"], indent=1))

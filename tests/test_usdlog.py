@@ -202,7 +202,7 @@ def test_end_to_end_logs_to_data_train_export(cfg, sim_logs, tmp_path, monkeypat
     vfile = tmp_path / "large.toml"   # a vehicle parameter file (as `ns2 sysid` writes): lambda 17.5
     vfile.write_text('[vehicle]\nname = "large"\nlambda = 17.5\n')
     cfg = cfg.with_vehicle_files([vfile])
-    r = ns2("logs-to-data", root, "--out", tmp_path / "d.npz", "--vehicle", vfile)
+    r = ns2("logs-to-data", root, "--out", tmp_path / "d.npz", "--vehicle", vfile, "--json")
     assert r.returncode == 0, r.stderr
     rep = json.loads(r.stdout)
     assert rep["samples"] > 1000 and set(rep["scenarios"]) == {"L->S", "S->L"}
@@ -230,6 +230,6 @@ def test_end_to_end_logs_to_data_train_export(cfg, sim_logs, tmp_path, monkeypat
     r = ns2("logs-to-data", bad, "--out", tmp_path / "bad.npz")
     assert r.returncode == 1 and "CRC-32 mismatch" in r.stderr and "Traceback" not in r.stderr
     assert not (tmp_path / "bad.npz").exists()
-    r = ns2("logs-to-data", bad, "--out", tmp_path / "bad.npz", "--allow-truncated")
+    r = ns2("logs-to-data", bad, "--out", tmp_path / "bad.npz", "--allow-truncated", "--json")
     assert r.returncode == 0, r.stderr
     assert "no valid CRC" in r.stdout

@@ -57,12 +57,13 @@ def fly(cfg: Config, team, gen_dir, kind: str, duration: float, seed: int, learn
 
 
 def collect(cfg: Config, gen_dir, seconds_per_team: float, seed: int = 0, learned=None,
-            team_list=None, usd_dir=None, near_field_seconds: float = 0.0, near_gap_max: float = 1.2) -> Dataset:
+            team_list=None, usd_dir=None, near_field_seconds: float = 0.0, near_gap_max: float = 1.2,
+            progress=None) -> Dataset:
     """Half random walk, half swaps per team (single robots only random walk), plus
     ``near_field_seconds`` of close-range passes per pair of robots (vertical gaps up
     to ``near_gap_max``); with
     ``usd_dir`` the (noisy) logs are also written there as Crazyflie uSD files with a
-    flights.toml, the input of ``ns2 logs-to-data``."""
+    flights.toml, the input of ``ns2 logs-to-data``.  ``progress(1)`` after every flight."""
     flights, entries = [], []
     for k, team in enumerate(team_list or teams(cfg)):
         kinds = ["random"] if len(team) == 1 else ["random", "swap"]
@@ -75,6 +76,8 @@ def collect(cfg: Config, gen_dir, seconds_per_team: float, seed: int = 0, learne
             if usd_dir is not None:
                 entries.append(write_flight(Path(usd_dir), f"{''.join(t[0] for t in team)}_{kind}_{s}",
                                             list(team), flights[-1].__dict__, seed=s))
+            if progress is not None:
+                progress(1)
     if usd_dir is not None:
         write_manifest(Path(usd_dir), entries)
     return flights_to_dataset(cfg, flights)
