@@ -418,7 +418,7 @@ def sim_rings(gen_dir, out_dir, duration, learned, quiet, as_json):
 @click.option("--trials", type=click.IntRange(min=1), default=5, show_default=True,
               help="seeds per scenario and planner")
 @click.option("--max-samples", type=click.IntRange(min=1), default=None,
-              help="samples per RRT run, Stage 1's stopping rule [default: RRTParams.max_samples]")
+              help="samples per RRT run, Stage 1's stopping rule [default: SearchParams.max_samples]")
 @click.option("--time-limit", type=click.FloatRange(min=1.0), default=300.0, show_default=True,
               help="wall-clock safety net in seconds for Stage 1 and again for Stage 2, per plan (the sample and "
                    "iteration counts stop them first, so a seed gives the same plan on any machine)")
@@ -431,11 +431,11 @@ def plan_cmd(checkpoint, model_dir, config_path, problem_path, baseline, out_dir
     from dataclasses import replace
 
     from ns2exp import planning as ex
-    from ns2plan.problem import PlanningError, RRTParams, SCPParams
+    from ns2plan.problem import PlanningError, RRTParams, SCPParams, SearchParams
 
-    rrt = RRTParams(total_time_s=time_limit, rrt_time_s=min(RRTParams.rrt_time_s, time_limit))
+    rrt = RRTParams(SearchParams(time_s=min(SearchParams.time_s, time_limit)), total_time_s=time_limit)
     if max_samples is not None:
-        rrt = replace(rrt, max_samples=max_samples)
+        rrt = replace(rrt, search=replace(rrt.search, max_samples=max_samples))
     scp_params = SCPParams(time_limit_s=time_limit)
     names = [s.strip() for s in scenarios.split(",") if s.strip()]
     unknown = [s for s in names if s not in ex.SCENARIOS]

@@ -211,13 +211,15 @@ def load_sim():
     """The simulator's C kernel (host/ns2_sim.c, no model needed); returns (ffi, lib)."""
     from cffi import FFI
 
-    src = REPO / "host" / "ns2_sim.c"
-    key = "sim_" + hashlib.sha256(src.read_bytes() + SIM_CDEF.encode() + host_cc().encode()).hexdigest()[:16]
+    src, header = REPO / "host" / "ns2_sim.c", REPO / "firmware" / "include" / "ns2_controller.h"
     f = flags()
+    key = "sim_" + hashlib.sha256(src.read_bytes() + header.read_bytes() + SIM_CDEF.encode()
+                                  + host_cc().encode()).hexdigest()[:16]
 
     def build(tmp: Path, name: str) -> None:
         obj = tmp / "ns2_sim.o"
-        cmd = [host_cc(), "-std=c99", "-O2", *f["NS2_WARN_FLAGS"], "-fPIC", "-c", str(src), "-o", str(obj)]
+        cmd = [host_cc(), "-std=c99", "-O2", *f["NS2_WARN_FLAGS"], "-fPIC", f"-I{header.parent}", "-c", str(src),
+               "-o", str(obj)]
         r = subprocess.run(cmd, capture_output=True, text=True)
         if r.returncode != 0:
             raise BuildError(f"{' '.join(cmd)}\n{r.stdout}{r.stderr}")

@@ -12,6 +12,8 @@
 #include <math.h>
 #include <stdint.h>
 
+#include "ns2_controller.h"
+
 #define NS2_SIM_X 17
 #define NS2_SIM_PAR 21
 
@@ -34,7 +36,7 @@ static void deriv(const double *x, const double *par, const double *u_c, const d
     d[2] = x[5];
     d[3] = 2.0 * (qx * qz + qw * qy) * inv_n2 * a + f_a[0] / m;
     d[4] = 2.0 * (qy * qz - qw * qx) * inv_n2 * a + f_a[1] / m;
-    d[5] = (1.0 - 2.0 * (qx * qx + qy * qy) * inv_n2) * a + f_a[2] / m - 9.81;
+    d[5] = (1.0 - 2.0 * (qx * qx + qy * qy) * inv_n2) * a + f_a[2] / m - NS2_G_MPS2;
     d[6] = -0.5 * (qx * wx + qy * wy + qz * wz);
     d[7] = 0.5 * (qw * wx + qy * wz - qz * wy);
     d[8] = 0.5 * (qw * wy + qz * wx - qx * wz);

@@ -25,7 +25,7 @@ from .checkpoint import load_checkpoint
 from .config import VEHICLE_KEYS, Config, ConfigError, c_identifier, dump_toml
 from .fileio import atomic_write_files
 from .queries import random_queries
-from .quantize import ExportModel, from_checkpoint
+from .quantize import ExportModel, from_checkpoint, pad4
 from .vehicle import default_gains, has_rigid_body, vehicle
 
 TEMPLATES = Path(__file__).resolve().parent / "templates"  # package data
@@ -45,10 +45,6 @@ def cfloat(x) -> str:
     m = re.match(r"(-?0x[01])\.?([0-9a-f]*?)0*p([+-]\d+)$", v.hex())
     mant = m.group(1) + ("." + m.group(2) if m.group(2) else "")
     return f"{mant}p{m.group(3)}f"
-
-
-def pad4(n: int) -> int:
-    return (n + 3) // 4 * 4
 
 
 def float_layout(w: np.ndarray, b: np.ndarray) -> np.ndarray:

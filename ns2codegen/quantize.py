@@ -31,6 +31,7 @@ from .checkpoint import Checkpoint
 from .config import Config
 from .model import lipschitz_bound
 from .queries import Queries, random_queries
+from .reference import round_shift_sat
 from .errors import Ns2Error
 
 INT32_MAX = 2**31 - 1
@@ -205,16 +206,16 @@ def _frac_for(max_abs: float, headroom: float = HEADROOM) -> int:
 
 
 # ------------------------------------------------------------------ quantization
-def round_shift_sat_int(a: int, s: int) -> int:
-    if s > 0:
-        a = (a + (1 << (s - 1))) >> s
-    return max(-32768, min(32767, a))
+def pad4(n: int) -> int:
+    """n rounded up to a multiple of four: the C kernels work on blocks of four rows
+    and quads of inputs (zero-padded)."""
+    return (n + 3) // 4 * 4
 
 
 def quantize_layer(w: np.ndarray, b: np.ndarray, f_in: int, f_out_wanted: int,
                    in_lo: np.ndarray, in_hi: np.ndarray, relu: bool, name: str) -> QLayer:
     n_out, n_in = w.shape
-    in_pad = (n_in + 3) // 4 * 4
+    in_pad = pad4(n_in)
     amax = np.maximum(np.abs(in_lo), np.abs(in_hi)).astype(object)  # exact Python ints
     w64, b64 = w.astype(np.float64), b.astype(np.float64)
     wmax = float(np.abs(w64).max())
@@ -236,8 +237,8 @@ def quantize_layer(w: np.ndarray, b: np.ndarray, f_in: int, f_out_wanted: int,
         f_w -= 1
     lo_terms = np.minimum(wq * in_lo[None, :], wq * in_hi[None, :]).sum(1) + bq
     hi_terms = np.maximum(wq * in_lo[None, :], wq * in_hi[None, :]).sum(1) + bq
-    out_lo = np.array([round_shift_sat_int(int(a), shift) for a in lo_terms], np.int64)
-    out_hi = np.array([round_shift_sat_int(int(a), shift) for a in hi_terms], np.int64)
+    out_lo = round_shift_sat(np.asarray(lo_terms, np.int64), shift)
+    out_hi = round_shift_sat(np.asarray(hi_terms, np.int64), shift)
     if relu:
         out_lo, out_hi = np.maximum(out_lo, 0), np.maximum(out_hi, 0)
     wpad = np.zeros((n_out, in_pad), np.int16)
@@ -300,8 +301,8 @@ def quantize(m: ExportModel, calibration: Queries | None = None) -> Q15Model:
         h_bound = int(max(np.abs(h_lo).max(), np.abs(h_hi).max())) + half
         if h_bound > INT32_MAX:
             raise QuantizationError("latent sum can overflow int32")
-        rin_lo = np.array([round_shift_sat_int(int(a), sum_shift) for a in h_lo], np.int64)
-        rin_hi = np.array([round_shift_sat_int(int(a), sum_shift) for a in h_hi], np.int64)
+        rin_lo = round_shift_sat(np.asarray(h_lo, np.int64), sum_shift)
+        rin_hi = round_shift_sat(np.asarray(h_hi, np.int64), sum_shift)
         rho = [quantize_net(m.rho[r], f_rin, f_out, rin_lo, rin_hi, cal["rho"][r],
                             f"rho[{cfg.robot_types[r]}]") for r in range(m.num_robot_types)]
         got = min(net.layers[-1].f_out for net in rho)

@@ -108,6 +108,8 @@ def floor_shift(a: np.ndarray, s: int) -> np.ndarray:
 
 
 def round_shift_sat(a: np.ndarray, s: int) -> np.ndarray:
+    """sat16(floor((a + 2^(s-1)) / 2^s)) of int64 values, the C's rounding shift (round
+    half up); the quantizer's overflow proof uses it on its bounds too."""
     if s > 0:
         a = a + (1 << (s - 1))
         _check_int32(a, "rounding")

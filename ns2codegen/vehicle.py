@@ -9,7 +9,7 @@ import numpy as np
 
 from .config import Config
 
-G = 9.81
+G = 9.81  # m/s^2: the one value of g in Python (C: NS2_G_MPS2 in ns2_controller.h)
 
 
 @dataclass(frozen=True)

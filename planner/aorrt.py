@@ -8,7 +8,7 @@ the time step k and the cost c = sum ||u|| dt.  An extension samples x_rand
 uniformly in the state box (with f_a in [-f_a,max, f_a,max]) and c_rand in
 [0, c^(i)], picks the nearest node with a kd-tree (scipy cKDTree), samples u
 uniformly in the action box and propagates eq. (planning-discreteDynamics) for
-one fixed dt with the learned force.  Every ``goal_bias_every``-th sample is the
+one fixed dt with the learned force.  Every ``search.goal_bias_every``-th sample is the
 goal (goal biasing).  StateValid: the state box including |f_a,z-hat| <=
 f_a,max, the tight sphere collision r^(I(i) I(j)) against every planned robot
 (continuous over the step), and for every neighbour j its force with robot i at
@@ -27,16 +27,16 @@ forces) or re-planned.  Both solve crossings in which several robots must deviat
 which one-at-a-time planning cannot (each plan is made with the others' fixed).
 
 Stopping rules are counts, so a seed gives the same plan on every machine: an
-RRT run ends after ``max_samples`` samples or ``max_nodes`` nodes, Stage 1 after
+RRT run ends after ``search.max_samples`` samples or ``search.max_nodes`` nodes, Stage 1 after
 ``ao_iterations`` AO iterations (or ``ao_patience`` without improvement) once
 every robot has a path, and fails after ``max_rounds`` rounds in which some robot
-found none.  The wall-clock limits ``rrt_time_s`` and ``total_time_s`` are only a
+found none.  The wall-clock limits ``search.time_s`` and ``total_time_s`` are only a
 safety net against bad input that makes the counted work unexpectedly slow (a
-huge ``max_samples``, a pathological model); with the defaults they are not
+huge ``search.max_samples``, a pathological model); with the defaults they are not
 reached (a run that hits one says so in ``Stage1Result.hit_time_limit``, and its
 outcome then depends on the machine).
 
-For speed, ``batch`` candidate extensions share one nearest-neighbour query and
+For speed, ``search.batch`` candidate extensions share one nearest-neighbour query and
 one batched call of the learned model (the tree is at most one batch stale).
 """
 from __future__ import annotations
@@ -45,11 +45,10 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.spatial import cKDTree
-
 from .dynamics import Trajectory, accel, hold_arrays, segment_distance, step, substates
 from .forces import ForceModel
 from .joint import joint_rrt
+from .nearest import Nearest
 from .problem import PlanningError, Problem, RRTParams
 
 
@@ -209,7 +208,7 @@ class AORRT:
         if len(idx) == 0:
             return hard, fa_i, own, nbr
         kk, b, m = k[idx], len(idx), lim.fa_substeps
-        ps, vs = substates(p_prev[idx], v_prev[idx], a[idx], self.par.dt, m)     # [b, m-1, 3]
+        ps, vs = substates(p_prev[idx], v_prev[idx], a[idx], self.par.search.dt, m)     # [b, m-1, 3]
         P = np.concatenate([p[idx][:, None], ps], 1).reshape(-1, 3)
         V = np.concatenate([v[idx][:, None], vs], 1).reshape(-1, 3)
         q = np.tile(np.arange(m), b)
@@ -246,8 +245,8 @@ class AORRT:
 
     # ------------------------------------------------------------------ one RRT
     def _key(self, p, v, fa, c):
-        par = self.par
-        return np.column_stack([p[:, self.ax], par.w_v * v[:, self.ax], par.w_fa * fa[:, None], par.w_c * c[:, None]])
+        sp = self.par.search
+        return np.column_stack([p[:, self.ax], sp.w_v * v[:, self.ax], sp.w_fa * fa[:, None], sp.w_c * c[:, None]])
 
     def rrt(self, team: Team, i: int, c_bound: float, deadline: float, slack: float = 0.0,
             max_samples: int | None = None):
@@ -257,73 +256,91 @@ class AORRT:
         path's largest force excess in g).  A node is valid when the largest excess on
         its path from the root (``_excess``) is at most ``slack``: 0 for a true
         search, > 0 for the relaxed search of ``_relax``."""
-        par, lim, ax = self.par, self.pb.limits, self.ax
-        max_samples = par.max_samples if max_samples is None else max_samples
-        rng = self.rng
-        start, goal = self.pb.starts()[i], self.pb.goals()[i]
-        tree = Tree.alloc(par.max_nodes + par.batch)
-        fa0 = self._forces(team, i, np.array([0]), np.array([0]), start[None], np.zeros((1, 3)))[0][0, i]
-        tree.add(start[None], np.zeros((1, 3)), np.array([fa0]), np.array([0]), np.array([0.0]), np.array([-1]),
-                 np.zeros((1, 3)), np.array([-np.inf]))
-        keys = np.zeros((par.max_nodes + par.batch, len(ax) * 2 + 2))
-        keys[:1] = self._key(tree.p[:1], tree.v[:1], tree.fa[:1], tree.c[:1])
-        kd, built = None, 0
+        sp = self.par.search
+        max_samples = sp.max_samples if max_samples is None else max_samples
+        tree, keys = self._root(team, i)
+        nearest = Nearest(keys)
         n_samples = 0
-        na = len(ax)
-        while tree.n < par.max_nodes and n_samples < max_samples:
+        while tree.n < sp.max_nodes and n_samples < max_samples:
             if time.perf_counter() >= deadline:
                 self.hit_time_limit = True
                 break
-            b = par.batch
-            # UniformSample(X) in the state-cost space, with goal biasing
-            xr = np.zeros((b, 3))
-            xr[:, ax] = rng.uniform(self.lo[ax], self.hi[ax], (b, na))
-            vr = np.zeros((b, 3))
-            vr[:, ax] = rng.uniform(-lim.v_max, lim.v_max, (b, na))
-            far = rng.uniform(-self.fa_max[i] - slack, self.fa_max[i] + slack, b)
-            cr = rng.uniform(0.0, c_bound, b) if np.isfinite(c_bound) else np.zeros(b)
-            gb = (n_samples + np.arange(b)) % par.goal_bias_every == 0
-            xr[gb], vr[gb], far[gb], cr[gb] = goal, 0.0, 0.0, 0.0
-            n_samples += b
-            q = self._key(xr, vr, far, cr)
-            # FindClosest: kd-tree over the built nodes + brute force over the newest
-            if kd is None or tree.n - built > max(64, built // 4):
-                kd, built = cKDTree(keys[:tree.n]), tree.n
-            d_kd, near = kd.query(q)
-            if tree.n > built:
-                d_new = np.linalg.norm(q[:, None, :] - keys[None, built:tree.n], axis=2)
-                j = d_new.argmin(1)
-                closer = d_new[np.arange(b), j] < d_kd
-                near = np.where(closer, built + j, near)
-            # UniformSample(U) and Propagate for dt with the learned force
-            u = np.zeros((b, 3))
-            u[:, ax] = rng.uniform(-lim.u_max, lim.u_max, (b, na))
-            p_new, v_new = step(tree.p[near], tree.v[near], u, tree.fa[near], self.kappa[i], par.dt)
-            k_new = tree.k[near] + 1
-            c_new = tree.c[near] + np.linalg.norm(u, axis=1) * par.dt
-            a = accel(u, tree.fa[near], self.kappa[i])
-            hard, fa_new, own, nbr = self._excess(team, i, tree.k[near], tree.p[near], tree.v[near], a, k_new,
-                                                  p_new, v_new)
-            ex_new = np.maximum(tree.excess[near], np.maximum(own, nbr))
-            ok = hard & (ex_new <= slack) & (c_new < c_bound)
-            nbr_bad = hard & (own <= slack) & (nbr > slack)
-            for e in np.flatnonzero(nbr_bad)[:max(0, 3000 - len(tree.rejected))]:
-                tree.rejected.append((tree.p[near[e]].copy(), p_new[e].copy()))
-            sel = np.flatnonzero(ok)
-            if len(sel) == 0:
-                continue
-            idx = tree.add(p_new[sel], v_new[sel], fa_new[sel], k_new[sel], c_new[sel], near[sel], u[sel],
-                           ex_new[sel])
-            keys[idx] = self._key(p_new[sel], v_new[sel], fa_new[sel], c_new[sel])
-            at_goal = (np.linalg.norm(p_new[sel] - goal, axis=1) <= par.eps_p) & \
-                      (np.linalg.norm(v_new[sel], axis=1) <= par.eps_v)
-            for leaf in idx[at_goal][np.argsort(c_new[sel][at_goal])]:
-                tail = self._tail_excess(team, i, int(tree.k[leaf]), tree.p[leaf])
-                if tail <= slack:
-                    traj = tree.path(int(leaf))
-                    traj.dt = par.dt
-                    return traj, tree, n_samples, max(float(tree.excess[leaf]), tail)
+            q = self._sample(i, n_samples, c_bound, slack)
+            n_samples += sp.batch
+            idx = self._extend(team, i, tree, keys, nearest.query(q, tree.n), c_bound, slack)
+            found = self._reached(team, i, tree, idx, slack)
+            if found is not None:
+                return found[0], tree, n_samples, found[1]
         return None, tree, n_samples, np.inf
+
+    def _root(self, team: Team, i: int) -> tuple[Tree, np.ndarray]:
+        """A tree holding robot i's start (at rest, with its force among the planned
+        robots) and the array of its nodes' keys in the state-cost space."""
+        sp = self.par.search
+        start = self.pb.starts()[i]
+        tree = Tree.alloc(sp.max_nodes + sp.batch)
+        fa0 = self._forces(team, i, np.array([0]), np.array([0]), start[None], np.zeros((1, 3)))[0][0, i]
+        tree.add(start[None], np.zeros((1, 3)), np.array([fa0]), np.array([0]), np.array([0.0]), np.array([-1]),
+                 np.zeros((1, 3)), np.array([-np.inf]))
+        keys = np.zeros((sp.max_nodes + sp.batch, len(self.ax) * 2 + 2))
+        keys[:1] = self._key(tree.p[:1], tree.v[:1], tree.fa[:1], tree.c[:1])
+        return tree, keys
+
+    def _sample(self, i: int, drawn: int, c_bound: float, slack: float) -> np.ndarray:
+        """UniformSample(X) of one batch in the state-cost space (keys), with goal
+        biasing: every ``goal_bias_every``-th sample is the goal at rest."""
+        sp, lim, ax, rng = self.par.search, self.pb.limits, self.ax, self.rng
+        b, na = sp.batch, len(ax)
+        xr = np.zeros((b, 3))
+        xr[:, ax] = rng.uniform(self.lo[ax], self.hi[ax], (b, na))
+        vr = np.zeros((b, 3))
+        vr[:, ax] = rng.uniform(-lim.v_max, lim.v_max, (b, na))
+        far = rng.uniform(-self.fa_max[i] - slack, self.fa_max[i] + slack, b)
+        cr = rng.uniform(0.0, c_bound, b) if np.isfinite(c_bound) else np.zeros(b)
+        gb = (drawn + np.arange(b)) % sp.goal_bias_every == 0
+        xr[gb], vr[gb], far[gb], cr[gb] = self.pb.goals()[i], 0.0, 0.0, 0.0
+        return self._key(xr, vr, far, cr)
+
+    def _extend(self, team: Team, i: int, tree: Tree, keys: np.ndarray, near: np.ndarray, c_bound: float,
+                slack: float) -> np.ndarray:
+        """UniformSample(U) and Propagate for dt with the learned force from the nodes
+        ``near``; the new states that are valid (StateValid within ``slack``, cost
+        below ``c_bound``) join the tree.  Returns their node indices."""
+        sp, lim, ax = self.par.search, self.pb.limits, self.ax
+        u = np.zeros((len(near), 3))
+        u[:, ax] = self.rng.uniform(-lim.u_max, lim.u_max, (len(near), len(ax)))
+        p_new, v_new = step(tree.p[near], tree.v[near], u, tree.fa[near], self.kappa[i], sp.dt)
+        k_new = tree.k[near] + 1
+        c_new = tree.c[near] + np.linalg.norm(u, axis=1) * sp.dt
+        a = accel(u, tree.fa[near], self.kappa[i])
+        hard, fa_new, own, nbr = self._excess(team, i, tree.k[near], tree.p[near], tree.v[near], a, k_new,
+                                              p_new, v_new)
+        ex_new = np.maximum(tree.excess[near], np.maximum(own, nbr))
+        ok = hard & (ex_new <= slack) & (c_new < c_bound)
+        nbr_bad = hard & (own <= slack) & (nbr > slack)
+        for e in np.flatnonzero(nbr_bad)[:max(0, 3000 - len(tree.rejected))]:
+            tree.rejected.append((tree.p[near[e]].copy(), p_new[e].copy()))
+        sel = np.flatnonzero(ok)
+        if len(sel) == 0:
+            return sel
+        idx = tree.add(p_new[sel], v_new[sel], fa_new[sel], k_new[sel], c_new[sel], near[sel], u[sel], ex_new[sel])
+        keys[idx] = self._key(p_new[sel], v_new[sel], fa_new[sel], c_new[sel])
+        return idx
+
+    def _reached(self, team: Team, i: int, tree: Tree, idx: np.ndarray, slack: float):
+        """The cheapest of the new nodes ``idx`` in the goal region whose rest at the
+        goal (``_tail_excess``) fits the slack: (its path, the path's excess), or None."""
+        sp = self.par.search
+        goal = self.pb.goals()[i]
+        at_goal = (np.linalg.norm(tree.p[idx] - goal, axis=1) <= sp.eps_p) & \
+                  (np.linalg.norm(tree.v[idx], axis=1) <= sp.eps_v)
+        for leaf in idx[at_goal][np.argsort(tree.c[idx][at_goal])]:
+            tail = self._tail_excess(team, i, int(tree.k[leaf]), tree.p[leaf])
+            if tail <= slack:
+                traj = tree.path(int(leaf))
+                traj.dt = sp.dt
+                return traj, max(float(tree.excess[leaf]), tail)
+        return None
 
     # ------------------------------------------------------------------ AO-RRT
     def check_endpoints(self) -> None:
@@ -340,8 +357,8 @@ class AORRT:
         """Relax-and-repair for robot i, which has no valid path against the team: a
         path that exceeds the force bounds and trust regions as little as it can find
         (box, speed and collision stay hard).  The smallest slack s of
-        ``relax_levels_g`` with which RRT finds a path, then ``relax_refine`` searches
-        with the slack cut to ``relax_shrink`` times the best path's excess (a
+        ``relax.levels_g`` with which RRT finds a path, then ``relax.refine`` searches
+        with the slack cut to ``relax.shrink`` times the best path's excess (a
         decreasing bound, as AO-RRT does for the cost): a least-violating path keeps
         clear of the others as far as it can, so it leaves them room.  The path enters
         the team marked relaxed: the others then re-plan first (cost bounds reset) and
@@ -351,21 +368,20 @@ class AORRT:
         cannot solve a crossing in which both robots must deviate (two large robots in
         the yz plane need more than a metre of vertical gap: neither can open it alone).
         Returns the excess (g) of the path taken, or None."""
-        par = self.par
-        n_max = min(par.relax_samples, par.max_samples)
+        rp = self.par.relax
+        n_max = min(rp.samples, self.par.search.max_samples)
         best, excess = None, np.inf
-        for s in par.relax_levels_g:
+        for s in rp.levels_g:
             best, _, drawn, excess = self.rrt(team, i, np.inf, deadline, slack=float(s), max_samples=n_max)
             samples[i] += drawn
             if best is not None:
                 break
         if best is None:
             return None
-        for _ in range(par.relax_refine):
+        for _ in range(rp.refine):
             if excess <= 0.0:
                 break
-            traj, _, drawn, ex = self.rrt(team, i, np.inf, deadline, slack=par.relax_shrink * excess,
-                                          max_samples=n_max)
+            traj, _, drawn, ex = self.rrt(team, i, np.inf, deadline, slack=rp.shrink * excess, max_samples=n_max)
             samples[i] += drawn
             if traj is None:
                 break
@@ -373,25 +389,28 @@ class AORRT:
         team.set(i, best, self.fm, self.types, float(self.kappa[i]), relaxed=True)
         return float(excess)
 
-    def _joint(self, team: Team, costs: list, per_robot: list, deadline: float):
-        """The composite-state RRT of joint.py: up to ``joint_tries`` fresh trees (a
+    def _joint(self, st: "_Stage1State", deadline: float) -> bool:
+        """The composite-state RRT of joint.py: up to ``joint.tries`` fresh trees (a
         tree that filled up without reaching the goals is stuck in the composite space;
         a new one usually is not).  Its paths replace the team's (costs updated, the
-        time shared among the robots).  Returns (copies of the paths as found, or
-        None; samples drawn)."""
-        par, drawn, t0 = self.par, 0, time.perf_counter()
+        time shared among the robots; copies of them as found kept in ``st``).
+        Returns whether it found them."""
+        jp, t0 = self.par.joint, time.perf_counter()
         trajs = None
-        for _ in range(par.joint_tries):
-            trajs, d = joint_rrt(self, deadline, par.joint_samples, par.joint_nodes)
-            drawn += d
+        for _ in range(jp.tries):
+            trajs, drawn = joint_rrt(self, deadline, jp.samples, jp.nodes)
+            st.joint_samples += drawn
             if trajs is not None:
                 break
         for j, tr in enumerate(trajs or []):
-            team.set(j, tr, self.fm, self.types, float(self.kappa[j]))
-            costs[j] = tr.effort()
+            st.team.set(j, tr, self.fm, self.types, float(self.kappa[j]))
+            st.costs[j] = tr.effort()
         for j in range(self.pb.n):
-            per_robot[j] += (time.perf_counter() - t0) / self.pb.n
-        return (None if trajs is None else [tr.copy() for tr in trajs]), drawn
+            st.per_robot[j] += (time.perf_counter() - t0) / self.pb.n
+        st.joint_trajs = None if trajs is None else [tr.copy() for tr in trajs]
+        if trajs is not None:
+            st.joint_round = st.rounds
+        return trajs is not None
 
     def _promoted(self, team: Team, i: int) -> Trajectory | None:
         """A relaxed path of robot i that the others have made room for: the same
@@ -411,96 +430,137 @@ class AORRT:
         return Trajectory(tr.p.copy(), tr.v.copy(), fa, u, tr.dt)
 
     def run(self) -> Stage1Result:
+        """Rounds until TerminationCondition1 (see the module docstring)."""
         self.pb.validate()
         self.check_endpoints()
-        par, n = self.par, self.pb.n
-        for name in ("max_samples", "max_nodes", "max_rounds", "ao_iterations", "batch", "joint_samples",
-                     "joint_nodes"):
-            if not (isinstance(getattr(par, name), int) and getattr(par, name) >= 1):
-                raise PlanningError(f"RRT parameter {name} must be a positive integer, got {getattr(par, name)!r}")
-        if not (isinstance(par.joint_tries, int) and par.joint_tries >= 0):
-            raise PlanningError(f"RRT parameter joint_tries must be an integer >= 0, got {par.joint_tries!r}")
         t0 = time.perf_counter()
-        deadline_total = t0 + par.total_time_s
-        team = Team.empty(self.pb, par.max_steps)
-        costs = [np.inf] * n
-        trees = [None] * n
-        per_robot = [0.0] * n
-        samples = [0] * n
-        orders, accepts, relaxations, promotions = [], [], [], []
-        joint_tried, joint_round, joint_samples, joint_trajs = False, None, 0, None
-        since_improved = 0
-        it = ao_it = 0
-        while True:
-            order = self.rng.permutation(n)     # RandomShuffle
-            # robots without a valid path go last: the others first make room for them
-            order = np.array([i for i in order if not team.needs_path(i)] + [i for i in order if team.needs_path(i)],
-                             int)
-            orders.append(order.tolist())
-            improved = False
-            for i in order:
-                i = int(i)
-                ts = time.perf_counter()
-                deadline = min(ts + par.rrt_time_s, deadline_total)
-                traj, tree = (self._promoted(team, i) if team.relaxed[i] else None), None
-                if traj is not None:
-                    promotions.append((it, i))
-                else:
-                    traj, tree, drawn, _ = self.rrt(team, i, costs[i], deadline)
-                    samples[i] += drawn
-                if traj is not None:
-                    accepts.append((it, i, traj.effort(), team.P.copy(), team.V.copy(), team.FA.copy(),
-                                    team.relaxed.copy(), traj.copy()))
-                    costs[i] = traj.effort()     # c^(i) <- c (line cost_update)
-                    if tree is not None:
-                        trees[i] = tree.trimmed()
-                    team.set(i, traj, self.fm, self.types, float(self.kappa[i]))
-                    improved = True
-                elif team.needs_path(i) or team.over_limit(i, self.fa_max[i]):
-                    if not joint_tried and par.joint_tries > 0:
-                        # the first conflict: all robots at once (joint.py)
-                        joint_tried = True
-                        per_robot[i] += time.perf_counter() - ts
-                        joint_trajs, drawn = self._joint(team, costs, per_robot, deadline_total)
-                        joint_samples += drawn
-                        if joint_trajs is not None:
-                            joint_round, improved = it, True
-                            break
-                        ts = time.perf_counter()
-                    # no valid path, or a relaxed neighbour has pushed this robot's path over
-                    # its limit and no re-plan fits: it gives way as little as it can, too
-                    excess = self._relax(team, i, deadline, samples)
-                    if excess is not None:
-                        relaxations.append((it, i, excess))
-                        for j in range(n):      # the others may change homotopy class to make room
-                            costs[j] = np.inf
-                per_robot[i] += time.perf_counter() - ts
-            it += 1
-            missing = [i for i in range(n) if team.needs_path(i)]
-            since_improved = 0 if improved else since_improved + 1
-            out_of_time = time.perf_counter() >= deadline_total
-            self.hit_time_limit |= out_of_time
-            if missing:
-                ao_it = since_improved = 0
-                if out_of_time:
-                    raise PlanningError(
-                        f"no path found for robot(s) {missing} within the {par.total_time_s:.0f} s safety time limit "
-                        f"of Stage 1 (goal unreachable under the limits, or the machine far too slow)")
-                if it >= par.max_rounds:
-                    raise PlanningError(
-                        f"no path found for robot(s) {missing} in {par.max_rounds} rounds of at most "
-                        f"{par.max_samples} samples per robot (goal unreachable under the limits, or too few samples)")
-                continue
-            ao_it += 1
-            if ao_it >= par.ao_iterations or since_improved >= par.ao_patience or out_of_time:
-                break               # TerminationCondition1
+        deadline = t0 + self.par.total_time_s
+        st = _Stage1State.start(self.pb, self.par.search.max_steps)
+        while not self._finished(st, self._round(st, deadline), deadline):
+            pass
         # refresh every robot's forces jointly with the final team (they were stored
         # as they were at acceptance time)
-        for i, tr in enumerate(team.trajs):
-            tr.fa = team.FA[:tr.T + 1, i].copy()
-        return Stage1Result(list(team.trajs), costs, trees, orders, accepts, it, time.perf_counter() - t0, per_robot,
-                            samples, self.hit_time_limit, relaxations, promotions, joint_round, joint_samples,
-                            joint_trajs)
+        for i, tr in enumerate(st.team.trajs):
+            tr.fa = st.team.FA[:tr.T + 1, i].copy()
+        return Stage1Result(
+            trajs=list(st.team.trajs), costs=st.costs, trees=st.trees, order_history=st.orders,
+            accept_history=st.accepts, iterations=st.rounds, time_s=time.perf_counter() - t0,
+            time_per_robot_s=st.per_robot, samples_per_robot=st.samples, hit_time_limit=self.hit_time_limit,
+            relaxations=st.relaxations, promotions=st.promotions, joint_round=st.joint_round,
+            joint_samples=st.joint_samples, joint_trajs=st.joint_trajs)
+
+    def _round(self, st: "_Stage1State", deadline: float) -> bool:
+        """One round: every robot in a random permutation (RandomShuffle), those
+        without a valid path last (the others first make room for them).  Returns
+        whether some robot's path improved."""
+        team = st.team
+        order = self.rng.permutation(self.pb.n)
+        order = [int(i) for i in order if not team.needs_path(i)] + [int(i) for i in order if team.needs_path(i)]
+        st.orders.append(order)
+        improved = False
+        for i in order:
+            outcome = self._turn(st, i, deadline)
+            improved |= outcome is not None
+            if outcome == "joint":
+                break
+        st.rounds += 1
+        return improved
+
+    def _turn(self, st: "_Stage1State", i: int, deadline_total: float) -> str | None:
+        """Robot i's turn: its relaxed path promoted, or a cheaper path searched (lines
+        rrt..cost_update).  Without one, and without a valid path or over its limit
+        because a relaxed neighbour pushed it there: the composite-state search (once,
+        at the first conflict), else relax-and-repair (it gives way as little as it
+        can, too).  Returns "improved", "joint" (the whole team was planned at once:
+        the round ends) or None."""
+        ts = time.perf_counter()
+        deadline = min(ts + self.par.search.time_s, deadline_total)
+        outcome = "improved" if self._new_path(st, i, deadline) else None
+        if outcome is None and (st.team.needs_path(i) or st.team.over_limit(i, self.fa_max[i])):
+            if not st.joint_tried and self.par.joint.tries > 0:
+                st.joint_tried = True
+                st.per_robot[i] += time.perf_counter() - ts
+                if self._joint(st, deadline_total):
+                    return "joint"
+                ts = time.perf_counter()
+            excess = self._relax(st.team, i, deadline, st.samples)
+            if excess is not None:
+                st.relaxations.append((st.rounds, i, excess))
+                st.costs[:] = [np.inf] * self.pb.n     # the others may change homotopy class to make room
+        st.per_robot[i] += time.perf_counter() - ts
+        return outcome
+
+    def _new_path(self, st: "_Stage1State", i: int, deadline: float) -> bool:
+        """Robot i's relaxed path promoted or a path below its cost bound c^(i) found:
+        it joins the team and c^(i) <- its cost (line cost_update)."""
+        team = st.team
+        traj, tree = (self._promoted(team, i) if team.relaxed[i] else None), None
+        if traj is not None:
+            st.promotions.append((st.rounds, i))
+        else:
+            traj, tree, drawn, _ = self.rrt(team, i, st.costs[i], deadline)
+            st.samples[i] += drawn
+        if traj is None:
+            return False
+        st.accepts.append((st.rounds, i, traj.effort(), team.P.copy(), team.V.copy(), team.FA.copy(),
+                           team.relaxed.copy(), traj.copy()))
+        st.costs[i] = traj.effort()
+        if tree is not None:
+            st.trees[i] = tree.trimmed()
+        team.set(i, traj, self.fm, self.types, float(self.kappa[i]))
+        return True
+
+    def _finished(self, st: "_Stage1State", improved: bool, deadline: float) -> bool:
+        """TerminationCondition1 after a round: every robot has a valid path and the AO
+        iterations or the patience are used up (or the safety time is).  A robot still
+        without a path restarts the AO count and fails Stage 1 after ``max_rounds``
+        rounds or at the safety time limit."""
+        par = self.par
+        missing = [i for i in range(self.pb.n) if st.team.needs_path(i)]
+        st.since_improved = 0 if improved else st.since_improved + 1
+        out_of_time = time.perf_counter() >= deadline
+        self.hit_time_limit |= out_of_time
+        if missing:
+            st.ao_iterations = st.since_improved = 0
+            if out_of_time:
+                raise PlanningError(
+                    f"no path found for robot(s) {missing} within the {par.total_time_s:.0f} s safety time limit "
+                    f"of Stage 1 (goal unreachable under the limits, or the machine far too slow)")
+            if st.rounds >= par.max_rounds:
+                raise PlanningError(
+                    f"no path found for robot(s) {missing} in {par.max_rounds} rounds of at most "
+                    f"{par.search.max_samples} samples per robot (goal unreachable under the limits, or too few "
+                    f"samples)")
+            return False
+        st.ao_iterations += 1
+        return st.ao_iterations >= par.ao_iterations or st.since_improved >= par.ao_patience or out_of_time
+
+
+@dataclass
+class _Stage1State:
+    """Stage 1's bookkeeping across rounds: the team, every robot's cost bound, and
+    what Stage1Result reports."""
+    team: Team
+    costs: list
+    trees: list
+    per_robot: list
+    samples: list
+    orders: list = field(default_factory=list)
+    accepts: list = field(default_factory=list)
+    relaxations: list = field(default_factory=list)
+    promotions: list = field(default_factory=list)
+    joint_tried: bool = False
+    joint_round: int | None = None
+    joint_samples: int = 0
+    joint_trajs: list | None = None
+    rounds: int = 0
+    ao_iterations: int = 0          # AO iterations since every robot has a valid path
+    since_improved: int = 0
+
+    @staticmethod
+    def start(problem: Problem, H: int) -> "_Stage1State":
+        n = problem.n
+        return _Stage1State(Team.empty(problem, H), [np.inf] * n, [None] * n, [0.0] * n, [0] * n)
 
 
 def post_process(trajs: list, kappa: np.ndarray) -> list:

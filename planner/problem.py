@@ -7,14 +7,15 @@ are 3-D world vectors; only the active ``axes`` are sampled and optimized.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from ns2codegen.config import Config
 from ns2codegen.errors import Ns2Error
+from ns2codegen.vehicle import G
 
-G = 9.81
 GRAMS_TO_N = G / 1000.0
 
 
@@ -30,6 +31,24 @@ class Robot:
     goal: tuple               # p_f (m), v_f = 0
 
 
+def _require(owner: str, obj, ints=(), counts=(), positive=(), nonneg=()) -> None:
+    """Refuse bad parameters where they are constructed (PlanningError naming the field):
+    ``ints`` positive integers, ``counts`` integers >= 0, ``positive`` finite numbers > 0,
+    ``nonneg`` finite numbers >= 0."""
+    def bad(name, what):
+        raise PlanningError(f"{owner} parameter {name} must be {what}, got {getattr(obj, name)!r}")
+
+    for name in ints + counts:
+        v = getattr(obj, name)
+        if not (isinstance(v, int) and not isinstance(v, bool) and v >= (1 if name in ints else 0)):
+            bad(name, "a positive integer" if name in ints else "an integer >= 0")
+    for name in positive + nonneg:
+        v = getattr(obj, name)
+        if not (isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+                and (v > 0 if name in positive else v >= 0)):
+            bad(name, "a finite number > 0" if name in positive else "a finite number >= 0")
+
+
 @dataclass(frozen=True)
 class Limits:
     """The sets X^{I(i)} and U^{I(i)} of eq. (motion-planning), per robot type."""
@@ -43,15 +62,29 @@ class Limits:
     clearance_m: float = 0.0                 # added to the tight collision distance of every pair (see r_pair)
     fa_margin_g: float = 0.0                 # g of f_a,max the planner keeps free for model error (see fa_plan)
 
+    def __post_init__(self):
+        if not all(isinstance(x, (int, float)) and x > 0 for x in (self.v_max, self.u_max, self.b_fa_g)):
+            raise PlanningError(f"infeasible limits: v_max, u_max and b_fa_g must be positive, got "
+                                f"{self.v_max!r}, {self.u_max!r}, {self.b_fa_g!r}")
+        _require("limit", self, ints=("fa_substeps",), nonneg=("clearance_m", "fa_margin_g"))
+        if not (len(self.pos_lo) == 3 and len(self.pos_hi) == 3):
+            raise PlanningError(f"the state box needs 3-D pos_lo and pos_hi, got {self.pos_lo} .. {self.pos_hi}")
+        bad = {t: f for t, f in self.fa_max_g.items() if not (isinstance(f, (int, float)) and f > 0)}
+        if bad:
+            raise PlanningError(f"infeasible limits: f_a,max must be positive, got {bad}")
+        tight = {t: f - self.fa_margin_g for t, f in self.fa_max_g.items() if f - self.fa_margin_g <= 0}
+        if tight:
+            raise PlanningError(f"infeasible limits: f_a,max - fa_margin_g must be positive, got {tight}")
+
 
 MAX_SAMPLES = 40000
 
 
 @dataclass(frozen=True)
-class RRTParams:
-    """Stage 1 (AO-RRT) parameters.  Every loop stops on a count (samples, nodes,
-    rounds, iterations), so the same seed gives the same plan on any machine; the
-    two time limits are a safety net only (see aorrt.py)."""
+class SearchParams:
+    """One RRT search: a robot's tree in AORRT.rrt, the team's in joint.py.  Every
+    loop stops on a count (samples, nodes), so the same seed gives the same plan on
+    any machine; ``time_s`` is a safety net only (see aorrt.py)."""
     dt: float = 0.1                 # s, fixed propagation step (also Stage 2's step)
     max_steps: int = 100            # horizon H: no plan longer than H dt
     goal_bias_every: int = 10       # every k-th sample is the goal (goal biasing)
@@ -60,22 +93,57 @@ class RRTParams:
     batch: int = 32                 # candidates propagated per batched model call
     max_nodes: int = 6000           # per tree
     max_samples: int = MAX_SAMPLES  # per RRT run (one robot, one cost bound): the primary stopping rule
-    max_rounds: int = 20            # Stage 1 fails after this many rounds with a robot still without a path
-    relax_levels_g: tuple = (2.0, 4.0, 8.0, 16.0, 32.0)   # relax-and-repair slacks (g), tried in turn
-    relax_samples: int = MAX_SAMPLES // 4   # per relaxed RRT run
-    relax_refine: int = 3           # searches for a less violating relaxed path (slack cut each time)
-    relax_shrink: float = 0.6       # the next slack is this times the best relaxed path's force excess
-    joint_tries: int = 4            # composite-state RRT (joint.py) at the first conflict: fresh trees, 0: off
-    joint_samples: int = 100000     # per composite-state tree
-    joint_nodes: int = 20000
-    ao_iterations: int = 3          # AO-RRT outer iterations (cost bound decreases)
-    ao_patience: int = 1            # stop after this many iterations without improvement
-    rrt_time_s: float = 60.0        # safety net per RRT run (wall clock)
-    total_time_s: float = 300.0     # safety net for Stage 1 of the whole team (wall clock)
     w_v: float = 0.4                # s: velocity weight of the nearest-neighbour metric
     w_fa: float = 0.01              # m/g: force weight of the metric
     w_c: float = 0.1                # cost weight of the metric (AO-RRT state-cost space)
+    time_s: float = 60.0            # safety net per RRT run (wall clock)
+
+    def __post_init__(self):
+        _require("RRT", self, ints=("max_steps", "goal_bias_every", "batch", "max_nodes", "max_samples"),
+                 positive=("dt", "eps_p", "eps_v", "time_s"), nonneg=("w_v", "w_fa", "w_c"))
+
+
+@dataclass(frozen=True)
+class RelaxParams:
+    """Relax-and-repair (AORRT._relax): the slacks tried in turn and the refinement."""
+    levels_g: tuple = (2.0, 4.0, 8.0, 16.0, 32.0)   # relaxed force bounds (g), tried in turn
+    samples: int = MAX_SAMPLES // 4  # per relaxed RRT run (at most the search's max_samples)
+    refine: int = 3                  # searches for a less violating relaxed path (slack cut each time)
+    shrink: float = 0.6              # the next slack is this times the best relaxed path's force excess
+
+    def __post_init__(self):
+        _require("relax", self, ints=("samples",), counts=("refine",), positive=("shrink",))
+        if not all(isinstance(s, (int, float)) and s > 0 for s in self.levels_g):
+            raise PlanningError(f"relax parameter levels_g must be positive slacks, got {self.levels_g!r}")
+
+
+@dataclass(frozen=True)
+class JointParams:
+    """The composite-state RRT of joint.py, tried at the first conflict."""
+    tries: int = 4                  # fresh trees (0: off)
+    samples: int = 100000           # per composite-state tree
+    nodes: int = 20000
+
+    def __post_init__(self):
+        _require("joint", self, ints=("samples", "nodes"), counts=("tries",))
+
+
+@dataclass(frozen=True)
+class RRTParams:
+    """Stage 1 (AO-RRT) parameters: the outer loop's here, each part's in its group.
+    Every loop stops on a count (samples, nodes, rounds, iterations), so the same seed
+    gives the same plan on any machine; the two time limits are a safety net only."""
+    search: SearchParams = SearchParams()
+    relax: RelaxParams = RelaxParams()
+    joint: JointParams = JointParams()
+    max_rounds: int = 20            # Stage 1 fails after this many rounds with a robot still without a path
+    ao_iterations: int = 3          # AO-RRT outer iterations (cost bound decreases)
+    ao_patience: int = 1            # stop after this many iterations without improvement
+    total_time_s: float = 300.0     # safety net for Stage 1 of the whole team (wall clock)
     seed: int = 0
+
+    def __post_init__(self):
+        _require("RRT", self, ints=("max_rounds", "ao_iterations", "ao_patience"), positive=("total_time_s",))
 
 
 @dataclass(frozen=True)
@@ -94,6 +162,11 @@ class SCPParams:
     time_limit_s: float = 60.0
     solver: str = "CLARABEL"
     seed: int = 0
+
+    def __post_init__(self):
+        _require("SCP", self, ints=("max_iterations",), counts=("max_shrinks",),
+                 positive=("lambda_goal", "lambda_box", "lambda_defect", "b_p", "b_v", "b_u", "tol", "time_limit_s"),
+                 nonneg=("collision_margin",))
 
 
 @dataclass
@@ -150,27 +223,14 @@ class Problem:
         return np.array(self.limits.pos_lo, float), np.array(self.limits.pos_hi, float)
 
     def validate(self) -> None:
-        """Bad input gives a clear message (PlanningError), never a hang."""
-        lim = self.limits
+        """Bad input gives a clear message (PlanningError), never a hang: what depends on
+        the robots and the config (the parameters check themselves when constructed)."""
         if self.n < 1:
             raise PlanningError("no robots to plan for")
         unknown = [r.type for r in self.robots if r.type not in self.cfg.robot_types]
         if unknown:
             raise PlanningError(f"unknown robot types {unknown}; the config has {self.cfg.robot_types}")
-        if not (lim.v_max > 0 and lim.u_max > 0 and lim.b_fa_g > 0):
-            raise PlanningError("infeasible limits: v_max, u_max and b_fa must be positive")
-        if not (np.isfinite(lim.fa_margin_g) and lim.fa_margin_g >= 0):
-            raise PlanningError(f"fa_margin_g must be >= 0, got {lim.fa_margin_g}")
-        if not np.all(self.fa_plan() > 0):
-            raise PlanningError(f"infeasible limits: f_a,max - fa_margin_g must be positive, got "
-                                f"{self.fa_plan().tolist()}")
-        if not (np.isfinite(lim.clearance_m) and lim.clearance_m >= 0):
-            raise PlanningError(f"clearance_m must be >= 0, got {lim.clearance_m}")
-        if not (isinstance(lim.fa_substeps, int) and lim.fa_substeps >= 1):
-            raise PlanningError("fa_substeps must be a positive integer")
-        fa_max = self.fa_max()
-        if not np.all(fa_max > 0):
-            raise PlanningError(f"infeasible limits: f_a,max must be positive, got {fa_max.tolist()}")
+        self.fa_max()               # every type has a limit (the values are checked by Limits)
         lo, hi = self.box()
         if not np.all(lo[list(self.axes)] < hi[list(self.axes)]):
             raise PlanningError(f"empty state box {lo.tolist()} .. {hi.tolist()}")

@@ -86,94 +86,137 @@ def merit(pb: Problem, fm: ForceModel, trajs: list, par: SCPParams) -> tuple[flo
 def solve_cp(pb: Problem, fm: ForceModel, trajs: list, i: int, par: SCPParams, rho: float,
              time_limit: float) -> Trajectory | None:
     """SolveCP: eq. (scp) for robot i around the current team solution."""
-    tr = trajs[i]
-    T, dt = tr.T, tr.dt
-    ax = list(pb.axes)
-    d = len(ax)
-    zc = ax.index(2)
-    types = pb.type_index()
-    P, V = _team_arrays(trajs)
-    F, dP, dV = fm.jacobians(types, P, V, i)
-    kappa, fa_max, r = pb.kappa()[i], pb.fa_plan(), pb.r_pair()
-    lo, hi = pb.box()
-    lim = pb.limits
-    pbar, vbar, ubar = tr.p[:, ax], tr.v[:, ax], tr.u[:, ax]
+    prog = _Program(pb, fm, trajs, i, par, rho)
+    cons = prog.own_constraints()
+    for j in range(pb.n):
+        if j != i:
+            cons += prog.pair_constraints(j)
+    ax, T = prog.ax, prog.T
+    goal = cp.hstack([prog.p[T] - pb.goals()[i, ax], prog.v[T]])
+    obj = cp.sum_squares(prog.u) + par.lambda_goal * cp.norm(goal, "inf") + par.lambda_box * prog.delta
+    problem = cp.Problem(cp.Minimize(obj), cons)
+    try:
+        kw = {"time_limit": max(time_limit, 0.1)} if par.solver == "CLARABEL" else {}
+        problem.solve(solver=par.solver, **kw)
+    except cp.error.SolverError:
+        return None
+    if problem.status not in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE) or prog.p.value is None:
+        return None
+    out = trajs[i].copy()
+    out.p[:, ax], out.v[:, ax], out.u[:, ax] = prog.p.value, prog.v.value, prog.u.value
+    out.fa = np.asarray(prog.fa.value, float)
+    return out
 
-    p, v = cp.Variable((T + 1, d)), cp.Variable((T + 1, d))
-    fa, u, delta = cp.Variable(T + 1), cp.Variable((T, d)), cp.Variable(nonneg=True)
-    dp, dv = p - pbar, v - vbar
 
-    def rowdot(J, X):
+class _Program:
+    """The variables of eq. (scp) for robot i (p, v, f_a,z-hat, u on the active axes,
+    the box slack delta), the learned forces linearized around the team solution (at
+    the knots and at the points inside the steps), and the constraints in two groups:
+    robot i's own and those of each pair (i, j)."""
+
+    def __init__(self, pb: Problem, fm: ForceModel, trajs: list, i: int, par: SCPParams, rho: float):
+        tr = trajs[i]
+        self.pb, self.i, self.par, self.rho = pb, i, par, rho
+        self.T, self.dt = tr.T, tr.dt
+        self.ax = list(pb.axes)
+        self.d = len(self.ax)
+        types = pb.type_index()
+        self.P, V = _team_arrays(trajs)
+        self.F, self.dP, self.dV = fm.jacobians(types, self.P, V, i)
+        self.kappa, self.fa_max, self.r = pb.kappa()[i], pb.fa_plan(), pb.r_pair()
+        T, d, ax = self.T, self.d, self.ax
+        self.pbar, self.vbar, self.ubar = tr.p[:, ax], tr.v[:, ax], tr.u[:, ax]
+        self.p, self.v = cp.Variable((T + 1, d)), cp.Variable((T + 1, d))
+        self.fa, self.u, self.delta = cp.Variable(T + 1), cp.Variable((T, d)), cp.Variable(nonneg=True)
+        self.dp, self.dv = self.p - self.pbar, self.v - self.vbar
+        self.subs = self._substeps(fm, trajs, types)
+
+    def _substeps(self, fm, trajs, types) -> list:
+        """The points inside every step (dynamics.substates), affine in the variables:
+        (rows of the substate arrays, p - p_bar there, v - v_bar there) per point."""
+        m, T, i, ax = self.pb.limits.fa_substeps, self.T, self.i, self.ax
+        ez = np.zeros((1, self.d))
+        ez[0, ax.index(2)] = self.kappa
+        acc = self.u + cp.reshape(self.fa[:-1], (T, 1), order="F") @ ez
+        subs = []
+        if m > 1:
+            self.Ps, Vs = team_substates(trajs, self.pb.kappa(), m)
+            self.Fs, self.dPs, self.dVs = fm.jacobians(types, self.Ps, Vs, i)
+            for q in range(1, m):
+                sq, rows = q / m * self.dt, slice(q - 1, None, m - 1)
+                pq = self.p[:-1] + sq * self.v[:-1] + 0.5 * sq * sq * acc
+                vq = self.v[:-1] + sq * acc
+                subs.append((rows, pq - self.Ps[rows, i][:, ax], vq - Vs[rows, i][:, ax]))
+        return subs
+
+    def rowdot(self, J, X):
         """Rows of J [R, d] dotted with the rows of the expression X [R, d]: a sparse
         matrix times vec(X) (fast to canonicalize)."""
-        R = J.shape[0]
+        R, d = J.shape[0], self.d
         cols = (np.arange(d)[None, :] * R + np.arange(R)[:, None]).ravel()
         M = sparse.csr_matrix((J.ravel(), (np.repeat(np.arange(R), d), cols)), shape=(R, R * d))
         return M @ cp.vec(X, order="F")
 
-    def lin(j, jp=dP, jv=dV, rows=slice(None), dp=dp, dv=dv):
-        """Linearized change of robot j's force caused by robot i's (p, v)."""
-        return rowdot(jp[j][rows][:, ax], dp) + rowdot(jv[j][rows][:, ax], dv)
+    def lin(self, j, jp=None, jv=None, rows=slice(None), dp=None, dv=None):
+        """Linearized change of robot j's force caused by robot i's (p, v) (at the knots
+        unless the substep Jacobians, rows and deviations are given)."""
+        jp = self.dP if jp is None else jp
+        jv = self.dV if jv is None else jv
+        dp = self.dp if dp is None else dp
+        dv = self.dv if dv is None else dv
+        return self.rowdot(jp[j][rows][:, self.ax], dp) + self.rowdot(jv[j][rows][:, self.ax], dv)
 
-    # the points inside every step (dynamics.substates), affine in the variables
-    m = lim.fa_substeps
-    ez = np.zeros((1, d))
-    ez[0, zc] = kappa
-    acc = u + cp.reshape(fa[:-1], (T, 1), order="F") @ ez
-    subs = []
-    if m > 1:
-        Ps, Vs = team_substates(trajs, pb.kappa(), m)
-        Fs, dPs, dVs = fm.jacobians(types, Ps, Vs, i)
-        for q in range(1, m):
-            sq, rows = q / m * dt, slice(q - 1, None, m - 1)
-            pq = p[:-1] + sq * v[:-1] + 0.5 * sq * sq * acc
-            vq = v[:-1] + sq * acc
-            subs.append((rows, pq - Ps[rows, i][:, ax], vq - Vs[rows, i][:, ax]))
+    def slack(self, shape):
+        """delta spread over a shape (a broadcast scalar variable is slow to canonicalize)."""
+        return np.ones(shape) * self.delta
 
-    def slack(shape):   # delta spread over a shape (a broadcast scalar variable is slow to canonicalize)
-        return np.ones(shape) * delta
+    def own_constraints(self) -> list:
+        """Start, force linearization, own force limit inside the steps, dynamics, the
+        action box, the state box widened by delta, and the trust regions."""
+        pb, i, T, d, ax, dt = self.pb, self.i, self.T, self.d, self.ax, self.dt
+        p, v, fa, u, lim, par = self.p, self.v, self.fa, self.u, pb.limits, self.par
+        lo, hi = pb.box()
+        fa_max = self.fa_max[i]
+        cons = [p[0] == pb.starts()[i, ax], v[0] == 0.0, fa == self.F[:, i] + self.lin(i)]
+        for rows, dpq, dvq in self.subs:
+            cons.append(cp.abs(self.Fs[rows, i] + self.lin(i, self.dPs, self.dVs, rows, dpq, dvq))
+                        <= fa_max + self.slack(T))
+        zc = ax.index(2)
+        for c in range(d):
+            a = u[:, c] + self.kappa * fa[:-1] if c == zc else u[:, c]
+            cons += [v[1:, c] == v[:-1, c] + a * dt, p[1:, c] == p[:-1, c] + v[:-1, c] * dt + 0.5 * dt * dt * a]
+        return cons + [
+            cp.abs(u) <= lim.u_max,
+            p >= np.tile(lo[ax], (T + 1, 1)) - self.slack((T + 1, d)),
+            p <= np.tile(hi[ax], (T + 1, 1)) + self.slack((T + 1, d)),
+            cp.abs(v) <= lim.v_max + self.slack((T + 1, d)), cp.abs(fa) <= fa_max + self.slack(T + 1),
+            cp.abs(self.dp) <= self.rho * par.b_p, cp.abs(self.dv) <= self.rho * par.b_v,
+            cp.abs(u - self.ubar) <= self.rho * par.b_u]
 
-    cons = [p[0] == pb.starts()[i, ax], v[0] == 0.0, fa == F[:, i] + lin(i)]
-    for rows, dpq, dvq in subs:     # the robot's own force limit inside the steps
-        cons.append(cp.abs(Fs[rows, i] + lin(i, dPs, dVs, rows, dpq, dvq)) <= fa_max[i] + slack(T))
-    for c in range(d):
-        a = u[:, c] + kappa * fa[:-1] if c == zc else u[:, c]
-        cons += [v[1:, c] == v[:-1, c] + a * dt, p[1:, c] == p[:-1, c] + v[:-1, c] * dt + 0.5 * dt * dt * a]
-    cons += [cp.abs(u) <= lim.u_max,
-             p >= np.tile(lo[ax], (T + 1, 1)) - slack((T + 1, d)), p <= np.tile(hi[ax], (T + 1, 1)) + slack((T + 1, d)),
-             cp.abs(v) <= lim.v_max + slack((T + 1, d)), cp.abs(fa) <= fa_max[i] + slack(T + 1),
-             cp.abs(dp) <= rho * par.b_p, cp.abs(dv) <= rho * par.b_v, cp.abs(u - ubar) <= rho * par.b_u]
-    for j in range(pb.n):
-        if j == i:
-            continue
-        # at the knots and at the points inside the steps (a fast crossing cuts corners)
-        for ref_i, ref_j, d_pos in [(P[:, i], P[:, j], dp)] + [(Ps[rows, i], Ps[rows, j], dpq) for rows, dpq, _ in subs]:
+    def pair_constraints(self, j: int) -> list:
+        """The convexified collision constraint with robot j at the knots and at the
+        points inside the steps (a fast crossing cuts corners), and robot j's force
+        (limit and trust region b_fa) as robot i moves."""
+        i, ax, r, par, lim, T = self.i, self.ax, self.r, self.par, self.pb.limits, self.T
+        cons = []
+        refs = [(self.P[:, i], self.P[:, j], self.dp)]
+        refs += [(self.Ps[rows, i], self.Ps[rows, j], dpq) for rows, dpq, _ in self.subs]
+        for ref_i, ref_j, d_pos in refs:
             rel = ref_i - ref_j
             dist = np.linalg.norm(rel, axis=1)
             ks = np.flatnonzero(dist < r[i, j] + 2.0 * par.b_p + 0.3)
             if len(ks):     # <n, p_i - p_j> with p_i - p_j = (p_i - p_bar_i) + (p_bar_i - p_j)
                 nrm = rel[ks][:, ax] / np.maximum(dist[ks], 1e-9)[:, None]
-                cons.append(cp.sum(cp.multiply(nrm, d_pos[ks] + rel[ks][:, ax]), axis=1) >= r[i, j] + par.collision_margin)
-        if np.any(dP[j]) or np.any(dV[j]):
-            cons += [cp.abs(lin(j)) <= lim.b_fa_g, cp.abs(F[:, j] + lin(j)) <= fa_max[j] + slack(T + 1)]
-        for rows, dpq, dvq in subs:
-            if np.any(dPs[j][rows]) or np.any(dVs[j][rows]):
-                cj = lin(j, dPs, dVs, rows, dpq, dvq)
-                cons += [cp.abs(cj) <= lim.b_fa_g, cp.abs(Fs[rows, j] + cj) <= fa_max[j] + slack(T)]
-    goal = cp.hstack([p[T] - pb.goals()[i, ax], v[T]])
-    obj = cp.sum_squares(u) + par.lambda_goal * cp.norm(goal, "inf") + par.lambda_box * delta
-    prob = cp.Problem(cp.Minimize(obj), cons)
-    try:
-        kw = {"time_limit": max(time_limit, 0.1)} if par.solver == "CLARABEL" else {}
-        prob.solve(solver=par.solver, **kw)
-    except cp.error.SolverError:
-        return None
-    if prob.status not in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE) or p.value is None:
-        return None
-    out = tr.copy()
-    out.p[:, ax], out.v[:, ax], out.u[:, ax] = p.value, v.value, u.value
-    out.fa = np.asarray(fa.value, float)
-    return out
+                cons.append(cp.sum(cp.multiply(nrm, d_pos[ks] + rel[ks][:, ax]), axis=1)
+                            >= r[i, j] + par.collision_margin)
+        if np.any(self.dP[j]) or np.any(self.dV[j]):
+            cons += [cp.abs(self.lin(j)) <= lim.b_fa_g,
+                     cp.abs(self.F[:, j] + self.lin(j)) <= self.fa_max[j] + self.slack(T + 1)]
+        for rows, dpq, dvq in self.subs:
+            if np.any(self.dPs[j][rows]) or np.any(self.dVs[j][rows]):
+                cj = self.lin(j, self.dPs, self.dVs, rows, dpq, dvq)
+                cons += [cp.abs(cj) <= lim.b_fa_g, cp.abs(self.Fs[rows, j] + cj) <= self.fa_max[j] + self.slack(T)]
+        return cons
 
 
 def scp(pb: Problem, fm: ForceModel, trajs: list, par: SCPParams = SCPParams()) -> SCPResult:

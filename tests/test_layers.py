@@ -94,3 +94,31 @@ def _write(tmp_path: Path, src: str) -> Path:
     f = tmp_path / "x.py"
     f.write_text(src)
     return f
+
+
+def test_planner_functions_are_short():
+    """No function of the planner over about 60 lines (its parameters are grouped by the
+    stage that reads them, its loops split into named steps)."""
+    long = []
+    for path in sorted((REPO / "planner").glob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)) and node.end_lineno - node.lineno >= 60:
+                long.append(f"{path.name}:{node.lineno} {node.name} ({node.end_lineno - node.lineno + 1} lines)")
+    assert not long, long
+
+
+def test_gravity_has_one_value():
+    """g: one Python constant (ns2codegen.vehicle.G, imported everywhere else) and one C
+    macro (NS2_G_MPS2 in ns2_controller.h, used by the controller, the app and the
+    simulator's kernel), equal."""
+    import re
+
+    from ns2codegen.vehicle import G
+
+    header = (REPO / "firmware/include/ns2_controller.h").read_text()
+    assert float(re.search(r"#define NS2_G_MPS2 ([0-9.]+)\n", header).group(1)) == G
+    literal = re.compile(r"(?<![\w.])9\.81(?![\d])")
+    places = [p for p in [*REPO.glob("ns2codegen/**/*.py"), *REPO.glob("host/**/*.py"), *REPO.glob("planner/*.py"),
+                          *REPO.glob("experiments/*.py"), *REPO.glob("firmware/**/*.c"), *REPO.glob("host/*.c")]
+              if literal.search(p.read_text())]
+    assert sorted(p.relative_to(REPO).as_posix() for p in places) == ["ns2codegen/vehicle.py"], places

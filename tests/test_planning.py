@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import time
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -13,11 +14,13 @@ from ns2plan.aorrt import AORRT, post_process
 from ns2plan.dynamics import hold_arrays, step, team_substates
 from ns2plan.forces import ForceModel, single_thread
 from ns2plan.output import MAX_PIECES, POLY4D_BYTES, eval_pieces, poly4d_bytes, read_poly4d, write_plan
-from ns2plan.problem import Limits, PlanningError, Problem, Robot, RRTParams, SCPParams
+from ns2plan.problem import (JointParams, Limits, PlanningError, Problem, RelaxParams, Robot, RRTParams, SCPParams,
+                             SearchParams)
 from ns2plan.scp import scp
 from ns2plan.verify import check_solution
 
-RRT = RRTParams(max_nodes=4000, max_samples=30000, ao_iterations=2, seed=3, joint_tries=0)   # the paper's Stage 1
+RRT = RRTParams(SearchParams(max_nodes=4000, max_samples=30000), joint=JointParams(tries=0), ao_iterations=2,
+                seed=3)   # the paper's Stage 1
 SWAP_SL = [Robot("small", (0.0, -0.4, 1.0), (0.0, 0.4, 1.0)), Robot("large", (0.0, 0.4, 1.0), (0.0, -0.4, 1.0))]
 LIMITS = Limits(pos_lo=(0.0, -0.9, 0.3), pos_hi=(0.0, 0.9, 2.0))
 
@@ -104,7 +107,7 @@ def _check_joint_paths(pb, fm, trajs, par):
 
 def test_stage1_path_respects_every_validity_rule(cfg, fm, stage1):
     pb, res = stage1
-    lim, par = pb.limits, RRT
+    lim, par = pb.limits, RRT.search
     r, fa_max, kappa = pb.r_pair(), pb.fa_max(), pb.kappa()
     lo, hi = pb.box()
     types = pb.type_index()
@@ -238,8 +241,8 @@ def test_homotopy_keeps_small_robot_out_from_under_the_large_one(cfg):
     below = []
     for seed in range(4):
         with single_thread():
-            s1 = AORRT(pb, ForceModel(cfg, None), RRTParams(max_nodes=4000, ao_iterations=1, seed=seed,
-                                                            joint_tries=0)).run()
+            s1 = AORRT(pb, ForceModel(cfg, None), RRTParams(SearchParams(max_nodes=4000), joint=JointParams(tries=0),
+                                                            ao_iterations=1, seed=seed)).run()
         below.append(_crossing_z(s1.trajs)[0] < 0)
     assert any(below), below
 
@@ -257,10 +260,11 @@ def test_relax_and_repair_solves_a_crossing_that_needs_both_robots_to_deviate(cf
     fm = ForceModel(cfg, StrongDownwash(cfg, large_g=30.0, decay=0.5))   # 10 g under a large robot at 0.55 m
     P = np.array([[[0, 0, 1.0], [0, 0, 1.55]]])
     assert fm.team_np(pb.type_index(), P, np.zeros_like(P))[0, 0] == pytest.approx(-10.0, abs=0.2)
-    par = RRTParams(max_nodes=4000, max_samples=20000, max_rounds=6, ao_iterations=1, seed=5, joint_tries=0)
+    par = RRTParams(SearchParams(max_nodes=4000, max_samples=20000), joint=JointParams(tries=0), max_rounds=6,
+                    ao_iterations=1, seed=5)
     with single_thread():
         with pytest.raises(PlanningError, match="no path found"):
-            AORRT(pb, fm, RRTParams(**{**par.__dict__, "relax_levels_g": ()})).run()
+            AORRT(pb, fm, replace(par, relax=RelaxParams(levels_g=()))).run()
         res = AORRT(pb, fm, par).run()
     assert res.relaxations              # the relaxed path was needed
     _assert_team_within_limits(pb, fm, res.trajs)
@@ -271,7 +275,7 @@ def test_relax_and_repair_solves_a_crossing_that_needs_both_robots_to_deviate(cf
     k = int(np.abs(P[:, 0, 1] - P[:, 1, 1]).argmin())
     assert P[k, :, 2].max() > 1.05 and P[k, :, 2].min() < 0.95   # ... because both left z = 1
     for it, i, cost, P0, V0, FA0, relaxed0, tr in res.accept_history:
-        p1, v1 = step(tr.p[:-1], tr.v[:-1], tr.u, tr.fa[:-1], pb.kappa()[i], par.dt)
+        p1, v1 = step(tr.p[:-1], tr.v[:-1], tr.u, tr.fa[:-1], pb.kappa()[i], par.search.dt)
         np.testing.assert_allclose(tr.p[1:], p1, atol=1e-9)      # promoted paths: dynamics exact
         assert np.abs(tr.u).max() <= lim.u_max + 1e-9
 
@@ -286,13 +290,13 @@ def test_joint_search_solves_an_exchange_that_sequential_planning_cannot(cfg):
                        Robot("large", (0.0, 0.0, 1.0), (0.0, 0.4, 1.0)),
                        Robot("large", (0.0, 0.4, 1.0), (0.0, -0.4, 1.0))], LIMITS)
     fm = ForceModel(cfg, StrongDownwash(cfg, large_g=30.0, decay=0.7))   # 10 g under a large robot at 0.77 m
-    par = RRTParams(max_nodes=4000, max_samples=20000, max_rounds=4, ao_iterations=1, seed=3)
+    par = RRTParams(SearchParams(max_nodes=4000, max_samples=20000), max_rounds=4, ao_iterations=1, seed=3)
     with single_thread():
         with pytest.raises(PlanningError, match="no path found"):
-            AORRT(pb, fm, RRTParams(**{**par.__dict__, "joint_tries": 0})).run()
+            AORRT(pb, fm, replace(par, joint=JointParams(tries=0))).run()
         res = AORRT(pb, fm, par).run()
     assert res.joint_round == 0 and res.joint_samples > 0
-    _check_joint_paths(pb, fm, res.joint_trajs, par)
+    _check_joint_paths(pb, fm, res.joint_trajs, par.search)
     _assert_team_within_limits(pb, fm, res.trajs)
 
 
@@ -307,7 +311,8 @@ def test_force_margin_and_clearance_are_kept(cfg):
     fm = ForceModel(cfg, StrongDownwash(cfg))
     from ns2plan.planner import plan
 
-    res = plan(pb, fm, RRTParams(max_nodes=4000, max_samples=20000, ao_iterations=1, seed=2), SCPParams(max_iterations=4))
+    res = plan(pb, fm, RRTParams(SearchParams(max_nodes=4000, max_samples=20000), ao_iterations=1, seed=2),
+               SCPParams(max_iterations=4))
     for trajs in (res.stage1.trajs, res.trajs):
         chk = check_solution(pb, fm, trajs)
         for i, rep in enumerate(chk["robots"]):
@@ -348,28 +353,38 @@ def test_bad_input_is_refused_quickly(cfg):
     t0 = time.perf_counter()
     slow = Limits(pos_lo=LIMITS.pos_lo, pos_hi=LIMITS.pos_hi, v_max=0.02)   # goal out of reach in H steps
     with pytest.raises(PlanningError, match="no path found .* in 2 rounds"):
-        AORRT(Problem(cfg, SWAP_SL[:1], slow), fm, RRTParams(max_samples=3000, max_rounds=2)).run()
+        AORRT(Problem(cfg, SWAP_SL[:1], slow), fm, RRTParams(SearchParams(max_samples=3000), max_rounds=2)).run()
     assert time.perf_counter() - t0 < 10.0
     # the wall-clock safety net: an absurd sample budget still ends, with a clear message
     t0 = time.perf_counter()
     with pytest.raises(PlanningError, match="safety time limit"):
         AORRT(Problem(cfg, SWAP_SL[:1], slow), fm,
-              RRTParams(max_samples=10 ** 9, rrt_time_s=0.3, total_time_s=0.8)).run()
+              RRTParams(SearchParams(max_samples=10 ** 9, time_s=0.3), total_time_s=0.8)).run()
     assert time.perf_counter() - t0 < 5.0
+    # parameters are refused where they are constructed
     with pytest.raises(PlanningError, match="max_samples must be a positive integer"):
-        AORRT(Problem(cfg, SWAP_SL, LIMITS), fm, RRTParams(max_samples=0)).run()
-    with pytest.raises(PlanningError, match="joint_tries must be an integer >= 0"):
-        AORRT(Problem(cfg, SWAP_SL, LIMITS), fm, RRTParams(joint_tries=-1)).run()
+        SearchParams(max_samples=0)
+    with pytest.raises(PlanningError, match="tries must be an integer >= 0"):
+        JointParams(tries=-1)
+    with pytest.raises(PlanningError, match="dt must be a finite number > 0"):
+        SearchParams(dt=float("nan"))
+    with pytest.raises(PlanningError, match="ao_iterations must be a positive integer"):
+        RRTParams(ao_iterations=0)
+    with pytest.raises(PlanningError, match="levels_g must be positive"):
+        RelaxParams(levels_g=(2.0, -1.0))
+    with pytest.raises(PlanningError, match="max_iterations must be a positive integer"):
+        SCPParams(max_iterations=1.5)
+    with pytest.raises(PlanningError, match="b_p must be a finite number > 0"):
+        SCPParams(b_p=0.0)
 
 
 def test_stage1_is_deterministic_for_a_seed(cfg, fm):
     """Counted stopping rules: the same seed gives the same Stage 1 output, however
     generous the wall-clock safety nets (so on any machine, at any load)."""
     pb = Problem(cfg, SWAP_SL, LIMITS)
-    par = RRTParams(max_nodes=3000, max_samples=8000, ao_iterations=2, seed=11)
+    par = RRTParams(SearchParams(max_nodes=3000, max_samples=8000), ao_iterations=2, seed=11)
     runs = []
-    for p in (par, RRTParams(**{**par.__dict__, "rrt_time_s": 1e6, "total_time_s": 1e6}),
-              RRTParams(**{**par.__dict__, "seed": 12})):
+    for p in (par, replace(par, search=replace(par.search, time_s=1e6), total_time_s=1e6), replace(par, seed=12)):
         with single_thread():
             runs.append(AORRT(pb, fm, p).run())
     a, b, c = runs

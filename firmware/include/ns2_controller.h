@@ -37,6 +37,11 @@
 extern "C" {
 #endif
 
+/* Standard gravity (m/s^2) of the controller, the app and the simulator's C kernel:
+ * the one value in C, equal to the Python side's ns2codegen.vehicle.G (checked by
+ * tests/test_layers.py). */
+#define NS2_G_MPS2 9.81
+
 #define NS2_CTRL_OK 0
 #define NS2_CTRL_BAD_STATE 1u
 #define NS2_CTRL_BAD_SETPOINT 2u

@@ -8,7 +8,7 @@
 
 #include "ns2_controller.h"
 
-#define NS2_G 9.81f
+#define NS2_G ((float)NS2_G_MPS2)
 
 static int finite_n(const float *x, int n)
 {

@@ -52,22 +52,6 @@ class Dataset:
         return int(self.robot_type.shape[0])
 
     # ------------------------------------------------------------------
-    @staticmethod
-    def from_samples(robot_type, label_g, scenario, time_s, neighbors, neighbor_types, scenario_names):
-        """Build from per-sample neighbour lists ``[(type, state6), ...]`` (sorted by type here)."""
-        counts = np.array([len(nb) for nb in neighbors], dtype=np.int64)
-        offsets = np.zeros(len(neighbors) + 1, dtype=np.int64)
-        np.cumsum(counts, out=offsets[1:])
-        types = np.empty(offsets[-1], dtype=np.int64)
-        states = np.empty((offsets[-1], 6), dtype=np.float32)
-        for n, nb in enumerate(neighbors):
-            for r, (t, s) in enumerate(sorted(nb, key=lambda e: e[0])):
-                types[offsets[n] + r] = t
-                states[offsets[n] + r] = s
-        return Dataset(np.asarray(robot_type, np.int64), np.asarray(label_g, np.float32),
-                       np.asarray(scenario, np.int64), np.asarray(time_s, np.float64),
-                       offsets, types, states, list(neighbor_types), list(scenario_names)).validated()
-
     def validated(self) -> "Dataset":
         n = len(self)
         for name in ("label_g", "scenario", "time_s"):

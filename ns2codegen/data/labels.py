@@ -16,7 +16,8 @@ from __future__ import annotations
 
 import numpy as np
 
-G = 9.81
+from ..vehicle import G
+
 V_NORM = 4.2
 
 

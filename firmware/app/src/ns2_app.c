@@ -60,11 +60,11 @@
 #include "ns2_vehicles.h"
 
 #if !NS2_HAVE_VEHICLES
-#error "ns2_vehicles.h: a robot type lacks rigid-body parameters in the config (see config/default.toml)"
+#error "ns2_vehicles.h: a robot type lacks rigid-body parameters in the config (see ns2codegen/default.toml)"
 #endif
 
 #define NS2_DEG2RAD 0.017453292519943295f
-#define NS2_GRAVITY 9.81f
+#define NS2_GRAVITY ((float)NS2_G_MPS2)
 
 static const ns2_vehicle_t vehicles[NS2_NUM_ROBOT_TYPES] = NS2_VEHICLES_INIT;
 static const ns2_gains_t default_gains[NS2_NUM_ROBOT_TYPES] = NS2_DEFAULT_GAINS_INIT;
