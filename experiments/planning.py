@@ -123,7 +123,7 @@ def default_checkpoint(cfg: Config, folder: Path, seconds_per_team: float = 60.0
         return ck
     log(f"no checkpoint given: training the planning model on simulated flights ({seconds_per_team:.0f} s per "
         f"team, {near_field_seconds:.0f} s of close-range passes per pair) into {ck}; this takes several minutes "
-        f"(about 5 on one core); give --checkpoint to skip")
+        f"(about 4 on one core); give --checkpoint to skip")
     boot = downwash_dataset(cfg, 300, seed=0)       # the controller build needs some exported model
     m0, rep0 = train(cfg, boot, epochs=1)
     save_checkpoint(folder / "boot.pt", m0, cfg, {"seed": 0, "data_hash": boot.content_hash(), "report": rep0})
