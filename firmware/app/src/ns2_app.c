@@ -54,6 +54,7 @@
 #include "stabilizer_types.h"
 #include "usec_time.h"
 
+#include "ns2_app_config.h"
 #include "ns2_controller.h"
 #include "ns2_deepset.h"
 #include "ns2_peers.h"
@@ -164,6 +165,40 @@ static void to_setpoint(const setpoint_t *sp, ns2_setpoint_t *d)
     d->yaw = sp->attitude.yaw * NS2_DEG2RAD;
 }
 
+/* The inference paths compiled in (NS2_APP_FIXED, NS2_APP_FLOAT: ns2_lib.c, the
+ * Makefile's NS2_INFER); ns2.fixed picks one when both are. */
+static bool use_fixed(void)
+{
+    return NS2_APP_FIXED && (!NS2_APP_FLOAT || cfg.fixed != 0u);
+}
+
+static float finish_prediction(ns2_info_t *info)
+{
+#if NS2_APP_FIXED
+    if (use_fixed()) {
+        return ldexpf((float)ns2_job_finish_q15(&job, info), -NS2_Q_OUT_FRAC);
+    }
+#endif
+#if NS2_APP_FLOAT
+    return ns2_job_finish_f32(&job, info);
+#else
+    return 0.0f; /* not reached: without the float path use_fixed() is true */
+#endif
+}
+
+static void step_prediction(void)
+{
+#if NS2_APP_FIXED
+    if (use_fixed()) {
+        (void)ns2_job_step_q15(&job, cfg.phiPerTick);
+        return;
+    }
+#endif
+#if NS2_APP_FLOAT
+    (void)ns2_job_step_f32(&job, cfg.phiPerTick);
+#endif
+}
+
 /* Finish the running prediction (rho) into faHat, then begin the next one from
  * the current state and the neighbours' latest positions. */
 static void predict_period(const ns2_ctrl_state_t *s, uint32_t now_ms)
@@ -171,8 +206,7 @@ static void predict_period(const ns2_ctrl_state_t *s, uint32_t now_ms)
     if (jobBegun) {
         ns2_info_t info;
         const uint64_t t0 = usecTimestamp();
-        const float f = cfg.fixed ? ldexpf((float)ns2_job_finish_q15(&job, &info), -NS2_Q_OUT_FRAC)
-                                  : ns2_job_finish_f32(&job, &info);
+        const float f = finish_prediction(&info);
         const uint32_t us = (uint32_t)(usecTimestamp() - t0);
         inferUs = us > sliceUsMax ? us : sliceUsMax;
         sliceUsMax = 0;
@@ -184,7 +218,7 @@ static void predict_period(const ns2_ctrl_state_t *s, uint32_t now_ms)
         const peerLocalizationOtherPosition_t *o = peerLocalizationGetPositionByIdx(i);
         if (o != NULL && o->id != 0u) {
             const float p[3] = {o->pos.x, o->pos.y, o->pos.z};
-            (void)ns2_peers_update(&peers, o->id, type_of(o->id), o->timestamp, p);
+            (void)ns2_peers_update(&peers, o->id, type_of(o->id), o->pos.timestamp, p);
         }
     }
     const uint8_t self = (uint8_t)(configblockGetRadioAddress() & 0xFFu);
@@ -196,11 +230,7 @@ static void predict_period(const ns2_ctrl_state_t *s, uint32_t now_ms)
 static void predict_slice(void)
 {
     const uint64_t t0 = usecTimestamp();
-    if (cfg.fixed) {
-        (void)ns2_job_step_q15(&job, cfg.phiPerTick);
-    } else {
-        (void)ns2_job_step_f32(&job, cfg.phiPerTick);
-    }
+    step_prediction();
     const uint32_t us = (uint32_t)(usecTimestamp() - t0);
     sliceUsMax = us > sliceUsMax ? us : sliceUsMax;
 }
