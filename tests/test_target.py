@@ -5,10 +5,10 @@ import pytest
 
 from ns2codegen import reference as ref
 from ns2codegen.queries import random_queries
+from conftest import ARM, QEMU, needs
 from ns2host import target
 
-pytestmark = pytest.mark.skipif(not (target.have_toolchain() and target.have_qemu()),
-                                reason="arm-none-eabi-gcc / qemu-system-arm missing: run scripts/install-deps.sh")
+pytestmark = needs(ARM, QEMU)
 
 
 def _compare(exported, cmodel, q, res):
