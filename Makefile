@@ -4,7 +4,8 @@
 #                 C headers + manifest to firmware/generated/
 #   make test     the whole test suite (host C, cross-compiled Cortex-M4F build)
 #   make bench    benchmarks, JSON on stdout (host training/inference, then the
-#                 emulated Cortex-M4: instructions, cycles, budget, memory)
+#                 emulated Cortex-M4: instructions, cycles, budget, memory; the
+#                 app's 1 ms stabilizer iteration next to the stock estimator/controller)
 #   make export-onboard  the same with the one-tick on-board variant of the
 #                 network (narrower intermediate layers, H and L of the paper)
 #   make firmware cross-build the library for the STM32F405 and print its size
@@ -55,6 +56,7 @@ test: deps
 bench: deps
 	@$(PYTHON) benchmarks/bench_core.py
 	@$(PYTHON) benchmarks/bench_target.py
+	@$(PYTHON) benchmarks/bench_stabilizer.py
 	@$(PYTHON) benchmarks/bench_sim.py
 	@$(PYTHON) benchmarks/bench_plan.py
 

@@ -57,10 +57,10 @@ def _make(args: list[str], log: Path) -> None:
         raise BuildError(f"make {' '.join(args)} failed (log {log}):\n" + "\n".join(tail))
 
 
-def _cached(name: str, key: bytes, build) -> Path:
+def _cached(name: str, key: bytes, build, product: str = "cf2.elf") -> Path:
     """``build(tmp_dir)`` once into CF_BUILD/<name>-<hash>; returns that folder."""
     final = CF_BUILD / f"{name}-{hashlib.sha256(key).hexdigest()[:16]}"
-    if (final / "cf2.elf").is_file():
+    if (final / product).is_file():
         return final
     CF_BUILD.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{name}-", dir=CF_BUILD))
@@ -69,7 +69,7 @@ def _cached(name: str, key: bytes, build) -> Path:
         try:
             tmp.rename(final)
         except OSError:  # a concurrent builder won
-            if not (final / "cf2.elf").is_file():
+            if not (final / product).is_file():
                 raise
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
@@ -86,6 +86,23 @@ def build_stock() -> Path:
         _make([*common, f"-j{os.cpu_count() or 1}"], out / "build.log")
 
     return _cached("stock", _firmware_id(fw), build)
+
+
+def app_config() -> Path:
+    """The app's firmware configuration only (cf2_defconfig + app-config, as the app
+    build makes it: .config and include/generated/autoconf.h), for host and
+    emulator builds of firmware code; cached, seconds to make."""
+    fw = crazyflie.firmware_dir()
+    app_cfg = APP_DIR / "app-config"
+
+    def build(out: Path) -> None:
+        common = ["-C", str(fw), f"KBUILD_OUTPUT={out}"]
+        _make([*common, "KCONFIG_ALLCONFIG=configs/cf2_defconfig", "alldefconfig"], out / "config.log")
+        subprocess.run([str(fw / "scripts/kconfig/merge_config.sh"), "-O", str(out), "-m", str(out / ".config"),
+                        str(app_cfg)], capture_output=True, check=True, cwd=out)
+        _make([*common, "silentoldconfig"], out / "silentoldconfig.log")
+
+    return _cached("config", _firmware_id(fw) + app_cfg.read_bytes(), build, "include/generated/autoconf.h")
 
 
 def app_inputs(gen_dir: Path) -> list[Path]:
@@ -286,10 +303,10 @@ def build_harness(gen_dir: Path, out: Path) -> Path:
     """The app's host harness (firmware/app/test_stubs/app_harness.c) against the
     firmware's real headers and its real peer_localization.c (``-isystem``: their
     warnings are the firmware's; the app and the library get the strict flags),
-    with both inference paths and the app build's autoconf.h.  Returns the executable."""
+    with both inference paths and the app's autoconf.h.  Returns the executable."""
     from .cbuild import flags, host_cc
 
-    app = build_app(gen_dir)  # its .config (autoconf.h) is the one the app flies with
+    app = app_config()  # the configuration (autoconf.h) the app flies with
     f = flags()
     fw = crazyflie.firmware_dir()
     common = ["-std=gnu11", "-O1", "-ffp-contract=off", *FIRMWARE_DEFINES,

@@ -199,3 +199,37 @@ def test_peer_localization_limit_in_a_swarm(harness, robots, seen):
     network sees 10 of its 15 peers (docs/app.md), all of them within the volume."""
     res = _run(harness, "swarm", robots)
     assert res == {"robots": robots, "peer_localization": seen, "app_peers": seen, "n_used": seen}
+
+
+# ------------------------------------------------------------------ 1 ms stabilizer iteration
+
+
+@pytest.mark.parametrize("infer", ["fixed", "float", "both"])
+def test_app_compiles_against_the_real_headers_for_each_inference_path(exported, infer):
+    """ns2_app.c + ns2_lib.c for the Cortex-M4 with the firmware's flags and headers,
+    warnings as errors, linked with the firmware's estimator and PID controller."""
+    from ns2host import stabilizer
+
+    syms = _symbols(stabilizer.build_image(exported.gen_dir, infer))
+    assert ("ns2_job_step_f32" in syms) == (infer != "fixed")
+    assert ("ns2_job_step_q15" in syms) == (infer != "float")
+    for fn in ("kalmanCorePredict", "kalmanCoreUpdateWithPosition", "controllerPid", "controllerOutOfTree"):
+        assert syms[fn][0] == "STT_FUNC", fn
+
+
+def test_stabilizer_iteration_counts(exported):
+    """The firmware's Kalman estimator, its PID controller and the app counted on the
+    emulated Cortex-M4: deterministic instruction counts in ranges that a missing
+    measurement update, an empty controller or a skipped prediction would leave."""
+    from ns2host import stabilizer
+
+    r = stabilizer.iteration(exported.gen_dir)
+    est, quiet = r["estimator_kalman_predict_and_position"], r["estimator_kalman_no_measurement"]
+    pid, app = r["stock_controller_pid"], r["app_controller_oot"]
+    assert 20_000 < est["instructions"] < 200_000  # 9-state covariance update, three scalar updates
+    assert 300 < quiet["instructions"] < 5_000 and quiet["instructions"] * 10 < est["instructions"]
+    assert 1_000 < pid["instructions"] < 20_000
+    assert 5_000 < app["instructions"] < 100_000 and app["cycles"] > pid["cycles"]
+    assert r["app_neighbors_used"] == 10  # 15 peers told, the firmware keeps 10
+    assert r["app_worst_iteration"]["cycles"] == est["cycles"] + app["cycles"]
+    assert stabilizer.iteration(exported.gen_dir) == r  # deterministic

@@ -72,7 +72,7 @@ static const ns2_gains_t default_gains[NS2_NUM_ROBOT_TYPES] = NS2_DEFAULT_GAINS_
 
 static struct {
     uint8_t enable;     /* 1: learned feed-forward; 0: baseline (f_a = 0) */
-    uint8_t fixed;      /* 1: fixed-point inference, 0: float */
+    uint8_t fixed;      /* 1: fixed-point inference, 0: float (NS2_INFER=both) */
     uint8_t selfType;   /* robot type of this Crazyflie (NS2_TYPE_*) */
     uint8_t phiPerTick; /* phi evaluations per 500 Hz tick */
     uint16_t maxAgeMs;  /* peers older than this are ignored */
@@ -167,10 +167,12 @@ static void to_setpoint(const setpoint_t *sp, ns2_setpoint_t *d)
 
 /* The inference paths compiled in (NS2_APP_FIXED, NS2_APP_FLOAT: ns2_lib.c, the
  * Makefile's NS2_INFER); ns2.fixed picks one when both are. */
+#if NS2_APP_FIXED
 static bool use_fixed(void)
 {
-    return NS2_APP_FIXED && (!NS2_APP_FLOAT || cfg.fixed != 0u);
+    return !NS2_APP_FLOAT || cfg.fixed != 0u;
 }
+#endif
 
 static float finish_prediction(ns2_info_t *info)
 {
@@ -182,7 +184,7 @@ static float finish_prediction(ns2_info_t *info)
 #if NS2_APP_FLOAT
     return ns2_job_finish_f32(&job, info);
 #else
-    return 0.0f; /* not reached: without the float path use_fixed() is true */
+    return 0.0f; /* not reached: without the float path the fixed one returned */
 #endif
 }
 
