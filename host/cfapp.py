@@ -66,6 +66,7 @@ def _cached(name: str, key: bytes, build, product: str = "cf2.elf") -> Path:
     tmp = Path(tempfile.mkdtemp(prefix=f".{name}-", dir=CF_BUILD))
     try:
         build(tmp)
+        _prune(tmp)
         try:
             tmp.rename(final)
         except OSError:  # a concurrent builder won
@@ -74,6 +75,22 @@ def _cached(name: str, key: bytes, build, product: str = "cf2.elf") -> Path:
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     return final
+
+
+KEEP = ("cf2.elf", "cf2.bin", "cf2.map", ".config", "oot/built-in.o", "include/generated/autoconf.h")
+
+
+def _prune(out: Path) -> None:
+    """Drop a finished cache build's objects (about 350 MB with the firmware's -g3):
+    only its products and what the checks read stay."""
+    keep = {out / k for k in KEEP}
+    for p in sorted(out.rglob("*"), key=lambda p: len(p.parts), reverse=True):
+        if p in keep or any(k.is_relative_to(p) for k in keep) or p.suffix == ".log":
+            continue
+        if p.is_dir() and not p.is_symlink():
+            shutil.rmtree(p)
+        else:
+            p.unlink()
 
 
 def build_stock() -> Path:
