@@ -36,7 +36,9 @@ def pytest_configure(config):
     config.addinivalue_line("markers", "needs(*tools): skipped without the tools, failed with CI=true")
 
 
+@pytest.hookimpl(tryfirst=True)
 def pytest_runtest_setup(item):
+    """Before any fixture: a missing tool skips the test, or fails it with CI=true."""
     for mark in item.iter_markers("needs"):
         missing = [t for t in mark.args if not _have(t)]
         if missing:
