@@ -4,8 +4,8 @@ a mocap position measurement in the same tick), of its stock PID controller and 
 ns2 app's out-of-tree controller (its 100 Hz tick: rho, the next job, phi slices,
 position and attitude control), all compiled from the crazyflie-firmware tarball and
 counted on the emulated Cortex-M4 with ns2host/cm4_count.py's cost model (the same as
-bench_target.py).  Fixed point (the default app) and float; 15 peers are told to the
-firmware's peer localization, which keeps 10 (docs/app.md).
+bench_target.py).  Fixed point (the default app) and float; 15 peers broadcast by mocap at
+100 Hz, 4 positions per packet and millisecond, all of them in the app's table.
 
     python benchmarks/bench_stabilizer.py [--gen firmware/generated]
 """

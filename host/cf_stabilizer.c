@@ -7,8 +7,11 @@
  * firmware/app for the STM32F405.  Only functions are stubbed here.
  *
  * bench_init(n_peers): a hovering Crazyflie (radio id 1) with n_peers robots (ids
- *     2..n_peers+1) in a ring 0.3 m around and 0.3 m above it (inside the volume V), told to the firmware's
- *     peer localization; the Kalman filter, the PID and the app initialized.
+ *     2..n_peers+1) in a ring 0.3 m around and 0.3 m above it (inside the volume V);
+ *     the Kalman filter, the PID and the app initialized.
+ * bench_radio(tick): what the radio task does in that millisecond: one mocap
+ *     broadcast packet of 4 positions told to the firmware's peer localization
+ *     (a 100 Hz frame of all peers in the first ticks of each period).
  * bench_estimator(now_ms, predict, measure): one iteration of the estimator task
  *     (process noise, finalize, externalize; predict = 1: the 100 Hz prediction too;
  *     measure = 1: a mocap position measurement too).
@@ -39,6 +42,7 @@ static setpoint_t setpoint;
 static control_t control;
 static Axis3f acc = {.z = 1.0f}, gyro;
 static uint32_t now;
+static uint32_t peers;
 
 /* function stubs: the firmware's clock, radio, power and logging services */
 TickType_t xTaskGetTickCount(void) { return now; }
@@ -64,8 +68,15 @@ void bench_init(uint32_t n_peers)
     setpoint.position.z = 1.0f;
     setpoint.mode.x = setpoint.mode.y = setpoint.mode.z = modeAbs;
     setpoint.mode.yaw = modeAbs;
-    for (uint32_t i = 0; i < n_peers; ++i) {
-        const float a = 6.2831853f * (float)i / (float)n_peers;
+    peers = n_peers;
+}
+
+void bench_radio(uint32_t tick)
+{
+    now = tick;
+    const uint32_t first = (tick % 10u) * 4u;
+    for (uint32_t i = first; i < first + 4u && i < peers; ++i) {
+        const float a = 6.2831853f * (float)i / (float)peers;
         positionMeasurement_t m = {0};
         m.x = 0.3f * cosf(a);
         m.y = 0.3f * sinf(a);

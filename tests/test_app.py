@@ -192,13 +192,16 @@ def test_app_flies_the_ns2_controller_against_the_real_headers(harness, exported
     assert np.sign(runs[1, 1]["mean_pwm"][0] - runs[1, 0]["mean_pwm"][0]) == -np.sign(fa)
 
 
-@pytest.mark.parametrize("robots,seen", [(8, 7), (11, 10), (16, 10)])
-def test_peer_localization_limit_in_a_swarm(harness, robots, seen):
-    """The firmware's peer localization keeps the first PEER_LOCALIZATION_MAX_NEIGHBORS
-    = 10 robots it hears and never frees a slot: in a 16-robot swarm each robot's
-    network sees 10 of its 15 peers (docs/app.md), all of them within the volume."""
-    res = _run(harness, "swarm", robots)
-    assert res == {"robots": robots, "peer_localization": seen, "app_peers": seen, "n_used": seen}
+@pytest.mark.parametrize("robots,per_ms,seen", [(16, 4, 15), (16, 2, 15), (16, 10, 15), (16, 15, 10), (8, 7, 7)])
+def test_sixteen_robot_swarm_through_the_firmware_peer_table(harness, robots, per_ms, seen):
+    """The firmware's peer localization (real peer_localization.c) keeps 10 robots
+    and never frees a slot; the app drains it every millisecond into its own table
+    of 16.  Mocap frames at 100 Hz in packets of per_ms positions per millisecond:
+    all 15 peers of a 16-robot swarm reach the network as long as at most 10 arrive
+    in one millisecond; 15 in one millisecond leave 10 (docs/app.md)."""
+    res = _run(harness, "swarm", robots, per_ms)
+    assert res["app_peers"] == seen and res["n_used"] == seen
+    assert res["firmware_table_max"] == min(per_ms, 10)
 
 
 # ------------------------------------------------------------------ 1 ms stabilizer iteration
@@ -230,6 +233,6 @@ def test_stabilizer_iteration_counts(exported):
     assert 300 < quiet["instructions"] < 5_000 and quiet["instructions"] * 10 < est["instructions"]
     assert 1_000 < pid["instructions"] < 20_000
     assert 5_000 < app["instructions"] < 100_000 and app["cycles"] > pid["cycles"]
-    assert r["app_neighbors_used"] == 10  # 15 peers told, the firmware keeps 10
+    assert r["app_neighbors_used"] == 15  # 15 peers broadcast, all through the firmware's 10 slots
     assert r["app_worst_iteration"]["cycles"] == est["cycles"] + app["cycles"]
     assert stabilizer.iteration(exported.gen_dir) == r  # deterministic

@@ -5,9 +5,11 @@
  *
  * Thin glue; all logic is in the tested library (firmware/src):
  *  - neighbours: positions of the other Crazyflies from the firmware's peer
- *    localization (mocap broadcasts), velocity by finite differences
- *    (ns2_peers), robot types from the ns2type parameters; the environment is
- *    always included by the library;
+ *    localization (mocap broadcasts), drained every 1 ms into the app's own table
+ *    of up to NS2_PEERS_MAX = 16 robots (the firmware keeps 10 and never frees a
+ *    slot; see drain_peers), velocity by finite differences (ns2_peers), robot
+ *    types from the ns2type parameters; the environment is always included by
+ *    the library;
  *  - prediction spread over the 500 Hz ticks (ns2_job_*): begun at each 100 Hz
  *    position tick from the current state and neighbours, ns2.phiPerTick phi
  *    evaluations per 500 Hz tick, finished (rho) at the next position tick,
@@ -201,6 +203,28 @@ static void step_prediction(void)
 #endif
 }
 
+/* Drain the firmware's peer localization into the app's table (ns2_peers, up to
+ * NS2_PEERS_MAX robots), every stabilizer tick.  The firmware keeps at most
+ * PEER_LOCALIZATION_MAX_NEIGHBORS = 10 robots and never frees a slot, so an 11th
+ * broadcaster would never be seen; here each complete entry is copied and its slot
+ * freed, so any 10 positions per millisecond get through (docs/app.md).  The radio
+ * task writes id, x, y, z, then the timestamp (after a call, so last): an entry
+ * with timestamp 0 is being written (or free) and is taken at the next tick.  The
+ * app owns the peer table: other readers of peer localization see it drained. */
+static void drain_peers(void)
+{
+    for (uint8_t i = 0; i < PEER_LOCALIZATION_MAX_NEIGHBORS; ++i) {
+        peerLocalizationOtherPosition_t *o = peerLocalizationGetPositionByIdx(i);
+        if (o == NULL || o->id == 0u || o->pos.timestamp == 0u) {
+            continue;
+        }
+        const float p[3] = {o->pos.x, o->pos.y, o->pos.z};
+        (void)ns2_peers_update(&peers, o->id, type_of(o->id), o->pos.timestamp, p);
+        o->pos.timestamp = 0u;
+        o->id = 0u;
+    }
+}
+
 /* Finish the running prediction (rho) into faHat, then begin the next one from
  * the current state and the neighbours' latest positions. */
 static void predict_period(const ns2_ctrl_state_t *s, uint32_t now_ms)
@@ -215,13 +239,6 @@ static void predict_period(const ns2_ctrl_state_t *s, uint32_t now_ms)
         status = info.status;
         nUsed = (uint8_t)info.n_used;
         faHat = f > cfg.faLimit ? cfg.faLimit : (f < -cfg.faLimit ? -cfg.faLimit : f);
-    }
-    for (uint8_t i = 0; i < PEER_LOCALIZATION_MAX_NEIGHBORS; ++i) {
-        const peerLocalizationOtherPosition_t *o = peerLocalizationGetPositionByIdx(i);
-        if (o != NULL && o->id != 0u) {
-            const float p[3] = {o->pos.x, o->pos.y, o->pos.z};
-            (void)ns2_peers_update(&peers, o->id, type_of(o->id), o->pos.timestamp, p);
-        }
     }
     const uint8_t self = (uint8_t)(configblockGetRadioAddress() & 0xFFu);
     const uint16_t n = ns2_peers_neighbors(&peers, self, s->p, s->v, now_ms, cfg.maxAgeMs, nbrs, NS2_PEERS_MAX);
@@ -257,6 +274,7 @@ void controllerOutOfTree(control_t *control, const setpoint_t *setpoint, const s
         eventTrigger_ns2Sync_payload.seq = syncSeq;
         eventTrigger(&eventTrigger_ns2Sync);
     }
+    drain_peers();
     if (setpoint->mode.z == modeDisable || self_type() != ctrlType) {
         reset_controller(); /* on the ground, or the robot type was changed */
         for (int m = 0; m < STABILIZER_NR_OF_MOTORS; ++m) {

@@ -13,10 +13,12 @@
  *       ns2_predict_*), the motor commands, the commands with the position setpoint
  *       disabled, the ns2Sync events.  FIXED 1 fixed point, 0 float; ENABLE 1
  *       learned term on, 0 baseline.
- *   harness swarm N             N robots (radio ids 1..N, this one is id 1) in a
- *       ring 0.4 m around and above it, their positions broadcast as mocap does
- *       (peerLocalizationTellPosition, every 10 ms) for one second: how many peers
- *       the firmware's peer localization and the app see.
+ *   harness swarm N K           N robots (radio ids 1..N, this one is id 1) in a
+ *       ring 0.3 m around and 0.3 m above it, their positions broadcast as mocap
+ *       does (peerLocalizationTellPosition), a 100 Hz frame of N-1 positions in
+ *       packets of K positions, one packet per millisecond, for one second: how
+ *       many peers the app keeps and its network uses, and the most the firmware's
+ *       table ever held.
  */
 #include <stdio.h>
 #include <stdlib.h>
@@ -30,6 +32,7 @@
 _Static_assert(offsetof(peerLocalizationOtherPosition_t, pos) == 4, "peerLocalizationOtherPosition_t");
 _Static_assert(sizeof(point_t) == 16 && offsetof(point_t, x) == 4, "point_t = {timestamp, x, y, z}");
 _Static_assert(PEER_LOCALIZATION_MAX_NEIGHBORS == 10, "this firmware keeps 10 peers (docs/app.md)");
+_Static_assert(NS2_PEERS_MAX >= 16, "the app's own table holds the paper's 16-robot swarm");
 _Static_assert(RATE_MAIN_LOOP == 1000, "the stabilizer loop runs at 1 kHz");
 
 static uint32_t now_ms;
@@ -70,7 +73,7 @@ static void hover_setpoint(state_t *state, setpoint_t *sp)
     sp->mode.x = sp->mode.y = sp->mode.z = modeAbs;
 }
 
-static int swarm(int n_robots)
+static int swarm(int n_robots, int per_ms)
 {
     state_t state;
     setpoint_t sp;
@@ -79,30 +82,31 @@ static int swarm(int n_robots)
     hover_setpoint(&state, &sp);
     controllerOutOfTreeInit();
     uint16_t n_max = 0;
-    for (uint32_t tick = 0; tick < 1000u; ++tick) {
+    int held_max = 0;
+    for (uint32_t tick = 1; tick <= 1000u; ++tick) {
         now_ms = tick;
-        if (tick % 10u == 0u) { /* a mocap frame: every other robot's position */
-            for (int id = 2; id <= n_robots; ++id) {
-                const float a = 6.2831853f * (float)id / (float)n_robots;
-                tell(id, 0.4f * cosf(a), 0.4f * sinf(a), 1.3f);
-            }
+        const int first = 2 + (int)(tick % 10u) * per_ms; /* this millisecond's packet */
+        for (int id = first; id < first + per_ms && id <= n_robots; ++id) {
+            const float a = 6.2831853f * (float)id / (float)n_robots;
+            tell(id, 0.3f * cosf(a), 0.3f * sinf(a), 1.3f);
         }
+        int held = 0;
+        for (uint8_t i = 0; i < PEER_LOCALIZATION_MAX_NEIGHBORS; ++i) {
+            held += peerLocalizationGetPositionByIdx(i)->id != 0u;
+        }
+        held_max = held > held_max ? held : held_max;
         controllerOutOfTree(&control, &sp, &sensors, &state, tick);
         n_max = nUsed > n_max ? nUsed : n_max;
     }
-    int localized = 0;
-    for (uint8_t i = 0; i < PEER_LOCALIZATION_MAX_NEIGHBORS; ++i) {
-        localized += peerLocalizationGetPositionByIdx(i)->id != 0u;
-    }
-    printf("{\"robots\": %d, \"peer_localization\": %d, \"app_peers\": %u, \"n_used\": %u}\n", n_robots, localized,
-           (unsigned)peers.count, (unsigned)n_max);
+    printf("{\"robots\": %d, \"per_ms\": %d, \"firmware_table_max\": %d, \"app_peers\": %u, \"n_used\": %u}\n",
+           n_robots, per_ms, held_max, (unsigned)peers.count, (unsigned)n_max);
     return 0;
 }
 
 int main(int argc, char **argv)
 {
-    if (argc > 2 && strcmp(argv[1], "swarm") == 0) {
-        return swarm(atoi(argv[2]));
+    if (argc > 3 && strcmp(argv[1], "swarm") == 0) {
+        return swarm(atoi(argv[2]), atoi(argv[3]));
     }
     const uint8_t fixed = (uint8_t)(argc > 1 ? atoi(argv[1]) : 1);
     const uint8_t enable = (uint8_t)(argc > 2 ? atoi(argv[2]) : 1);
