@@ -48,6 +48,15 @@ def test_app_builds_cf2_outside_the_source_tree(app):
     assert not [line for line in r.stdout.splitlines() if line.startswith("!!")]  # no ignored build output
 
 
+def test_cload_from_any_folder_flashes_the_built_image(app, tmp_path):
+    """README's `make -C firmware/app cload`, started elsewhere (dry run: no radio here):
+    the firmware's cload target runs in the app's build folder on its cf2.bin."""
+    r = subprocess.run(["make", "-n", "-C", str(REPO / "firmware/app"), "cload", f"APP_BUILD={app}"],
+                       capture_output=True, text=True, cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    assert f"Entering directory '{app}'" in r.stdout and "-m cfloader  flash  cf2.bin stm32-fw" in r.stdout
+
+
 def test_the_firmware_calls_the_apps_out_of_tree_controller(app):
     syms = _symbols(app / "cf2.elf")
     for fn in ("controllerOutOfTreeInit", "controllerOutOfTreeTest", "controllerOutOfTree", "appMain"):
