@@ -119,6 +119,19 @@ def test_flash_budget_and_ram_of_the_default_app(app, stock, exported):
     assert a["bss"] - s["bss"] >= stack  # the app task's static stack is in the RAM it adds
 
 
+def test_size_report_of_make_app(app, stock, exported):
+    """`make app`'s report (python -m ns2host.cfapp): stock, with the app, what it adds."""
+    import sys
+
+    r = json.loads(subprocess.run([sys.executable, "-m", "ns2host.cfapp", str(exported.gen_dir)],
+                                  capture_output=True, text=True, check=True).stdout)
+    assert r["stock"] == cfapp.sizes(stock / "cf2.elf") and r["app"] == cfapp.sizes(app / "cf2.elf")
+    assert r["delta"]["flash"] == r["app"]["flash"] - r["stock"]["flash"] and r["within_flash_budget"]
+    added = r["ram_added"]
+    assert added["app_task_stack"] == 1400 and added["app_bss"] > 1000
+    assert added["bytes"] >= added["app_task_stack"] + added["app_bss"]
+
+
 def _compile_lib(tmp_path, infer):
     f = flags()
     defs = {"fixed": ("1", "0"), "float": ("0", "1"), "both": ("1", "1"), "none": ("0", "0")}[infer]
