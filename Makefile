@@ -4,10 +4,14 @@
 #                 C headers + manifest to firmware/generated/
 #   make test     the whole test suite (host C, cross-compiled Cortex-M4F build)
 #   make bench    benchmarks, JSON on stdout (host training/inference, then the
-#                 emulated Cortex-M4: instructions, cycles, budget, memory)
+#                 emulated Cortex-M4: instructions, cycles, budget, memory; the
+#                 app's 1 ms stabilizer iteration next to the stock estimator/controller)
 #   make export-onboard  the same with the one-tick on-board variant of the
 #                 network (narrower intermediate layers, H and L of the paper)
 #   make firmware cross-build the library for the STM32F405 and print its size
+#   make app      the Crazyflie firmware with the app (build/app/cf2.elf, cf2.bin)
+#                 and its size report (JSON: stock, with the app, the difference);
+#                 NS2_INFER=fixed|float|both selects the inference paths
 PYTHON ?= python3
 NS2 := $(PYTHON) -m ns2cli
 GEN := firmware/generated
@@ -15,7 +19,7 @@ DEFAULT := build/default
 ONBOARD := build/onboard
 CHECKPOINT ?= $(DEFAULT)/model.pt
 
-.PHONY: all deps export export-onboard test bench firmware sim paper-data clean
+.PHONY: all deps export export-onboard test bench firmware app sim paper-data clean
 
 all: export
 
@@ -52,6 +56,7 @@ test: deps
 bench: deps
 	@$(PYTHON) benchmarks/bench_core.py
 	@$(PYTHON) benchmarks/bench_target.py
+	@$(PYTHON) benchmarks/bench_stabilizer.py
 	@$(PYTHON) benchmarks/bench_sim.py
 	@$(PYTHON) benchmarks/bench_plan.py
 
@@ -62,6 +67,12 @@ firmware: deps $(GEN)/ns2_model_config.h
 
 $(GEN)/ns2_model_config.h:
 	$(MAKE) export
+
+# crazyflie-firmware (../shared tarball unpacked under build/, or CRAZYFLIE_BASE=...)
+# with the app; `make -C firmware/app cload` flashes build/app/cf2.bin
+NS2_INFER ?= fixed
+app: deps $(GEN)/ns2_model_config.h
+	$(PYTHON) -m ns2host.cfapp $(GEN) --out build/app --infer $(NS2_INFER)
 
 # Simulated flights -> data -> model, two curriculum rounds, then the swap
 # experiments (table and plots in build/sim/results).  SIM_SECONDS per team.

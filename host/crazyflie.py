@@ -19,7 +19,21 @@ from ns2codegen.errors import Ns2Error
 from .cbuild import BUILD, REPO
 COMMIT = "2a18fc29"
 TARBALL_NAME = f"crazyflie-firmware-{COMMIT}.tar.xz"
-SHARED = Path(os.environ.get("NS2_SHARED_DIR", REPO.parent / "shared"))
+
+
+def _shared() -> Path:
+    """``$NS2_SHARED_DIR``, else the nearest ``shared/`` folder beside the checkout or one of
+    its parents (a git worktree sits deeper than a clone)."""
+    env = os.environ.get("NS2_SHARED_DIR")
+    if env:
+        return Path(env)
+    for up in REPO.parents:
+        if (up / "shared" / "crazyflie-firmware").is_dir():
+            return up / "shared"
+    return REPO.parent / "shared"
+
+
+SHARED = _shared()
 
 
 class FirmwareMissing(Ns2Error, RuntimeError):
@@ -61,3 +75,10 @@ def firmware_dir() -> Path:
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     return dest
+
+
+if __name__ == "__main__":  # the app Makefile asks here where the firmware is (stdlib only)
+    try:
+        print(firmware_dir())
+    except FirmwareMissing as e:
+        raise SystemExit(str(e))

@@ -2,6 +2,7 @@
 and built for the host once per test session."""
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -13,6 +14,38 @@ from ns2codegen.data.analytic import downwash_dataset
 from ns2codegen.export import export
 from ns2codegen.quantize import ExportModel, from_checkpoint
 from ns2codegen.train import train
+
+
+# Tools the tests need (``needs``): missing ones skip those tests, or fail them with CI=true.
+ARM, QEMU, FIRMWARE = "arm-none-eabi-gcc", "qemu-system-arm", "crazyflie-firmware tarball"
+CI = os.environ.get("CI", "").lower() == "true"
+
+
+def _have(tool: str) -> bool:
+    from ns2host import crazyflie, target
+
+    return {ARM: target.have_toolchain, QEMU: target.have_qemu, FIRMWARE: crazyflie.have_firmware}[tool]()
+
+
+def needs(*tools: str):
+    """Mark a test (or ``pytestmark`` a module) as needing these tools."""
+    return pytest.mark.needs(*tools)
+
+
+def pytest_configure(config):
+    config.addinivalue_line("markers", "needs(*tools): skipped without the tools, failed with CI=true")
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_runtest_setup(item):
+    """Before any fixture: a missing tool skips the test, or fails it with CI=true."""
+    for mark in item.iter_markers("needs"):
+        missing = [t for t in mark.args if not _have(t)]
+        if missing:
+            msg = f"{', '.join(missing)} missing (scripts/install-deps.sh; ../shared beside the checkout)"
+            if CI:
+                pytest.fail(f"CI=true: {msg}", pytrace=False)
+            pytest.skip(msg)
 
 
 @dataclass

@@ -5,10 +5,11 @@ import numpy as np
 import pytest
 
 from ns2codegen.queries import random_queries
+from conftest import ARM, needs
 from ns2host import budget, cm4_count, firmware_report, target
 from ns2host.target import NBR_DT
 
-pytestmark = pytest.mark.skipif(not target.have_toolchain(), reason="arm-none-eabi-gcc missing")
+pytestmark = needs(ARM)
 
 
 @pytest.fixture(scope="module")

@@ -18,7 +18,7 @@ from ns2codegen.config import Config
 from ns2codegen.queries import random_queries
 from ns2host.cbuild import REPO, flags
 
-from conftest import train_and_export
+from conftest import ARM, needs, train_and_export
 
 HEADERS = ("ns2_model_config.h", "ns2_model_float.h", "ns2_model_fixed.h", "ns2_vehicles.h")
 ARM_CC = shutil.which("arm-none-eabi-gcc")
@@ -137,7 +137,7 @@ def test_proof_holds_on_extreme_inputs(exported):
     assert (sel.status == 0).all() and out.dtype == np.int16
 
 
-@pytest.mark.skipif(ARM_CC is None, reason="arm-none-eabi-gcc missing: run scripts/install-deps.sh")
+@needs(ARM)
 @pytest.mark.parametrize("opt", ["-O2", "-Os", "-O0"])  # -O0: Crazyflie debug builds (portable kernels)
 def test_cross_compiles_for_cortex_m4f_without_fma(exported, tmp_path, opt):
     f = flags()

@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 
 from ns2codegen.queries import random_queries
+from conftest import ARM, QEMU, needs
 from ns2host import hil, target
 
-needs_target = pytest.mark.skipif(not (target.have_toolchain() and target.have_qemu()),
-                                  reason="arm-none-eabi-gcc / qemu-system-arm missing")
+needs_target = needs(ARM, QEMU)
 
 
 @pytest.fixture(scope="module")

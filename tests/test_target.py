@@ -5,10 +5,10 @@ import pytest
 
 from ns2codegen import reference as ref
 from ns2codegen.queries import random_queries
+from conftest import ARM, QEMU, needs
 from ns2host import target
 
-pytestmark = pytest.mark.skipif(not (target.have_toolchain() and target.have_qemu()),
-                                reason="arm-none-eabi-gcc / qemu-system-arm missing: run scripts/install-deps.sh")
+pytestmark = needs(ARM, QEMU)
 
 
 def _compare(exported, cmodel, q, res):
@@ -70,69 +70,6 @@ def test_target_reports_failure(exported, tmp_path):
     q.n[:] = 70
     with pytest.raises(target.TargetError, match="exited with"):
         target.run_vectors(elf, q)
-
-
-@pytest.mark.parametrize("cc", ["gcc", "arm-none-eabi-gcc"])
-def test_crazyflie_app_glue_compiles(exported, tmp_path, cc):
-    """firmware/app against the declaration-only firmware headers, as the firmware
-    builds it (-Os, gnu99), warnings as errors, for the host and the Cortex-M4F."""
-    import subprocess
-
-    from ns2host.cbuild import REPO, flags
-
-    f = flags()
-    arch = f["NS2_ARM_FLAGS"] if cc.startswith("arm") else []
-    for src in ("ns2_app.c", "ns2_lib.c"):
-        r = subprocess.run([cc, *arch, "-std=gnu99", "-Os", "-ffp-contract=off", *f["NS2_WARN_FLAGS"],
-                            "-Wno-pedantic", "-Wno-strict-prototypes",
-                            f"-I{REPO / 'firmware/app/test_stubs'}", *[f"-I{REPO / i}" for i in f["NS2_INCLUDES"]],
-                            f"-I{exported.gen_dir}", "-c", str(REPO / "firmware/app/src" / src),
-                            "-o", str(tmp_path / (src + ".o"))], capture_output=True, text=True)
-        assert r.returncode == 0, r.stderr
-    for name in ("Makefile", "Kbuild", "app-config", "src/Kbuild"):
-        assert (REPO / "firmware/app" / name).is_file()
-    assert "-ffp-contract=off" in (REPO / "firmware/app/Makefile").read_text()
-
-
-def test_crazyflie_app_flies_the_ns2_controller(exported, tmp_path):
-    """The app glue on the host against the firmware stand-ins (app_harness.c): one
-    second of 1 kHz stabilizer ticks, a small robot hovering with a large peer 0.3 m
-    above.  The sliced prediction of the app equals the direct one-shot prediction
-    bit for bit (fixed and float), the motors get PWM ratios in controlModeForce,
-    the baseline hovers at psi_2 of the hover force, the learned downwash asks for
-    more thrust, no position setpoint means motors off, and a write of ns2.sync
-    logs one ns2Sync event."""
-    import json
-    import subprocess
-
-    from ns2host.cbuild import REPO, flags
-    from ns2host.sim.vehicle import G, vehicle
-
-    f = flags()
-    exe = tmp_path / "harness"
-    r = subprocess.run(["gcc", "-std=gnu99", "-Os", "-ffp-contract=off", *f["NS2_WARN_FLAGS"], "-Wno-pedantic",
-                        "-Wno-strict-prototypes", f"-I{REPO / 'firmware/app/test_stubs'}",
-                        *[f"-I{REPO / i}" for i in f["NS2_INCLUDES"]], f"-I{exported.gen_dir}",
-                        str(REPO / "firmware/app/test_stubs/app_harness.c"), "-lm", "-o", str(exe)],
-                       capture_output=True, text=True)
-    assert r.returncode == 0, r.stderr
-    runs = {}
-    for fixed, enable in ((1, 1), (0, 1), (1, 0)):
-        out = subprocess.run([str(exe), str(fixed), str(enable)], capture_output=True, text=True, check=True)
-        runs[fixed, enable] = res = json.loads(out.stdout)
-        assert res["mode"] == 2 and res["n"] == 1  # controlModeForce, the peer is a neighbour
-        assert np.float32(res["fa_hat_g"]) == np.float32(res["direct_g"])
-        assert all(0.0 < u < 1.0 for u in res["mean_pwm"]) and res["off_pwm"] == [0, 0, 0, 0]
-        assert res["sync"] == [1, 42]  # one ns2Sync event for the one write of ns2.sync
-    veh = vehicle(exported.cfg, "small")
-    f_g, v = veh.mass * G / 4 / G * 1000.0, 3.9 / 4.2
-    c = veh.psi2
-    hover_pwm = c[0] + c[1] * f_g + c[2] * v + c[3] * f_g ** 2 + c[4] * f_g * v
-    assert runs[1, 0]["mean_pwm"] == pytest.approx([hover_pwm] * 4, abs=2e-3)
-    fa = runs[1, 1]["fa_hat_g"]
-    assert fa != 0.0
-    # f_a,z < 0 (downwash) asks for more PWM than the baseline, and the reverse
-    assert np.sign(runs[1, 1]["mean_pwm"][0] - runs[1, 0]["mean_pwm"][0]) == -np.sign(fa)
 
 
 def _controller_steps(ffi, n, seed):

@@ -5,9 +5,11 @@
  *
  * Thin glue; all logic is in the tested library (firmware/src):
  *  - neighbours: positions of the other Crazyflies from the firmware's peer
- *    localization (mocap broadcasts), velocity by finite differences
- *    (ns2_peers), robot types from the ns2type parameters; the environment is
- *    always included by the library;
+ *    localization (mocap broadcasts), drained every 1 ms into the app's own table
+ *    of up to NS2_PEERS_MAX = 16 robots (the firmware keeps 10 and never frees a
+ *    slot; see drain_peers), velocity by finite differences (ns2_peers), robot
+ *    types from the ns2type parameters; the environment is always included by
+ *    the library;
  *  - prediction spread over the 500 Hz ticks (ns2_job_*): begun at each 100 Hz
  *    position tick from the current state and neighbours, ns2.phiPerTick phi
  *    evaluations per 500 Hz tick, finished (rho) at the next position tick,
@@ -54,6 +56,7 @@
 #include "stabilizer_types.h"
 #include "usec_time.h"
 
+#include "ns2_app_config.h"
 #include "ns2_controller.h"
 #include "ns2_deepset.h"
 #include "ns2_peers.h"
@@ -71,7 +74,7 @@ static const ns2_gains_t default_gains[NS2_NUM_ROBOT_TYPES] = NS2_DEFAULT_GAINS_
 
 static struct {
     uint8_t enable;     /* 1: learned feed-forward; 0: baseline (f_a = 0) */
-    uint8_t fixed;      /* 1: fixed-point inference, 0: float */
+    uint8_t fixed;      /* 1: fixed-point inference, 0: float (NS2_INFER=both) */
     uint8_t selfType;   /* robot type of this Crazyflie (NS2_TYPE_*) */
     uint8_t phiPerTick; /* phi evaluations per 500 Hz tick */
     uint16_t maxAgeMs;  /* peers older than this are ignored */
@@ -164,6 +167,64 @@ static void to_setpoint(const setpoint_t *sp, ns2_setpoint_t *d)
     d->yaw = sp->attitude.yaw * NS2_DEG2RAD;
 }
 
+/* The inference paths compiled in (NS2_APP_FIXED, NS2_APP_FLOAT: ns2_lib.c, the
+ * Makefile's NS2_INFER); ns2.fixed picks one when both are. */
+#if NS2_APP_FIXED
+static bool use_fixed(void)
+{
+    return !NS2_APP_FLOAT || cfg.fixed != 0u;
+}
+#endif
+
+static float finish_prediction(ns2_info_t *info)
+{
+#if NS2_APP_FIXED
+    if (use_fixed()) {
+        return ldexpf((float)ns2_job_finish_q15(&job, info), -NS2_Q_OUT_FRAC);
+    }
+#endif
+#if NS2_APP_FLOAT
+    return ns2_job_finish_f32(&job, info);
+#else
+    return 0.0f; /* not reached: without the float path the fixed one returned */
+#endif
+}
+
+static void step_prediction(void)
+{
+#if NS2_APP_FIXED
+    if (use_fixed()) {
+        (void)ns2_job_step_q15(&job, cfg.phiPerTick);
+        return;
+    }
+#endif
+#if NS2_APP_FLOAT
+    (void)ns2_job_step_f32(&job, cfg.phiPerTick);
+#endif
+}
+
+/* Drain the firmware's peer localization into the app's table (ns2_peers, up to
+ * NS2_PEERS_MAX robots), every stabilizer tick.  The firmware keeps at most
+ * PEER_LOCALIZATION_MAX_NEIGHBORS = 10 robots and never frees a slot, so an 11th
+ * broadcaster would never be seen; here each complete entry is copied and its slot
+ * freed, so any 10 positions per millisecond get through (docs/app.md).  The radio
+ * task writes id, x, y, z, then the timestamp (after a call, so last): an entry
+ * with timestamp 0 is being written (or free) and is taken at the next tick.  The
+ * app owns the peer table: other readers of peer localization see it drained. */
+static void drain_peers(void)
+{
+    for (uint8_t i = 0; i < PEER_LOCALIZATION_MAX_NEIGHBORS; ++i) {
+        peerLocalizationOtherPosition_t *o = peerLocalizationGetPositionByIdx(i);
+        if (o == NULL || o->id == 0u || o->pos.timestamp == 0u) {
+            continue;
+        }
+        const float p[3] = {o->pos.x, o->pos.y, o->pos.z};
+        (void)ns2_peers_update(&peers, o->id, type_of(o->id), o->pos.timestamp, p);
+        o->pos.timestamp = 0u;
+        o->id = 0u;
+    }
+}
+
 /* Finish the running prediction (rho) into faHat, then begin the next one from
  * the current state and the neighbours' latest positions. */
 static void predict_period(const ns2_ctrl_state_t *s, uint32_t now_ms)
@@ -171,21 +232,13 @@ static void predict_period(const ns2_ctrl_state_t *s, uint32_t now_ms)
     if (jobBegun) {
         ns2_info_t info;
         const uint64_t t0 = usecTimestamp();
-        const float f = cfg.fixed ? ldexpf((float)ns2_job_finish_q15(&job, &info), -NS2_Q_OUT_FRAC)
-                                  : ns2_job_finish_f32(&job, &info);
+        const float f = finish_prediction(&info);
         const uint32_t us = (uint32_t)(usecTimestamp() - t0);
         inferUs = us > sliceUsMax ? us : sliceUsMax;
         sliceUsMax = 0;
         status = info.status;
         nUsed = (uint8_t)info.n_used;
         faHat = f > cfg.faLimit ? cfg.faLimit : (f < -cfg.faLimit ? -cfg.faLimit : f);
-    }
-    for (uint8_t i = 0; i < PEER_LOCALIZATION_MAX_NEIGHBORS; ++i) {
-        const peerLocalizationOtherPosition_t *o = peerLocalizationGetPositionByIdx(i);
-        if (o != NULL && o->id != 0u) {
-            const float p[3] = {o->pos.x, o->pos.y, o->pos.z};
-            (void)ns2_peers_update(&peers, o->id, type_of(o->id), o->timestamp, p);
-        }
     }
     const uint8_t self = (uint8_t)(configblockGetRadioAddress() & 0xFFu);
     const uint16_t n = ns2_peers_neighbors(&peers, self, s->p, s->v, now_ms, cfg.maxAgeMs, nbrs, NS2_PEERS_MAX);
@@ -196,11 +249,7 @@ static void predict_period(const ns2_ctrl_state_t *s, uint32_t now_ms)
 static void predict_slice(void)
 {
     const uint64_t t0 = usecTimestamp();
-    if (cfg.fixed) {
-        (void)ns2_job_step_q15(&job, cfg.phiPerTick);
-    } else {
-        (void)ns2_job_step_f32(&job, cfg.phiPerTick);
-    }
+    step_prediction();
     const uint32_t us = (uint32_t)(usecTimestamp() - t0);
     sliceUsMax = us > sliceUsMax ? us : sliceUsMax;
 }
@@ -225,6 +274,7 @@ void controllerOutOfTree(control_t *control, const setpoint_t *setpoint, const s
         eventTrigger_ns2Sync_payload.seq = syncSeq;
         eventTrigger(&eventTrigger_ns2Sync);
     }
+    drain_peers();
     if (setpoint->mode.z == modeDisable || self_type() != ctrlType) {
         reset_controller(); /* on the ground, or the robot type was changed */
         for (int m = 0; m < STABILIZER_NR_OF_MOTORS; ++m) {

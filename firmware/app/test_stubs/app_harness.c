@@ -1,62 +1,120 @@
 /*
- * app_harness.c - host test of the app glue (firmware/app/src/ns2_app.c) with the
- * firmware stand-ins of this folder implemented here: one peer (radio id 2, a
- * large robot) 0.3 m above a small robot hovering at its setpoint; one second of
- * 1 kHz stabilizer ticks.  Prints JSON: the app's last f_a,z (g), the same
- * prediction computed directly (ns2_peers + ns2_predict_*), the motor commands,
- * and the commands with the position setpoint disabled.  The app and the library
- * are included as one translation unit, so the test reads the app's statics.
+ * app_harness.c - host test of the app glue (firmware/app/src/ns2_app.c), compiled
+ * against the real crazyflie-firmware headers (ns2host.cfapp.harness: the include
+ * folders of the firmware's Makefile, the app build's autoconf.h) together with the
+ * firmware's real peer_localization.c.  Only functions are stubbed here: the clock,
+ * the radio address, the battery voltage, the event-trigger and console sinks.
+ * The app and the library are included as one translation unit, so the test reads
+ * the app's statics.  Prints JSON.
  *
- *   argv[1]: 1 fixed point, 0 float;  argv[2]: 1 learned term on, 0 baseline
+ *   harness FIXED ENABLE        one peer (radio id 2, a large robot) 0.3 m above a
+ *       small robot hovering at its setpoint, one second of 1 kHz stabilizer ticks:
+ *       the app's last f_a,z (g), the same prediction computed directly (ns2_peers +
+ *       ns2_predict_*), the motor commands, the commands with the position setpoint
+ *       disabled, the ns2Sync events.  FIXED 1 fixed point, 0 float; ENABLE 1
+ *       learned term on, 0 baseline.
+ *   harness swarm N K           N robots (radio ids 1..N, this one is id 1) in a
+ *       ring 0.3 m around and 0.3 m above it, their positions broadcast as mocap
+ *       does (peerLocalizationTellPosition), a 100 Hz frame of N-1 positions in
+ *       packets of K positions, one packet per millisecond, for one second: how
+ *       many peers the app keeps and its network uses, and the most the firmware's
+ *       table ever held.
  */
-#include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
-
-#include "app.h"
-#include "configblock.h"
-#include "controller.h"
-#include "peer_localization.h"
-#include "pm.h"
-#include "task.h"
-#include "usec_time.h"
+#include <string.h>
 
 #include "../src/ns2_lib.c"
 #include "../src/ns2_app.c"
 
+/* the sizes and offsets the glue relies on, as the real headers have them (the
+ * header of this firmware version; a different one fails the build here) */
+_Static_assert(offsetof(peerLocalizationOtherPosition_t, pos) == 4, "peerLocalizationOtherPosition_t");
+_Static_assert(sizeof(point_t) == 16 && offsetof(point_t, x) == 4, "point_t = {timestamp, x, y, z}");
+_Static_assert(PEER_LOCALIZATION_MAX_NEIGHBORS == 10, "this firmware keeps 10 peers (docs/app.md)");
+_Static_assert(NS2_PEERS_MAX >= 16, "the app's own table holds the paper's 16-robot swarm");
+_Static_assert(RATE_MAIN_LOOP == 1000, "the stabilizer loop runs at 1 kHz");
+
 static uint32_t now_ms;
 static uint32_t sync_events, sync_seq;
-static peerLocalizationOtherPosition_t peer = {2u, 0u, {0.05f, 0.0f, 1.3f}, {0.0f, 0.0f, 0.0f, 1.0f}};
 
-int consolePrintf(const char *fmt, ...) { (void)fmt; return 0; }
-void eventTrigger(const eventTrigger_t *event)
+/* function stubs: what the firmware's drivers and tasks would provide */
+int consolePutchar(int ch) { return ch; }
+int eprintf(putc_t putcf, const char *fmt, ...) { (void)putcf; (void)fmt; return 0; }
+void eventTrigger(const eventtrigger *event)
 {
-    sync_events++;
-    sync_seq = *(const uint32_t *)event->payload;
+    if (strcmp(event->name, "ns2Sync") == 0 && event->payloadSize == sizeof(uint32_t)) {
+        sync_events++;
+        memcpy(&sync_seq, event->payload, sizeof sync_seq);
+    }
 }
 uint64_t usecTimestamp(void) { return (uint64_t)now_ms * 1000u; }
 uint64_t configblockGetRadioAddress(void) { return 0xE7E7E7E701ull; }
 float pmGetBatteryVoltage(void) { return 3.9f; }
 TickType_t xTaskGetTickCount(void) { return now_ms; }
 void vTaskDelay(const TickType_t ticks) { (void)ticks; }
-peerLocalizationOtherPosition_t *peerLocalizationGetPositionByIdx(uint8_t idx)
+
+static void tell(int id, float x, float y, float z)
 {
-    peer.timestamp = now_ms;
-    return idx == 0u ? &peer : NULL;
+    positionMeasurement_t m = {0};
+    m.x = x;
+    m.y = y;
+    m.z = z;
+    (void)peerLocalizationTellPosition(id, &m);
+}
+
+static void hover_setpoint(state_t *state, setpoint_t *sp)
+{
+    memset(state, 0, sizeof *state);
+    memset(sp, 0, sizeof *sp);
+    state->position.z = 1.0f;
+    state->attitudeQuaternion.w = 1.0f;
+    sp->position.z = 1.0f;
+    sp->mode.x = sp->mode.y = sp->mode.z = modeAbs;
+}
+
+static int swarm(int n_robots, int per_ms)
+{
+    state_t state;
+    setpoint_t sp;
+    sensorData_t sensors = {0};
+    control_t control = {0};
+    hover_setpoint(&state, &sp);
+    controllerOutOfTreeInit();
+    uint16_t n_max = 0;
+    int held_max = 0;
+    for (uint32_t tick = 1; tick <= 1000u; ++tick) {
+        now_ms = tick;
+        const int first = 2 + (int)(tick % 10u) * per_ms; /* this millisecond's packet */
+        for (int id = first; id < first + per_ms && id <= n_robots; ++id) {
+            const float a = 6.2831853f * (float)id / (float)n_robots;
+            tell(id, 0.3f * cosf(a), 0.3f * sinf(a), 1.3f);
+        }
+        int held = 0;
+        for (uint8_t i = 0; i < PEER_LOCALIZATION_MAX_NEIGHBORS; ++i) {
+            held += peerLocalizationGetPositionByIdx(i)->id != 0u;
+        }
+        held_max = held > held_max ? held : held_max;
+        controllerOutOfTree(&control, &sp, &sensors, &state, tick);
+        n_max = nUsed > n_max ? nUsed : n_max;
+    }
+    printf("{\"robots\": %d, \"per_ms\": %d, \"firmware_table_max\": %d, \"app_peers\": %u, \"n_used\": %u}\n",
+           n_robots, per_ms, held_max, (unsigned)peers.count, (unsigned)n_max);
+    return 0;
 }
 
 int main(int argc, char **argv)
 {
+    if (argc > 3 && strcmp(argv[1], "swarm") == 0) {
+        return swarm(atoi(argv[2]), atoi(argv[3]));
+    }
     const uint8_t fixed = (uint8_t)(argc > 1 ? atoi(argv[1]) : 1);
     const uint8_t enable = (uint8_t)(argc > 2 ? atoi(argv[2]) : 1);
-    state_t state = {0};
+    state_t state;
+    setpoint_t sp;
     sensorData_t sensors = {0};
-    setpoint_t sp = {0};
     control_t control = {0};
-    state.position.z = 1.0f;
-    state.attitudeQuaternion.w = 1.0f;
-    sp.position.z = 1.0f;
-    sp.mode.x = sp.mode.y = sp.mode.z = modeAbs;
+    hover_setpoint(&state, &sp);
     controllerOutOfTreeInit();
     cfg.fixed = fixed;
     cfg.enable = enable;
@@ -64,6 +122,7 @@ int main(int argc, char **argv)
     float sum[4] = {0};
     for (uint32_t tick = 0; tick < 1000u; ++tick) {
         now_ms = tick;
+        tell(2, 0.05f, 0.0f, 1.3f); /* the peer's mocap position, every ms */
         if (tick == 500u) {
             syncSeq = 42u; /* the broadcast parameter write */
         }
@@ -80,8 +139,12 @@ int main(int argc, char **argv)
     (void)ns2_peers_update(&direct_peers, 2u, 1u, 0u, pp);
     (void)ns2_peers_update(&direct_peers, 2u, 1u, 10u, pp);
     const uint16_t n = ns2_peers_neighbors(&direct_peers, 1u, p, v, 10u, 100u, nb, NS2_PEERS_MAX);
+#if NS2_APP_FIXED && NS2_APP_FLOAT
     const float direct = fixed ? ns2_predict_q15_g(NS2_TYPE_SMALL, p, v, nb, n, NULL)
                                : ns2_predict_f32(NS2_TYPE_SMALL, p, v, nb, n, NULL);
+#else
+#error "the harness compares both inference paths: build it with NS2_APP_FIXED=1 NS2_APP_FLOAT=1"
+#endif
     printf("{\"mode\": %d, \"fa_hat_g\": %.9g, \"direct_g\": %.9g, \"n\": %u, \"mean_pwm\": [%.6g, %.6g, %.6g, %.6g]",
            (int)control.controlMode, (double)faHat, (double)direct, (unsigned)n,
            (double)(sum[0] / 1000.0f), (double)(sum[1] / 1000.0f), (double)(sum[2] / 1000.0f),

@@ -1,0 +1,47 @@
+"""The app in the Crazyflie's 1 kHz stabilizer loop (JSON on stdout): the worst 1 ms
+iteration of the firmware's own Kalman estimator (kalman_core, 100 Hz prediction and
+a mocap position measurement in the same tick), of its stock PID controller and of the
+ns2 app's out-of-tree controller (its 100 Hz tick: rho, the next job, phi slices,
+position and attitude control), all compiled from the crazyflie-firmware tarball and
+counted on the emulated Cortex-M4 with ns2host/cm4_count.py's cost model (the same as
+bench_target.py).  Fixed point (the default app) and float; 15 peers broadcast by mocap at
+100 Hz, 4 positions per packet and millisecond, all of them in the app's table.
+
+    python benchmarks/bench_stabilizer.py [--gen firmware/generated]
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import tempfile
+from pathlib import Path
+
+from ns2host import crazyflie, stabilizer, target
+from ns2host.cbuild import REPO
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--gen", default=None,
+                    help="export folder (default: firmware/generated, else a freshly trained default model)")
+    args = ap.parse_args()
+    if not target.have_toolchain():
+        sys.exit("arm-none-eabi-gcc missing: run scripts/install-deps.sh")
+    if not crazyflie.have_firmware():
+        sys.exit(f"{crazyflie.tarball()}: crazyflie-firmware missing (or set CRAZYFLIE_BASE)")
+    with tempfile.TemporaryDirectory() as tmp:
+        gen = Path(args.gen) if args.gen else REPO / "firmware" / "generated"
+        if not (gen / "ns2_model_config.h").is_file():
+            sys.path.insert(0, str(Path(__file__).parent))
+            from bench_target import default_export
+
+            gen = default_export(Path(tmp))
+        result = {"cost_model": "ns2host/cm4_count.py (Cortex-M4 TRM cycle counts, no wait states)",
+                  "loop": "stabilizer at RATE_MAIN_LOOP = 1000 Hz, 168 MHz",
+                  **{infer: stabilizer.iteration(gen, 15, infer) for infer in ("fixed", "float")}}
+    print(json.dumps(result, indent=2))
+
+
+if __name__ == "__main__":
+    main()

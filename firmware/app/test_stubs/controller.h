@@ -1,7 +1,0 @@
-#pragma once
-#include <stdbool.h>
-#include "stabilizer_types.h"
-void controllerOutOfTreeInit(void);
-bool controllerOutOfTreeTest(void);
-void controllerOutOfTree(control_t *control, const setpoint_t *setpoint, const sensorData_t *sensors,
-                         const state_t *state, const uint32_t tick);

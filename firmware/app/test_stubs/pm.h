@@ -1,2 +1,0 @@
-#pragma once
-float pmGetBatteryVoltage(void);

@@ -1,3 +1,0 @@
-#pragma once
-#include <stdint.h>
-uint64_t usecTimestamp(void);

@@ -1,0 +1,131 @@
+"""One 1 ms stabilizer iteration on the emulated Cortex-M4: the firmware's Kalman
+estimator and stock PID controller next to the ns2 app.
+
+The loop runs at RATE_MAIN_LOOP = 1 kHz.  ``build_image`` compiles, with the
+firmware's own compiler flags (-Os, gnu11, -ffunction-sections, its ARCH_CFLAGS):
+kalman_core.c + mm_position.c (the estimator task's iteration with a position
+measurement), controller_pid.c and the PID code it uses, peer_localization.c
+(those with ``UNIT_TEST_MODE`` as the firmware's Python bindings compile them), and
+the app (firmware/app/src, NS2_INFER) with host/cf_stabilizer.c's entry points into
+one ELF for the STM32F405 (cached by content).  ``iteration`` counts each part
+with ns2host.cm4_count (the same emulator and cost model as the library) over the
+ticks of a 100 Hz period and reports the worst tick of each.
+"""
+from __future__ import annotations
+
+import hashlib
+import os
+import subprocess
+import tempfile
+from pathlib import Path
+
+from . import cfapp, cm4_count, crazyflie
+from .cbuild import BUILD_ROOT, GENERATED, REPO, BuildError, flags
+from .target import ARM_CC, TARGET_DIR
+
+FIRMWARE_SOURCES = (
+    "src/modules/src/kalman_core/kalman_core.c", "src/modules/src/kalman_core/mm_position.c",
+    "src/modules/src/controller/controller_pid.c", "src/modules/src/controller/position_controller_pid.c",
+    "src/modules/src/controller/attitude_pid_controller.c", "src/utils/src/pid.c", "src/utils/src/filter.c",
+    "src/utils/src/num.c", "src/modules/src/peer_localization.c",
+    # the CMSIS-DSP functions kalman_core uses (vendor/Kbuild compiles them for the firmware)
+    "vendor/CMSIS/CMSIS/DSP/Source/MatrixFunctions/arm_mat_mult_f32.c",
+    "vendor/CMSIS/CMSIS/DSP/Source/MatrixFunctions/arm_mat_trans_f32.c",
+    "vendor/CMSIS/CMSIS/DSP/Source/FastMathFunctions/arm_cos_f32.c",
+    "vendor/CMSIS/CMSIS/DSP/Source/FastMathFunctions/arm_sin_f32.c",
+    "vendor/CMSIS/CMSIS/DSP/Source/CommonTables/arm_common_tables.c",
+)
+ARCH_CFLAGS = ("-mcpu=cortex-m4", "-mthumb", "-mfloat-abi=hard", "-mfpu=fpv4-sp-d16", "-fno-math-errno",
+               "-DARM_MATH_CM4", "-D__FPU_PRESENT=1", "-mfp16-format=ieee", *cfapp.FIRMWARE_DEFINES)
+KBUILD_CFLAGS = ("-Os", "-std=gnu11", "-fno-strict-aliasing", "-ffunction-sections", "-fdata-sections",
+                 "-DCRAZYFLIE_FW", "-Wall", "-Werror", "-Wno-array-bounds")
+DRIVER = REPO / "host" / "cf_stabilizer.c"
+ENTRY_POINTS = ("bench_init", "bench_radio", "bench_estimator", "bench_pid", "bench_app")
+TICK_US, CLOCK_HZ = 1000.0, cm4_count.CLOCK_HZ
+
+
+def build_image(gen_dir: Path, infer: str = "fixed") -> Path:
+    """The ELF with the estimator, the PID controller, the app and the entry points."""
+    gen_dir = Path(gen_dir).resolve()
+    app = cfapp.app_config()  # autoconf.h: the configuration the app flies with
+    fw = crazyflie.firmware_dir()
+    fixed, flt = {"fixed": (1, 0), "float": (0, 1), "both": (1, 1)}[infer]
+    app_flags = ["-ffp-contract=off", f"-DNS2_APP_FIXED={fixed}", f"-DNS2_APP_FLOAT={flt}",
+                 *[f"-I{REPO / i}" for i in flags()["NS2_INCLUDES"]], f"-I{gen_dir}"]
+    inc = [a for d in cfapp.firmware_includes(app) for a in ("-I", str(d))] + \
+        ["-include", str(app / "include/generated/autoconf.h")]
+    units = [(fw / s, ["-DUNIT_TEST_MODE", "-Wno-unused-const-variable"]) for s in FIRMWARE_SOURCES] + \
+        [(REPO / "firmware/app/src" / s, app_flags) for s in ("ns2_app.c", "ns2_lib.c")] + \
+        [(DRIVER, []), (TARGET_DIR / "startup_cm4.c", [])]
+    h = hashlib.sha256(repr((ARCH_CFLAGS, KBUILD_CFLAGS, app_flags, ARM_CC, ENTRY_POINTS)).encode())
+    for p in [u for u, _ in units] + cfapp.app_inputs(gen_dir) + [TARGET_DIR / "stm32f405.ld",
+                                                                  app / "include/generated/autoconf.h"]:
+        h.update(p.name.encode() + p.read_bytes())
+    out = BUILD_ROOT.parent / "arm" / f"cf_stabilizer-{h.hexdigest()[:16]}.elf"
+    if out.is_file():
+        return out
+    out.parent.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory() as tmp:
+        objs = []
+        for i, (src, extra) in enumerate(units):
+            obj = Path(tmp) / f"{i}-{src.stem}.o"
+            cmd = [ARM_CC, *ARCH_CFLAGS, *KBUILD_CFLAGS, *extra, *inc, "-g", "-c", str(src), "-o", str(obj)]
+            r = subprocess.run(cmd, capture_output=True, text=True)
+            if r.returncode != 0:
+                raise BuildError(f"{' '.join(cmd)}\n{r.stdout}{r.stderr}")
+            objs.append(str(obj))
+        cmd = [ARM_CC, *ARCH_CFLAGS, "--specs=nosys.specs", "-nostartfiles", f"-T{TARGET_DIR / 'stm32f405.ld'}",
+               "-Wl,--gc-sections", *[f"-Wl,--undefined={e}" for e in ENTRY_POINTS], *objs, "-lm", "-o", str(Path(tmp) / out.name)]
+        r = subprocess.run(cmd, capture_output=True, text=True)
+        if r.returncode != 0:
+            raise BuildError(f"{' '.join(cmd)}\n{r.stdout}{r.stderr}")
+        os.replace(Path(tmp) / out.name, out)
+    return out
+
+
+def _worst(runs: list[cm4_count.Run]) -> dict:
+    w = max(runs, key=lambda r: r.cycles)
+    return {"instructions": w.instructions, "cycles": w.cycles, "us_at_168MHz": round(w.microseconds, 1),
+            "share_of_1ms": round(w.microseconds / TICK_US, 4)}
+
+
+def iteration(gen_dir: Path, n_peers: int = 15, infer: str = "fixed") -> dict:
+    """Each part's worst 1 ms tick, and the mean CPU load, over 20 ticks (two 100 Hz
+    periods) after a warm-up period (Kalman filter and app running, prediction jobs
+    under way).  The estimator predicts at 100 Hz and gets the mocap position at
+    100 Hz, both in the same tick (its worst, coinciding with the controllers' 100 Hz
+    tick: the worst case); in the other ticks it adds process noise, finalizes and
+    externalizes.  The estimator runs in its own task, so its worst tick may spill
+    into the next millisecond; the mean load says whether the CPU keeps up."""
+    cm = cm4_count.Cm4(build_image(gen_dir, infer))
+    cm.call("bench_init", n_peers)
+    runs: dict[str, list] = {"estimator": [], "estimator_other": [], "pid": [], "app": []}
+    for tick in range(1, 31):
+        period = int(tick % 10 == 0)  # PREDICT_RATE = 100 Hz, mocap at 100 Hz
+        cm.call("bench_radio", tick)  # mocap broadcasts (the radio task's time, not counted)
+        _, _, e = cm.call("bench_estimator", tick, period, period)
+        _, _, p = cm.call("bench_pid", tick)
+        _, _, a = cm.call("bench_app", tick)
+        if tick > 10:
+            runs["estimator" if period else "estimator_other"].append(e)
+            runs["pid"].append(p)
+            runs["app"].append(a)
+    w = {k: _worst(v) for k, v in runs.items()}
+    n_used = int.from_bytes(cm.read(cm.addr("nUsed"), 1), "little")
+    est_total = sum(r.cycles for r in runs["estimator"] + runs["estimator_other"])
+    ticks = len(runs["pid"])
+
+    def load(cycles: int) -> float:
+        return round(cycles / ticks / CLOCK_HZ * 1e6 / TICK_US, 4)
+
+    def worst_tick(ctrl: str) -> dict:
+        c = w["estimator"]["cycles"] + w[ctrl]["cycles"]
+        return {"cycles": c, "share_of_1ms": round(c / CLOCK_HZ * 1e6 / TICK_US, 4)}
+
+    return {"tick_us": TICK_US, "clock_hz": CLOCK_HZ, "peers_broadcast": n_peers, "app_neighbors_used": n_used,
+            "infer": infer, "estimator_kalman_predict_and_position": w["estimator"],
+            "estimator_kalman_other_ticks": w["estimator_other"],
+            "stock_controller_pid": w["pid"], "app_controller_oot": w["app"],
+            "stock_worst_tick": worst_tick("pid"), "app_worst_tick": worst_tick("app"),
+            "stock_mean_load": load(est_total + sum(r.cycles for r in runs["pid"])),
+            "app_mean_load": load(est_total + sum(r.cycles for r in runs["app"]))}

@@ -1,0 +1,261 @@
+"""The app inside bitcraze's real crazyflie-firmware (the pinned tarball of ../shared):
+built with README's command (``make -C firmware/app``), checked on the ELF (the
+out-of-tree controller, PARAM/LOG groups, the ns2Sync event trigger), on the final
+.config, against the flash budget; and the app glue on the host against the
+firmware's real headers (firmware/app/test_stubs/app_harness.c)."""
+import json
+import subprocess
+
+import numpy as np
+import pytest
+
+from conftest import ARM, FIRMWARE, needs
+from ns2host import cfapp
+from ns2host.cbuild import REPO, flags
+
+pytestmark = needs(ARM, FIRMWARE)
+
+PARAM_UINT8, PARAM_UINT16, PARAM_UINT32, PARAM_FLOAT = 0x08, 0x09, 0x0A, 0x06
+LOG_UINT8, LOG_UINT32, LOG_INT32, LOG_FLOAT = 1, 3, 6, 7
+EVENT_UINT32 = 3
+
+
+@pytest.fixture(scope="module")
+def app(exported):
+    """The default app (fixed point) with the session's paper-sized network, cached by content."""
+    return cfapp.build_app(exported.gen_dir)
+
+
+@pytest.fixture(scope="module")
+def stock():
+    return cfapp.build_stock()
+
+
+def _symbols(elf):
+    im = cfapp.Image(elf)
+    try:
+        return {n: (s["st_info"]["type"], s["st_size"]) for n, s in im.symbols.items()}
+    finally:
+        im.close()
+
+
+def test_app_builds_cf2_outside_the_source_tree(app):
+    assert (app / "cf2.elf").stat().st_size > 0 and (app / "cf2.bin").stat().st_size > 300_000
+    assert not [p for p in (REPO / "firmware/app").rglob("*") if p.suffix in (".o", ".cmd", ".elf", ".bin")]
+    assert not (REPO / "firmware/app/build").exists()
+    r = subprocess.run(["git", "-C", str(REPO), "status", "--porcelain", "--ignored", "firmware/app"],
+                       capture_output=True, text=True, check=True)
+    assert not [line for line in r.stdout.splitlines() if line.startswith("!!")]  # no ignored build output
+
+
+def test_cload_from_any_folder_flashes_the_built_image(app, tmp_path):
+    """README's `make -C firmware/app cload`, started elsewhere (dry run: no radio here):
+    the firmware's cload target runs in the app's build folder on its cf2.bin."""
+    r = subprocess.run(["make", "-n", "-C", str(REPO / "firmware/app"), "cload", f"APP_BUILD={app}"],
+                       capture_output=True, text=True, cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    assert f"Entering directory '{app}'" in r.stdout and "-m cfloader  flash  cf2.bin stm32-fw" in r.stdout
+
+
+def test_the_firmware_calls_the_apps_out_of_tree_controller(app):
+    syms = _symbols(app / "cf2.elf")
+    for fn in ("controllerOutOfTreeInit", "controllerOutOfTreeTest", "controllerOutOfTree", "appMain"):
+        assert syms[fn][0] == "STT_FUNC" and syms[fn][1] > 0, fn
+    assert syms["controllerOutOfTree"][1] > 100  # the glue, not an empty default
+    # the library is linked in: the fixed-point path only (NS2_INFER=fixed)
+    assert "ns2_job_step_q15" in syms and "ns2_ctrl_attitude" in syms
+    assert "ns2_job_step_f32" not in syms and "ns2_predict_f32" not in syms
+
+
+def test_param_and_log_groups_in_the_elf(app):
+    elf = app / "cf2.elf"
+    params, logs = cfapp.param_groups(elf), cfapp.log_groups(elf)
+    im = cfapp.Image(elf)
+    try:
+        where = lambda addr: im.address_of(addr)  # noqa: E731
+        ns2 = {n: (t, where(a)) for n, t, a in params["ns2"]}
+        assert ns2 == {"enable": (PARAM_UINT8, "cfg"), "fixed": (PARAM_UINT8, "cfg"),
+                       "selfType": (PARAM_UINT8, "cfg"), "phiPerTick": (PARAM_UINT8, "cfg"),
+                       "maxAgeMs": (PARAM_UINT16, "cfg"), "faLimit": (PARAM_FLOAT, "cfg"),
+                       "sync": (PARAM_UINT32, "syncSeq")}
+        assert {n: (t, where(a)) for n, t, a in params["ns2type"]} == {
+            "mask1": (PARAM_UINT32, "typeMask1"), "mask2": (PARAM_UINT32, "typeMask2")}
+        gains = params["ns2gain"]
+        assert [n for n, _, _ in gains[:3]] == ["Lpx", "Lpy", "Lpz"] and len(gains) == 7 * 3 + 3
+        assert all(t == PARAM_FLOAT and where(a) == "gains" for _, t, a in gains)
+        log = {n: (t, where(a)) for n, t, a in logs["ns2"]}
+        assert log == {"faHat": (LOG_FLOAT, "faHat"), "inferUs": (LOG_UINT32, "inferUs"),
+                       "nUsed": (LOG_UINT8, "nUsed"), "status": (LOG_INT32, "status"),
+                       "ctrlStatus": (LOG_UINT32, "ctrlStatus"), "ex": (LOG_FLOAT, "ex"),
+                       "ey": (LOG_FLOAT, "ey"), "ez": (LOG_FLOAT, "ez")}
+    finally:
+        im.close()
+    # the firmware's own groups are read the same way (the parser is not tailored to ours)
+    assert "stabilizer" in params and "stabilizer" in logs and "pm" in logs
+
+
+def test_ns2sync_event_trigger_in_the_elf(app):
+    events = cfapp.event_triggers(app / "cf2.elf")
+    assert events["ns2Sync"] == {"variables": [("seq", EVENT_UINT32)], "payload_size": 4,
+                                 "payload_symbol": "eventTrigger_ns2Sync_payload"}
+    assert events["estPosition"]["variables"] == [("source", 1)]  # a firmware event, for comparison
+
+
+def test_final_config_has_the_oot_controller_and_no_battery_compensation(app):
+    cfg = cfapp.kconfig(app)
+    assert cfg["CONFIG_CONTROLLER_OOT"] == "y" and cfg["CONFIG_APP_ENABLE"] == "y"
+    assert cfg["CONFIG_ENABLE_THRUST_BAT_COMPENSATED"] == "n"  # psi_2 of the controller uses the voltage
+
+
+def test_flash_budget_and_ram_of_the_default_app(app, stock, exported):
+    """The default app (fixed point) with the paper-sized network costs at most 72 KB
+    of flash over stock cf2 and fits the RAM and CCM the stock firmware leaves free."""
+    assert exported.cfg.model["max_neighbors"] == 16  # the paper's network (config/default.toml)
+    s, a = cfapp.sizes(stock / "cf2.elf"), cfapp.sizes(app / "cf2.elf")
+    assert s["flash"] > 250_000  # a real cf2, not an empty image
+    assert 0 < a["flash"] - s["flash"] <= cfapp.FLASH_BUDGET
+    assert 0 < a["ram"] - s["ram"] < s["ram_free"] and a["ram_free"] > 0 and a["ccm_free"] >= 0
+    stack = int(cfapp.kconfig(app)["CONFIG_APP_STACKSIZE"]) * 4
+    assert a["bss"] - s["bss"] >= stack  # the app task's static stack is in the RAM it adds
+
+
+def test_size_report_of_make_app(app, stock, exported):
+    """`make app`'s report (python -m ns2host.cfapp): stock, with the app, what it adds."""
+    import sys
+
+    r = json.loads(subprocess.run([sys.executable, "-m", "ns2host.cfapp", str(exported.gen_dir)],
+                                  capture_output=True, text=True, check=True).stdout)
+    assert r["stock"] == cfapp.sizes(stock / "cf2.elf") and r["app"] == cfapp.sizes(app / "cf2.elf")
+    assert r["delta"]["flash"] == r["app"]["flash"] - r["stock"]["flash"] and r["within_flash_budget"]
+    added = r["ram_added"]
+    assert added["app_task_stack"] == 1400 and added["app_bss"] > 1000
+    assert added["bytes"] >= added["app_task_stack"] + added["app_bss"]
+
+
+def _compile_lib(tmp_path, infer):
+    f = flags()
+    defs = {"fixed": ("1", "0"), "float": ("0", "1"), "both": ("1", "1"), "none": ("0", "0")}[infer]
+    obj = tmp_path / f"lib-{infer}.o"
+    return obj, subprocess.run(
+        ["arm-none-eabi-gcc", *f["NS2_ARM_FLAGS"], "-std=gnu11", "-Os", "-ffp-contract=off", *f["NS2_WARN_FLAGS"],
+         "-Wno-pedantic", f"-DNS2_APP_FIXED={defs[0]}", f"-DNS2_APP_FLOAT={defs[1]}",
+         *[f"-I{REPO / i}" for i in f["NS2_INCLUDES"]], f"-I{tmp_path}", "-c",
+         str(REPO / "firmware/app/src/ns2_lib.c"), "-o", str(obj)], capture_output=True, text=True)
+
+
+@pytest.mark.parametrize("infer", ["fixed", "float", "both"])
+def test_inference_paths_are_a_build_option(exported, tmp_path, infer):
+    import shutil
+
+    for p in exported.gen_dir.iterdir():
+        shutil.copy(p, tmp_path / p.name)
+    obj, r = _compile_lib(tmp_path, infer)
+    assert r.returncode == 0, r.stderr
+    nm = subprocess.run(["arm-none-eabi-nm", str(obj)], capture_output=True, text=True, check=True).stdout
+    assert (" T ns2_job_step_q15" in nm) == (infer in ("fixed", "both"))
+    assert (" T ns2_job_step_f32" in nm) == (infer in ("float", "both"))
+    assert " T ns2_ctrl_attitude" in nm and " T ns2_peers_update" in nm
+
+
+def test_no_inference_path_and_a_bad_option_are_refused(exported, tmp_path):
+    _, r = _compile_lib(tmp_path, "none")
+    assert r.returncode != 0 and "no inference path" in r.stderr
+    r = subprocess.run(["make", "-C", str(REPO / "firmware/app"), "NS2_INFER=fast", f"APP_BUILD={tmp_path / 'b'}",
+                        f"NS2_GEN={exported.gen_dir}", "CRAZYFLIE_BASE=/nonexistent"],
+                       capture_output=True, text=True, cwd=tmp_path)
+    assert r.returncode != 0 and "NS2_INFER=fast: must be fixed, float or both" in r.stderr
+    assert not (tmp_path / "b").exists()
+
+
+def test_missing_generated_headers_are_named(tmp_path):
+    r = subprocess.run(["make", "-C", str(REPO / "firmware/app"), f"APP_BUILD={tmp_path / 'b'}",
+                        f"NS2_GEN={tmp_path / 'nogen'}", "CRAZYFLIE_BASE=/nonexistent"],
+                       capture_output=True, text=True, cwd=tmp_path)
+    assert r.returncode != 0 and f"{tmp_path / 'nogen'}/ns2_model_config.h: missing" in r.stderr
+
+
+# ------------------------------------------------------------------ host harness
+
+
+@pytest.fixture(scope="module")
+def harness(exported, tmp_path_factory):
+    return cfapp.build_harness(exported.gen_dir, tmp_path_factory.mktemp("harness"))
+
+
+def _run(exe, *args):
+    return json.loads(subprocess.run([str(exe), *map(str, args)], capture_output=True, text=True,
+                                     check=True).stdout)
+
+
+def test_app_flies_the_ns2_controller_against_the_real_headers(harness, exported):
+    """One second of 1 kHz stabilizer ticks, a small robot hovering with a large peer
+    0.3 m above, its position told through the firmware's peer localization.  The
+    sliced prediction of the app equals the direct one-shot prediction bit for bit
+    (fixed and float), the motors get PWM ratios in controlModeForce, the baseline
+    hovers at psi_2 of the hover force, the learned downwash asks for more thrust,
+    no position setpoint means motors off, and a write of ns2.sync logs one ns2Sync."""
+    from ns2host.sim.vehicle import G, vehicle
+
+    runs = {}
+    for fixed, enable in ((1, 1), (0, 1), (1, 0)):
+        runs[fixed, enable] = res = _run(harness, fixed, enable)
+        assert res["mode"] == 2 and res["n"] == 1  # controlModeForce, the peer is a neighbour
+        assert np.float32(res["fa_hat_g"]) == np.float32(res["direct_g"])
+        assert all(0.0 < u < 1.0 for u in res["mean_pwm"]) and res["off_pwm"] == [0, 0, 0, 0]
+        assert res["sync"] == [1, 42]  # one ns2Sync event for the one write of ns2.sync
+    veh = vehicle(exported.cfg, "small")
+    f_g, v = veh.mass * G / 4 / G * 1000.0, 3.9 / 4.2
+    c = veh.psi2
+    hover_pwm = c[0] + c[1] * f_g + c[2] * v + c[3] * f_g ** 2 + c[4] * f_g * v
+    assert runs[1, 0]["mean_pwm"] == pytest.approx([hover_pwm] * 4, abs=2e-3)
+    fa = runs[1, 1]["fa_hat_g"]
+    assert fa != 0.0
+    # f_a,z < 0 (downwash) asks for more PWM than the baseline, and the reverse
+    assert np.sign(runs[1, 1]["mean_pwm"][0] - runs[1, 0]["mean_pwm"][0]) == -np.sign(fa)
+
+
+@pytest.mark.parametrize("robots,per_ms,seen", [(16, 4, 15), (16, 2, 15), (16, 10, 15), (16, 15, 10), (8, 7, 7)])
+def test_sixteen_robot_swarm_through_the_firmware_peer_table(harness, robots, per_ms, seen):
+    """The firmware's peer localization (real peer_localization.c) keeps 10 robots
+    and never frees a slot; the app drains it every millisecond into its own table
+    of 16.  Mocap frames at 100 Hz in packets of per_ms positions per millisecond:
+    all 15 peers of a 16-robot swarm reach the network as long as at most 10 arrive
+    in one millisecond; 15 in one millisecond leave 10 (docs/app.md)."""
+    res = _run(harness, "swarm", robots, per_ms)
+    assert res["app_peers"] == seen and res["n_used"] == seen
+    assert res["firmware_table_max"] == min(per_ms, 10)
+
+
+# ------------------------------------------------------------------ 1 ms stabilizer iteration
+
+
+@pytest.mark.parametrize("infer", ["fixed", "float", "both"])
+def test_app_compiles_against_the_real_headers_for_each_inference_path(exported, infer):
+    """ns2_app.c + ns2_lib.c for the Cortex-M4 with the firmware's flags and headers,
+    warnings as errors, linked with the firmware's estimator and PID controller."""
+    from ns2host import stabilizer
+
+    syms = _symbols(stabilizer.build_image(exported.gen_dir, infer))
+    assert ("ns2_job_step_f32" in syms) == (infer != "fixed")
+    assert ("ns2_job_step_q15" in syms) == (infer != "float")
+    for fn in ("kalmanCorePredict", "kalmanCoreUpdateWithPosition", "controllerPid", "controllerOutOfTree"):
+        assert syms[fn][0] == "STT_FUNC", fn
+
+
+def test_stabilizer_iteration_counts(exported):
+    """The firmware's Kalman estimator, its PID controller and the app counted on the
+    emulated Cortex-M4: deterministic instruction counts in ranges that a missing
+    measurement update, an empty controller or a skipped prediction would leave."""
+    from ns2host import stabilizer
+
+    r = stabilizer.iteration(exported.gen_dir)
+    est, quiet = r["estimator_kalman_predict_and_position"], r["estimator_kalman_other_ticks"]
+    pid, app = r["stock_controller_pid"], r["app_controller_oot"]
+    assert 20_000 < est["instructions"] < 200_000  # 9-state covariance update, three scalar updates
+    assert 300 < quiet["instructions"] < 5_000 and quiet["instructions"] * 10 < est["instructions"]
+    assert 1_000 < pid["instructions"] < 20_000
+    assert 5_000 < app["instructions"] < 100_000 and app["cycles"] > pid["cycles"]
+    assert r["app_neighbors_used"] == 15  # 15 peers broadcast, all through the firmware's 10 slots
+    assert r["app_worst_tick"]["cycles"] == est["cycles"] + app["cycles"]
+    assert 0 < r["stock_mean_load"] < r["app_mean_load"] < r["app_worst_tick"]["share_of_1ms"]
+    assert stabilizer.iteration(exported.gen_dir) == r  # deterministic
