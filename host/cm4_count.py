@@ -287,9 +287,12 @@ class Cm4:
         mu.mem_map(CCM, CCM_SIZE)
         mu.mem_map(SCS, SCS_SIZE)
         self.symbols = {}
+        ram_end = RAM
         with open(self.elf, "rb") as f:
             elf = ELFFile(f)
             for seg in elf.iter_segments():
+                if seg["p_type"] == "PT_LOAD" and RAM <= seg["p_vaddr"] < RAM + RAM_SIZE:
+                    ram_end = max(ram_end, seg["p_vaddr"] + seg["p_memsz"])
                 if seg["p_type"] == "PT_LOAD" and seg["p_filesz"]:
                     data = seg.data()
                     mu.mem_write(seg["p_paddr"], data)
@@ -304,7 +307,10 @@ class Cm4:
         self.mu = mu
         self.cs = capstone.Cs(capstone.CS_ARCH_ARM, capstone.CS_MODE_THUMB | capstone.CS_MODE_MCLASS)
         self._decoded: dict[int, tuple[str, str, int]] = {}
-        self.heap = RAM + 0x8000  # argument scratch area (below the stack)
+        # argument scratch area: above the image's .data/.bss (tables placed in SRAM
+        # included), below the stack
+        self.scratch = max(RAM + 0x8000, (ram_end + 0xFF) & ~0xFF)
+        self.heap = self.scratch
 
     def addr(self, name: str) -> int:
         return self.symbols[name][0] & ~1
@@ -317,7 +323,7 @@ class Cm4:
         return a
 
     def reset_scratch(self) -> None:
-        self.heap = RAM + 0x8000
+        self.heap = self.scratch
 
     def read(self, addr: int, n: int) -> bytes:
         return bytes(self.mu.mem_read(addr, n))
