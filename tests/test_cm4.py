@@ -141,11 +141,20 @@ def test_memory_model_instruction_cache_keeps_missed_lines_only():
     body = _seq(F, 8, cycles=3)
     st = cm4_count.memory_stalls(body * 3, cm4_count.MemorySystem("np", prefetch=False))
     assert (st.fetch, st.fetch_misses) == (10, 2)  # both lines missed once, then cached
-    # with prefetch, line 1 comes from the prefetch buffer and is not cached (RM0090
-    # 3.5.2): line 0 misses (5), line 1 is prefetched in time (12 cycles of line 0);
-    # later passes hit line 0 in the cache and get line 1 prefetched again: no stall
+    # with prefetch: line 0 misses (5), line 1 is prefetched in time (12 cycles of line 0)
+    # and cached when used; the prefetch of line 2 is issued from line 1 on every pass,
+    # that of line 1 only on the first: 4 prefetches, no further stall
     st = cm4_count.memory_stalls(body * 3, ART)
+    assert (st.fetch, st.fetch_misses, st.prefetches) == (5, 1, 4)
+    # RM0090 taken literally (only missed lines are cached): line 1 is prefetched
+    # again on every pass (in time: still no stall), 6 prefetches
+    st = cm4_count.memory_stalls(body * 3, cm4_count.STM32F405_PREFETCH_UNCACHED)
     assert (st.fetch, st.fetch_misses, st.prefetches) == (5, 1, 6)
+    # ... which costs where lines execute in fewer than 6 cycles: 4 single-cycle
+    # instructions per line, a 2-line loop run 3 times
+    fast = _seq(F, 8)
+    assert cm4_count.memory_stalls(fast * 3, ART).fetch == 7
+    assert cm4_count.memory_stalls(fast * 3, cm4_count.STM32F405_PREFETCH_UNCACHED).fetch > 7
     # more lines than the cache holds (LRU): 65 lines in a loop miss every time
     big = _seq(F, 4 * 65, cycles=3)
     st = cm4_count.memory_stalls(big * 2, cm4_count.MemorySystem("np", prefetch=False))
