@@ -263,7 +263,8 @@ class Run:
     instructions: int = 0
     cycles: int = 0  # zero wait states (Cortex-M4 TRM counts)
     mix: Counter = field(default_factory=Counter)
-    by_function: Counter = field(default_factory=Counter)
+    by_function: Counter = field(default_factory=Counter)  # instructions
+    cycles_by_function: Counter = field(default_factory=Counter)  # zero-wait cycles
     stalls: Stalls = field(default_factory=Stalls)  # added by the memory system
     memory: str = ZERO_WAIT.name
 
@@ -381,7 +382,8 @@ class Cm4:
         events = []
         for k, (address, size) in enumerate(trace):
             j = bisect.bisect_right(starts, address) - 1
-            run.by_function[funcs[j][2] if j >= 0 and address < funcs[j][1] else "?"] += 1
+            fname = funcs[j][2] if j >= 0 and address < funcs[j][1] else "?"
+            run.by_function[fname] += 1
             mn, ops, _ = self._decode(address, size)
             taken = False
             if _base(mn.lower()) in _BRANCHES:
@@ -390,6 +392,7 @@ class Cm4:
             cost = instruction_cost(mn, ops, taken)
             run.instructions += 1
             run.cycles += cost
+            run.cycles_by_function[fname] += cost
             run.mix[mn.split(".")[0]] += 1
             events.append((address, size, cost, flash_reads.get(k, ())))
         run.stalls = memory_stalls(events, self.memory)
