@@ -28,13 +28,15 @@ system of the STM32F405 at 168 MHz is modelled on top (``Run.memory_cycles``,
     interface serves one read at a time;
   - ART accelerator (RM0090 section 3.5.2): instruction cache of 64 lines of 128 bits
     (a line read on a miss is copied into it, and in this model a line used from the
-    prefetch buffer too: see ``cache_prefetched``), data cache of 8 lines of 128 bits (literal pools and constant tables
-    read through the D-code bus), prefetch of the next sequential 128-bit line while
-    the current one executes; both caches modelled fully associative with LRU
-    replacement (the manual does not give the organisation);
+    prefetch buffer too: see ``cache_prefetched``), LRU replacement; data cache of 8
+    lines of 128 bits (literal pools and constant tables read through the D-code
+    bus); prefetch of the next sequential 128-bit line while the current one
+    executes; both caches modelled fully associative (the manual does not give the
+    organisation);
   - contention: I-code and D-code share the flash interface; the D-code bus has
     priority (RM0090 section 3.5.2, "Data management"), modelled as: a read that has
-    started (a prefetch included) completes, a data read then goes first;
+    started (a prefetch included) completes, a data read goes before a prefetch that
+    has not started yet;
   - SRAM1/SRAM2 (0x2000_0000) and CCM (0x1000_0000, data only) at zero wait states
     (RM0090 section 2.3.1 and 2.3.2; the S-bus and D-bus reach them without wait
     states); data reads there add nothing to the TRM counts;
@@ -208,9 +210,16 @@ def memory_stalls(events, mem: MemorySystem = STM32F405_168MHZ) -> Stalls:
     t = 0
     port_free = [0, 0]  # when the flash interface is free for instruction (0) and data (1) reads
     cur = pf_line = None
-    pf_ready = 0
+    pf_start = pf_ready = 0
 
     def read(at: int, side: int) -> int:  # a flash line read requested at `at`; returns its completion
+        nonlocal pf_start, pf_ready
+        if side == 1 and mem.contention and pf_line is not None and pf_start > at:
+            # the D-code bus goes before the queued prefetch, which moves behind it
+            done = pf_start + rc  # the interface is busy until pf_start (else the prefetch had started)
+            pf_start, pf_ready = done, done + rc
+            port_free[0] = port_free[1] = pf_ready
+            return done
         start = max(at, port_free[side])
         done = start + rc
         if mem.contention:
@@ -239,7 +248,8 @@ def memory_stalls(events, mem: MemorySystem = STM32F405_168MHZ) -> Stalls:
                 st.fetch += stall
                 pf_line = None
                 if mem.prefetch and (line + 1) not in icache.lines:
-                    pf_line, pf_ready = line + 1, read(t, 0)
+                    pf_ready = read(t, 0)
+                    pf_line, pf_start = line + 1, pf_ready - rc
                     st.prefetches += 1
         else:
             cur = None

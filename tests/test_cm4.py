@@ -181,15 +181,20 @@ def test_memory_model_data_cache_eight_lines():
 
 
 def test_memory_model_contention_between_prefetch_and_data():
-    # line 0 (code) misses: stall 5, issue at t=5; the prefetch of line 1 occupies the
-    # flash interface 6..12; the load (first instruction, data line elsewhere in flash)
-    # asks at t=5 and its read starts at 12, done 18: stall 18 - 1 - 5 = 12
+    # line 0 (code) misses: read 0..6, stall 5, issue at t=5; the prefetch of line 1 is
+    # queued behind it (would start at 6).  A load in that first instruction asks at t=5:
+    # the D-code bus goes first (RM0090 3.5.2): its read runs 6..12, stall 12 - 1 - 5 = 6,
+    # and the prefetch moves to 12..18
     ev = [(F, 4, 2, ((F + 0x1000, 4),))] + _seq(F + 4, 3, cycles=3)
     st = cm4_count.memory_stalls(ev, ART)
-    assert (st.fetch, st.data) == (5, 12)
-    # without contention the load waits only for its own read: 5
-    st = cm4_count.memory_stalls(ev, cm4_count.STM32F405_NO_CONTENTION)
-    assert (st.fetch, st.data) == (5, 5)
+    assert (st.fetch, st.data) == (5, 6)
+    # a load one instruction later (t=6) finds the prefetch started (6..12): it waits
+    # for it and reads 12..18, stall 18 - 1 - 6 = 11
+    ev = [(F, 2, 1, ())] + [(F + 2, 4, 2, ((F + 0x1000, 4),))] + _seq(F + 6, 2, cycles=3)
+    st = cm4_count.memory_stalls(ev, ART)
+    assert (st.fetch, st.data) == (5, 11)
+    # without contention each load waits only for its own read: 5
+    assert cm4_count.memory_stalls(ev, cm4_count.STM32F405_NO_CONTENTION).data == 5
 
 
 _SUM_S = """
