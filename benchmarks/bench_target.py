@@ -5,7 +5,10 @@ ns2host/cm4_count.py) per phi and rho evaluation and per full prediction with
 2 ms-tick budget (host/budget.py), for the paper's network and for the
 one-tick on-board variant (ns2codegen.config.ONBOARD_WIDTHS); emlearn's
 generated C for the same layer sizes side by side; flash, RAM and worst-case
-stack from the cross build.
+stack from the cross build; everything at zero wait states and on the modelled
+memory system of the STM32F405 (flash wait states, ART accelerator), with the
+weight tables in flash and the hot ones in SRAM, against the firmware's 1 kHz
+stabilizer loop; the machine's bound for the paper-sized network in one tick.
 
     python benchmarks/bench_target.py [--gen firmware/generated]
 """
@@ -36,6 +39,15 @@ def macs(dims):
     return sum(a * b for a, b in zip(dims[:-1], dims[1:]))
 
 
+def _run(r: cm4_count.Run) -> dict:
+    """Counts of one run: zero wait states and the modelled memory system."""
+    return {"instructions": r.instructions, "cycles": r.cycles, "us_at_168MHz": round(r.microseconds, 1),
+            "memory_model_cycles": r.memory_cycles, "memory_model_us": round(r.memory_microseconds, 1),
+            "stall_cycles": {"fetch": r.stalls.fetch, "data": r.stalls.data},
+            "flash_line_reads": {"fetch_misses": r.stalls.fetch_misses, "prefetches": r.stalls.prefetches,
+                                 "data_misses": r.stalls.data_misses}}
+
+
 def measure_library(elf: Path, cfg: Config) -> dict:
     cm = cm4_count.Cm4(elf)
     nb = budget.neighbors(cfg, 16, np.random.default_rng(0))
@@ -50,8 +62,7 @@ def measure_library(elf: Path, cfg: Config) -> dict:
         per_phi_cyc = (runs[16].cycles - runs[1].cycles) / 15
         kernel = sum(c for f, c in runs[16].by_function.items() if f.startswith("dense"))
         out[name] = {
-            "prediction": {f"{n}_neighbors": {"instructions": r.instructions, "cycles": r.cycles,
-                                              "us_at_168MHz": round(r.microseconds, 1)} for n, r in runs.items()},
+            "prediction": {f"{n}_neighbors": _run(r) for n, r in runs.items()},
             "per_phi": {"instructions": round(per_phi), "cycles": round(per_phi_cyc),
                         "us_at_168MHz": round(per_phi_cyc / 168, 2)},
             "per_rho_and_call_overhead": {"instructions": round(runs[0].instructions - per_phi),
@@ -65,30 +76,122 @@ def measure_library(elf: Path, cfg: Config) -> dict:
 
 
 def measure_sliced(cm: cm4_count.Cm4, name: str, p: int, v: int, nbrs: int, info: int,
-                   n: int = 15, per_step: int = PHI_PER_TICK) -> dict:
+                   n: int = 15, per_step: int = PHI_PER_TICK, ticks: int = 5) -> dict:
     """The app's schedule (firmware/app): the prediction with n neighbours is
     spread over the five 500 Hz ticks of a 100 Hz position period, per_step phi
     evaluations per tick (ns2_job_step_*); at the position tick the previous job
     is finished (rho only, its phi all done) and the next one begun, and that
-    tick also steps.  Its cost is the worst tick."""
+    tick also steps.  Its cost is the worst tick.  (At 1 kHz: ten 1 ms iterations
+    per position period, ``ticks=10``.)"""
     path = "q15" if name == "fixed" else "f32"
     job = cm.write(bytes(2048))  # >= sizeof(ns2_job_t)
     _, _, begin = cm.call("ns2_job_begin", job, 0, p, v, nbrs, n)
     steps, left = [], n + 1
     while left > 0:
         left, _, step = cm.call(f"ns2_job_step_{path}", job, per_step)
-        steps.append(step.cycles)
+        steps.append(step)
     _, _, fin = cm.call(f"ns2_job_finish_{path}", job, info)
-    worst = fin.cycles + begin.cycles + max(steps)
+    worst = fin.cycles + begin.cycles + max(s.cycles for s in steps)
+    worst_mem = fin.memory_cycles + begin.memory_cycles + max(s.memory_cycles for s in steps)
     return {"neighbors": n, "phi_per_tick": per_step, "ticks_with_phi": len(steps),
-            "fits_in_position_period": len(steps) <= 5, "begin_cycles": begin.cycles, "step_cycles": steps,
-            "finish_rho_cycles": fin.cycles, "worst_tick_cycles": worst,
-            "worst_tick_us_at_168MHz": round(worst / cm4_count.CLOCK_HZ * 1e6, 1)}
+            "fits_in_position_period": len(steps) <= ticks, "begin_cycles": begin.cycles,
+            "step_cycles": [s.cycles for s in steps], "finish_rho_cycles": fin.cycles, "worst_tick_cycles": worst,
+            "worst_tick_us_at_168MHz": round(worst / cm4_count.CLOCK_HZ * 1e6, 1),
+            "memory_model_step_cycles": [s.memory_cycles for s in steps],
+            "memory_model_worst_tick_cycles": worst_mem,
+            "memory_model_worst_tick_us": round(worst_mem / cm4_count.CLOCK_HZ * 1e6, 1)}
 
 
 def measure_controller(gen: Path, cfg: Config) -> dict:
-    return {name: {"instructions": run.instructions, "cycles": run.cycles, "us_at_168MHz": round(run.microseconds, 2)}
-            for name, run in budget.controller_runs(gen, cfg).items()}
+    return {name: _run(run) for name, run in budget.controller_runs(gen, cfg).items()}
+
+
+def measure_stabilizer(gen: Path, cfg: Config, ctrl: dict, sliced: bool = True, n: int = 15) -> dict:
+    """The prediction against the firmware's 1 kHz stabilizer loop on the modelled
+    memory system, float and fixed point, weight tables in flash and the hot ones in
+    SRAM (target.ram_placement): the whole prediction with n neighbours + the
+    environment in one 1 ms iteration, and (``sliced``) the worst iteration of the
+    prediction spread over the ten 1 ms iterations of the 100 Hz position period
+    (2 phi per iteration) and over the five 500 Hz attitude ticks (4 phi per tick),
+    each with the controller step (position + attitude: the worst iteration)."""
+    nb = budget.neighbors(cfg, 16, np.random.default_rng(0))
+    step = {k: sum(ctrl[s][k] for s in ("position_step", "attitude_step")) for k in ("cycles", "memory_model_cycles")}
+    us = 1e6 / cm4_count.CLOCK_HZ
+    out = {"iteration_us": budget.STABILIZER_ITERATION_US, "controller_step_us": round(step["cycles"] * us, 1),
+           "controller_step_us_memory_model": round(step["memory_model_cycles"] * us, 1),
+           "table_ram_budget_bytes": budget.TABLE_RAM_BUDGET_BYTES}
+    for name, fn, path in (("float", "ns2_predict_f32", "f32"), ("fixed", "ns2_predict_q15", "q15")):
+        out[name] = {}
+        for where, defines in (("flash", ()), ("ram", target.ram_placement(cfg.robot_types[0], path))):
+            cm = cm4_count.Cm4(target.build_image(gen, defines=defines))
+            run, args = budget.prediction_run(cm, fn, nb, n)
+            ram = sum(v["in_ram_bytes"] for v in target.table_bytes(cm.elf).values())
+            one = (run.memory_cycles + step["memory_model_cycles"]) * us
+            r = {"tables_in_ram_bytes": ram, "fits_ram_budget": ram <= budget.TABLE_RAM_BUDGET_BYTES,
+                 "one_iteration": {"prediction": _run(run), "with_controller_us": round(one, 1),
+                                   "with_controller_us_zero_wait": round((run.cycles + step["cycles"]) * us, 1),
+                                   "share_of_1ms_iteration": round(one / budget.STABILIZER_ITERATION_US, 3),
+                                   "within_400us_of_a_2ms_tick": one <= budget.BUDGET_US}}
+            if sliced:
+                for key, per, ticks in (("sliced_1kHz_2_phi_per_iteration", 2, 10),
+                                        ("sliced_500Hz_4_phi_per_tick", PHI_PER_TICK, 5)):
+                    sl = measure_sliced(cm, name, args["p"], args["v"], args["nbrs"], args["info"], n, per, ticks)
+                    worst = (sl["memory_model_worst_tick_cycles"] + step["memory_model_cycles"]) * us
+                    r[key] = {"worst_iteration_with_controller_us": round(worst, 1),
+                              "worst_iteration_with_controller_us_zero_wait":
+                                  round((sl["worst_tick_cycles"] + step["cycles"]) * us, 1),
+                              "share_of_1ms_iteration": round(worst / budget.STABILIZER_ITERATION_US, 3),
+                              "iterations_with_phi": sl["ticks_with_phi"],
+                              "fits_in_position_period": sl["fits_in_position_period"]}
+            out[name][where] = r
+    return out
+
+
+# Machine bounds of the inner loops (Cortex-M4 TRM cycle counts, zero wait; docs/target.md):
+# int16 SMLAD with a register tile of R rows x K neighbours costs per input pair R K SMLAD
+# + (R + K) loaded words + one cycle per load instruction; 14 usable core registers hold
+# R K accumulators, the live loaded words and two pointers, so R = 4, K = 2 is the best
+# tile: 8 SMLAD + 6 words in 3 loads (LDRD: 3 cycles) = 17 cycles per 16 MACs.  One vector
+# alone (rho, the environment's phi): 5 accumulators, an LDM of 5 weight words (6 cycles)
+# and half an LDRD of two input words: 5 + 6 + 1.5 = 12.5 cycles per 10 MACs.
+PAIR_CYCLES_PER_MAC = 17 / 16
+SINGLE_CYCLES_PER_MAC = 12.5 / 10
+# float: per MAC a VMUL and a VADD (two roundings as in C), 1 cycle each, and the
+# weight (VLDM of 8: 9 cycles per 8 words), shared by K neighbours: (2 K + 9/8) / K
+FLOAT_SINGLE_CYCLES_PER_MAC, FLOAT_PAIR_CYCLES_PER_MAC = 2 + 9 / 8, (4 + 9 / 8) / 2
+FLOAT_SINGLE_INSTR_PER_MAC, FLOAT_PAIR_INSTR_PER_MAC = 2 + 1 / 8, (4 + 1 / 8) / 2
+
+
+def moonshot(cfg: Config, stab: dict, lib: dict, n: int = 15) -> dict:
+    """The paper-sized network, n neighbours + environment + controller step in one
+    500 Hz tick within 400 us: the machine's lower bound (only the multiply-
+    accumulates, at the best register tile, unpadded, every neighbour paired, zero
+    wait) against what the code reaches on the modelled memory system."""
+    phi, rho = macs(cfg.phi_dims()), macs(cfg.rho_dims())
+    total_macs = (n + 1) * phi + rho
+    us = 1e6 / cm4_count.CLOCK_HZ
+    bound = n * phi * PAIR_CYCLES_PER_MAC + (phi + rho) * SINGLE_CYCLES_PER_MAC
+    ctrl = stab["controller_step_us"] / us
+    best = stab["fixed"]["ram"]["one_iteration"]["prediction"]
+    fbound = n * phi * FLOAT_PAIR_CYCLES_PER_MAC + (phi + rho) * FLOAT_SINGLE_CYCLES_PER_MAC
+    return {
+        "macs_per_prediction": total_macs,
+        "target_us": budget.BUDGET_US, "target_cycles_per_mac": round((budget.BUDGET_US / us - ctrl) / total_macs, 3),
+        "bound_cycles": round(bound), "bound_us_with_controller": round((bound + ctrl) * us, 1),
+        "bound_cycles_per_mac": round(bound / total_macs, 3),
+        "possible": (bound + ctrl) * us <= budget.BUDGET_US,
+        "fixed_ram_memory_model": {"prediction_cycles": best["memory_model_cycles"],
+                                   "cycles_per_mac": round(best["memory_model_cycles"] / total_macs, 3),
+                                   "with_controller_us": stab["fixed"]["ram"]["one_iteration"]["with_controller_us"],
+                                   "zero_wait_cycles_per_mac": round(best["cycles"] / total_macs, 3)},
+        "float": {"instructions_per_mac_phi": lib["float"]["instructions_per_mac_phi"],
+                  "kernel_instructions_per_mac": lib["float"]["kernel_instructions_per_mac"],
+                  "bound_instructions_per_mac": {"single": FLOAT_SINGLE_INSTR_PER_MAC,
+                                                 "pair": FLOAT_PAIR_INSTR_PER_MAC},
+                  "bound_cycles": round(fbound), "bound_us_with_controller": round((fbound + ctrl) * us, 1),
+                  "prediction_cycles_per_mac_zero_wait":
+                      round(lib["float"]["prediction"][f"{n}_neighbors"]["cycles"] / total_macs, 3)},
+    }
 
 
 def measure_emlearn(cfg: Config, work: Path) -> dict | None:
@@ -150,9 +253,11 @@ def measure_onboard_variant(work: Path) -> dict:
     cfg = Config.load().with_overrides(**ONBOARD_WIDTHS)
     (work / "onboard").mkdir()
     gen = default_export(work / "onboard", cfg)
+    ctrl = measure_controller(gen, cfg)
     return {"phi": cfg.phi_dims(), "rho": cfg.rho_dims(), "macs": {"phi": macs(cfg.phi_dims()),
                                                                     "rho": macs(cfg.rho_dims())},
-            **budget.one_tick(gen, cfg), "memory": firmware_report.report(gen)["ns2_predict_q15"]}
+            **budget.one_tick(gen, cfg), "stabilizer_1kHz": measure_stabilizer(gen, cfg, ctrl, sliced=False),
+            "memory": firmware_report.report(gen)["ns2_predict_q15"]}
 
 
 def main() -> None:
@@ -168,10 +273,13 @@ def main() -> None:
         elf = target.build_image(gen)
         lib = measure_library(elf, cfg)
         ctrl = measure_controller(gen, cfg)
+        stab = measure_stabilizer(gen, cfg, ctrl)
         eml = measure_emlearn(cfg, work)
         mem = firmware_report.report(gen)
         onboard = measure_onboard_variant(work)
-    result = {"cost_model": "ns2host/cm4_count.py (Cortex-M4 TRM cycle counts, no wait states)",
+    result = {"cost_model": "ns2host/cm4_count.py: Cortex-M4 TRM cycle counts at zero wait states (cycles, "
+                            "us_at_168MHz) and on the modelled memory system (memory_model_*): "
+                            + cm4_count.STM32F405_168MHZ.name + "; docs/target.md",
               "macs": {"phi": macs(cfg.phi_dims()), "rho": macs(cfg.rho_dims())}, **lib}
     if eml:
         result["emlearn"] = eml
@@ -201,6 +309,8 @@ def main() -> None:
            lib[k]["sliced_15_neighbors"]["worst_tick_us_at_168MHz"] + step <= limit
            and lib[k]["sliced_15_neighbors"]["fits_in_position_period"] for k in ("float", "fixed")},
     }
+    result["stabilizer_1kHz"] = stab
+    result["moonshot_one_tick"] = moonshot(cfg, stab, lib)
     result["onboard_variant_one_tick"] = onboard
     result["memory"] = {k: mem[k] for k in firmware_report.ENTRY_POINTS}
     print(json.dumps(result, indent=2))

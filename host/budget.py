@@ -1,6 +1,15 @@
 """The 2 ms-tick budget on the emulated Cortex-M4 (ns2host.cm4_count's cost model):
 one prediction for a robot with n neighbours plus the environment, and one
-controller step (position + attitude), against 20 % of a 500 Hz tick at 168 MHz.
+controller step (position + attitude), against 20 % of a 500 Hz tick at 168 MHz,
+at zero wait states and on the modelled memory system (flash wait states, ART
+accelerator; cm4_count.STM32F405_168MHZ), with the weight tables in flash or
+(``defines``, target.ram_placement) in SRAM.  The firmware's stabilizer loop runs
+at 1 kHz (1 ms iterations); the attitude controller every second iteration.
+
+RAM for tables: the stock cf2 build leaves about 37.9 KB of SRAM and 648 B of CCM
+free (../shared/crazyflie-firmware/README.md); APP_RESERVE_BYTES of it are kept
+for the app itself (jobs, peers, its task), an assumption until the app's own RAM
+is measured in the real firmware build.
 
 Used by benchmarks/bench_target.py (the numbers) and by the tests (the on-board
 network variant must stay within the budget; counts are deterministic)."""
@@ -20,6 +29,10 @@ from .target import NBR_DT
 
 TICK_US, BUDGET_FRACTION = 2000.0, 0.2
 BUDGET_US = TICK_US * BUDGET_FRACTION
+STABILIZER_ITERATION_US = 1000.0  # the firmware's 1 kHz stabilizer loop
+SRAM_FREE_BYTES, CCM_FREE_BYTES = 37_900, 648  # stock cf2 build
+APP_RESERVE_BYTES = 4096
+TABLE_RAM_BUDGET_BYTES = SRAM_FREE_BYTES - APP_RESERVE_BYTES
 
 
 def neighbors(cfg: Config, n: int, rng: np.random.Generator) -> np.ndarray:
@@ -70,14 +83,31 @@ def controller_runs(gen: Path, cfg: Config) -> dict[str, cm4_count.Run]:
 
 def one_tick(gen: Path, cfg: Config, n: int = 15, seed: int = 0) -> dict:
     """A whole prediction with n neighbours + the environment and one controller
-    step in one tick, float and fixed point, against BUDGET_US."""
-    cm = cm4_count.Cm4(target.build_image(gen))
+    step in one tick, float and fixed point, against BUDGET_US: at zero wait
+    states (prediction_us, total_us, meets_budget) and on the modelled memory
+    system with the tables in flash and with each path's hot tables in SRAM
+    (``memory_model``: {"flash": ..., "ram": ...})."""
     nb = neighbors(cfg, n, np.random.default_rng(seed))
-    ctrl_us = sum(r.microseconds for r in controller_runs(gen, cfg).values())
-    out = {"neighbors": n, "budget_us": BUDGET_US, "controller_step_us": round(ctrl_us, 2)}
-    for name, fn in (("float", "ns2_predict_f32"), ("fixed", "ns2_predict_q15")):
-        run, _ = prediction_run(cm, fn, nb, n)
+    ctrl = controller_runs(gen, cfg).values()
+    ctrl_us = sum(r.microseconds for r in ctrl)
+    ctrl_mem_us = sum(r.memory_microseconds for r in ctrl)
+    out = {"neighbors": n, "budget_us": BUDGET_US, "controller_step_us": round(ctrl_us, 2),
+           "controller_step_us_memory_model": round(ctrl_mem_us, 2)}
+    flash = cm4_count.Cm4(target.build_image(gen))
+    for name, fn, path in (("float", "ns2_predict_f32", "f32"), ("fixed", "ns2_predict_q15", "q15")):
+        run, _ = prediction_run(flash, fn, nb, n)
         total = run.microseconds + ctrl_us
         out[name] = {"prediction_us": round(run.microseconds, 1), "total_us": round(total, 1),
-                     "meets_budget": total <= BUDGET_US}
+                     "meets_budget": total <= BUDGET_US, "memory_model": {}}
+        defines = target.ram_placement(cfg.robot_types[0], path)
+        ram_elf = target.build_image(gen, defines=defines)
+        for where, cm in (("flash", flash), ("ram", cm4_count.Cm4(ram_elf))):
+            r = run if where == "flash" else prediction_run(cm, fn, nb, n)[0]
+            t = r.memory_microseconds + ctrl_mem_us
+            ram_bytes = sum(v["in_ram_bytes"] for v in target.table_bytes(cm.elf).values())
+            out[name]["memory_model"][where] = {
+                "prediction_us": round(r.memory_microseconds, 1), "total_us": round(t, 1),
+                "meets_budget": t <= BUDGET_US, "stall_cycles": {"fetch": r.stalls.fetch, "data": r.stalls.data},
+                "tables_in_ram_bytes": ram_bytes, "fits_ram_budget": ram_bytes <= TABLE_RAM_BUDGET_BYTES,
+                **({"defines": list(defines)} if where == "ram" else {})}
     return out

@@ -22,8 +22,7 @@ from pathlib import Path
 import numpy as np
 from ns2codegen.errors import Ns2Error
 
-REPO = Path(__file__).resolve().parent.parent   # the source checkout (see firmware_sources)
-BUILD = Path(os.environ.get("NS2_BUILD_DIR", REPO / "build"))
+from .crazyflie import BUILD, REPO  # the source checkout (see firmware_sources)
 BUILD_ROOT = BUILD / "host"
 GENERATED = ("ns2_model_config.h", "ns2_model_float.h", "ns2_model_fixed.h")
 # host-only helpers, plus the controller vector loop shared with the QEMU image

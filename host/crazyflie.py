@@ -14,9 +14,12 @@ import shutil
 import subprocess
 import tempfile
 from pathlib import Path
+
 from ns2codegen.errors import Ns2Error
 
-from .cbuild import BUILD, REPO
+# the source checkout and its build folder (stdlib only: the app Makefile runs this file)
+REPO = Path(__file__).resolve().parent.parent
+BUILD = Path(os.environ.get("NS2_BUILD_DIR", REPO / "build"))
 COMMIT = "2a18fc29"
 TARBALL_NAME = f"crazyflie-firmware-{COMMIT}.tar.xz"
 

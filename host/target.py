@@ -39,6 +39,41 @@ RESULT_DT = np.dtype([("f32", "<f4"), ("q15", "<i2"), ("pad", "<u2"), ("info_f32
                       ("f32_sliced", "<f4"), ("q15_sliced", "<i2"), ("pad2", "<u2")])
 
 
+# Weight-table placement (firmware/src/ns2_internal.h): the defines that put
+# tables in SRAM instead of flash.
+RAM_ALL = ("NS2_RAM_Q15_PHI", "NS2_RAM_Q15_RHO", "NS2_RAM_F32_PHI", "NS2_RAM_F32_RHO")
+
+
+def ram_placement(robot_type_name: str, path: str = "q15") -> tuple[str, ...]:
+    """Defines that put the hot tables of one robot in SRAM: every phi net of the
+    path (q15 / f32; streamed once per neighbour or pair) and the rho net of its
+    own type (streamed once per prediction)."""
+    from ns2codegen.config import c_identifier
+
+    p = path.upper()
+    return (f"NS2_RAM_{p}_PHI", f"NS2_TABLE_{p}_RHO_{c_identifier(robot_type_name).upper()}=NS2_RAM_TABLE")
+
+
+def table_bytes(elf: Path) -> dict[str, dict]:
+    """Bytes of the generated weight tables in an image, by path and net
+    (q15_phi, q15_rho, f32_phi, f32_rho), and how many of them are in SRAM."""
+    from elftools.elf.elffile import ELFFile
+
+    out = {k: {"bytes": 0, "in_ram_bytes": 0} for k in ("q15_phi", "q15_rho", "f32_phi", "f32_rho")}
+    with open(elf, "rb") as f:
+        for sym in ELFFile(f).get_section_by_name(".symtab").iter_symbols():
+            parts = sym.name.split("_")
+            if sym["st_info"]["type"] != "STT_OBJECT" or len(parts) < 4 or parts[0] != "ns2" or \
+                    parts[1] not in ("q15", "f32") or parts[2] not in ("phi", "rho") or not parts[-1].startswith("l") \
+                    or not parts[-1][1:].isdigit():
+                continue
+            d = out[f"{parts[1]}_{parts[2]}"]
+            d["bytes"] += sym["st_size"]
+            if 0x20000000 <= sym["st_value"] < 0x20020000:
+                d["in_ram_bytes"] += sym["st_size"]
+    return out
+
+
 def have_toolchain() -> bool:
     return shutil.which(ARM_CC) is not None
 

@@ -41,6 +41,24 @@ def test_emulated_calls_match_the_host(exported, cm):
         assert run_f.instructions > 1000 and run_f.cycles >= run_f.instructions
 
 
+def test_tables_in_ram_same_results_fewer_stalls(exported, cm):
+    """The image with the fixed-point tables in SRAM computes the same bits in the
+    emulator; its flash data stalls nearly vanish (the rho tables of other robot
+    types, the layer descriptors and literal pools stay in flash)."""
+    ram = cm4_count.Cm4(target.build_image(exported.gen_dir,
+                                           defines=target.ram_placement(exported.cfg.robot_types[0])))
+    q = random_queries(exported.cfg, 6, seed=7, max_given=16)
+    q.robot_type[:] = 0
+    for i in range(len(q)):
+        r_flash, _, in_flash = _call(cm, "ns2_predict_q15", q, i)
+        r_ram, _, in_ram = _call(ram, "ns2_predict_q15", q, i)
+        assert r_ram & 0xFFFF == r_flash & 0xFFFF
+        assert abs(in_ram.cycles - in_flash.cycles) <= 8  # the same code, other table addresses
+        if q.n[i] >= 2:
+            assert in_ram.stalls.data_misses < 0.1 * in_flash.stalls.data_misses
+            assert in_ram.memory_cycles < in_flash.memory_cycles
+
+
 def test_instruction_budgets_per_multiply_accumulate(exported, cm):
     cfg = exported.cfg
     phi = sum(a * b for a, b in zip(cfg.phi_dims()[:-1], cfg.phi_dims()[1:]))
@@ -70,6 +88,11 @@ def test_one_tick_budget(exported, onboard):
     small = budget.one_tick(onboard.gen_dir, onboard.cfg)
     assert small["fixed"]["meets_budget"] and small["fixed"]["total_us"] <= budget.BUDGET_US
     assert small["controller_step_us"] > 5.0
+    # on the modelled memory system (flash wait states, ART) it needs its hot tables in SRAM,
+    # within the RAM the stock firmware leaves
+    ram, flash = small["fixed"]["memory_model"]["ram"], small["fixed"]["memory_model"]["flash"]
+    assert ram["meets_budget"] and ram["fits_ram_budget"] and ram["tables_in_ram_bytes"] > 0
+    assert flash["total_us"] > ram["total_us"] >= small["fixed"]["total_us"]
     paper = budget.one_tick(exported.gen_dir, exported.cfg)
     assert paper["fixed"]["prediction_us"] > 1.5 * small["fixed"]["prediction_us"]  # 3550 vs 1536 MACs per phi
 
@@ -83,3 +106,162 @@ def test_memory_report(exported):
         assert r["static_ram_bytes"] == 0 and r["flash_bytes"] > 20_000
     # int16 tables take about half the flash of the float ones
     assert rep["ns2_predict_q15"]["flash_bytes"] < 0.7 * rep["ns2_predict_f32"]["flash_bytes"]
+
+
+# --- the memory system (flash wait states, ART caches, prefetch): hand-computed stalls
+
+F = cm4_count.FLASH  # flash code/data; one 128-bit line = 16 bytes
+S = cm4_count.RAM    # SRAM: zero wait states
+ART = cm4_count.STM32F405_168MHZ  # 5 wait states: a flash line read takes 6 cycles
+
+
+def _seq(base, n, cycles=1, size=4):
+    """n straight-line instructions of `size` bytes and `cycles` cycles, no data reads."""
+    return [(base + size * i, size, cycles, ()) for i in range(n)]
+
+
+def test_memory_model_zero_wait_and_sram_add_nothing():
+    ev = _seq(F, 40) + [(F + 160, 4, 2, ((F + 0x1000, 4),)), (S, 4, 2, ((S + 64, 4),))]
+    assert cm4_count.memory_stalls(ev, cm4_count.ZERO_WAIT).total == 0
+    ram = [(S + 4 * i, 4, 2, ((S + 0x400 + 16 * i, 4),)) for i in range(50)]  # code and data in SRAM
+    assert cm4_count.memory_stalls(ram, ART).total == 0
+
+
+def test_memory_model_sequential_code_with_and_without_prefetch():
+    # 8 single-cycle 32-bit instructions = 2 lines.  Line 0: miss at t=0, read 0..6, the
+    # instruction issues at t=5 (stall 5).  Prefetch of line 1 starts when the interface is
+    # free (t=6), done at 12; line 0 executes t=5..9; line 1 wanted at t=9, ready for
+    # issue at 11: stall 2.
+    st = cm4_count.memory_stalls(_seq(F, 8), ART)
+    assert (st.fetch, st.fetch_misses, st.prefetches, st.data) == (7, 1, 2, 0)
+    # without prefetch: two misses of 5
+    st = cm4_count.memory_stalls(_seq(F, 8), cm4_count.MemorySystem("np", prefetch=False))
+    assert (st.fetch, st.fetch_misses) == (10, 2)
+    # 16-bit instructions: 8 per line, 8 cycles per line >= 6: prefetch hides line 1 fully
+    st = cm4_count.memory_stalls(_seq(F, 16, size=2), ART)
+    assert st.fetch == 5
+
+
+def test_memory_model_instruction_cache_keeps_missed_lines_only():
+    # A loop of 2 lines run 3 times; each instruction 3 cycles (12 per line > 6).
+    body = _seq(F, 8, cycles=3)
+    st = cm4_count.memory_stalls(body * 3, cm4_count.MemorySystem("np", prefetch=False))
+    assert (st.fetch, st.fetch_misses) == (10, 2)  # both lines missed once, then cached
+    # with prefetch: line 0 misses (5), line 1 is prefetched in time (12 cycles of line 0)
+    # and cached when used; the prefetch of line 2 is issued from line 1 on every pass,
+    # that of line 1 only on the first: 4 prefetches, no further stall
+    st = cm4_count.memory_stalls(body * 3, ART)
+    assert (st.fetch, st.fetch_misses, st.prefetches) == (5, 1, 4)
+    # RM0090 taken literally (only missed lines are cached): line 1 is prefetched
+    # again on every pass (in time: still no stall), 6 prefetches
+    st = cm4_count.memory_stalls(body * 3, cm4_count.STM32F405_PREFETCH_UNCACHED)
+    assert (st.fetch, st.fetch_misses, st.prefetches) == (5, 1, 6)
+    # ... which costs where lines execute in fewer than 6 cycles: 4 single-cycle
+    # instructions per line, a 2-line loop run 3 times
+    fast = _seq(F, 8)
+    assert cm4_count.memory_stalls(fast * 3, ART).fetch == 7
+    assert cm4_count.memory_stalls(fast * 3, cm4_count.STM32F405_PREFETCH_UNCACHED).fetch > 7
+    # more lines than the cache holds (LRU): 65 lines in a loop miss every time
+    big = _seq(F, 4 * 65, cycles=3)
+    st = cm4_count.memory_stalls(big * 2, cm4_count.MemorySystem("np", prefetch=False))
+    assert st.fetch_misses == 130 and st.fetch == 650
+
+
+def test_memory_model_data_cache_eight_lines():
+    code = S  # code in SRAM: only the data side counts
+    def loads(lines, passes):
+        return [(code, 4, 2, ((F + 0x1000 + 16 * k, 4),)) for _ in range(passes) for k in range(lines)]
+    st = cm4_count.memory_stalls(loads(8, 2), ART)
+    assert (st.data_misses, st.data) == (8, 40)  # 8 lines fit the data cache
+    st = cm4_count.memory_stalls(loads(9, 2), ART)
+    assert (st.data_misses, st.data) == (18, 90)  # 9 do not (LRU): every load misses
+    # an LDM of 4 words across a line boundary reads two lines, one after the other:
+    # 0..6 (stall 5, t=5), then 6..12 (stall 12 - 1 - 5 = 6)
+    st = cm4_count.memory_stalls([(code, 4, 5, ((F + 8, 4), (F + 12, 4), (F + 16, 4), (F + 20, 4)))], ART)
+    assert (st.data_misses, st.data) == (2, 11)
+
+
+def test_memory_model_contention_between_prefetch_and_data():
+    # line 0 (code) misses: read 0..6, stall 5, issue at t=5; the prefetch of line 1 is
+    # queued behind it (would start at 6).  A load in that first instruction asks at t=5:
+    # the D-code bus goes first (RM0090 3.5.2): its read runs 6..12, stall 12 - 1 - 5 = 6,
+    # and the prefetch moves to 12..18
+    ev = [(F, 4, 2, ((F + 0x1000, 4),))] + _seq(F + 4, 3, cycles=3)
+    st = cm4_count.memory_stalls(ev, ART)
+    assert (st.fetch, st.data) == (5, 6)
+    # a load one instruction later (t=6) finds the prefetch started (6..12): it waits
+    # for it and reads 12..18, stall 18 - 1 - 6 = 11
+    ev = [(F, 2, 1, ())] + [(F + 2, 4, 2, ((F + 0x1000, 4),))] + _seq(F + 6, 2, cycles=3)
+    st = cm4_count.memory_stalls(ev, ART)
+    assert (st.fetch, st.data) == (5, 11)
+    # without contention each load waits only for its own read: 5
+    assert cm4_count.memory_stalls(ev, cm4_count.STM32F405_NO_CONTENTION).data == 5
+
+
+_SUM_S = """
+    .syntax unified
+    .thumb
+    .text
+    .global ns2_reset_handler
+    .type ns2_reset_handler, %function
+ns2_reset_handler:
+    b ns2_reset_handler
+    .size ns2_reset_handler, .-ns2_reset_handler
+    .balign 16
+    .global sum_words
+    .type sum_words, %function
+sum_words:                  @ r0 = table, r1 = words: 16 bytes of code, one flash line
+    movs r2, #0
+1:  ldr.w r3, [r0], #4
+    add r2, r3
+    subs r1, #1
+    bne 1b
+    mov r0, r2
+    bx lr
+    .size sum_words, .-sum_words
+    .section .rodata
+    .balign 16
+    .global table
+    .type table, %object
+table:
+    .rept 64
+    .word 3
+    .endr
+    .size table, .-table
+"""
+
+
+@pytest.fixture(scope="module")
+def sum_elf(tmp_path_factory):
+    d = tmp_path_factory.mktemp("sum")
+    (d / "sum.S").write_text(_SUM_S)
+    elf = d / "sum.elf"
+    import subprocess
+
+    subprocess.run([target.ARM_CC, "-mcpu=cortex-m4", "-mthumb", "-nostdlib", "-nostartfiles",
+                    f"-T{target.TARGET_DIR / 'stm32f405.ld'}", str(d / "sum.S"), "-o", str(elf)], check=True)
+    return elf
+
+
+def test_memory_model_on_an_emulated_loop(sum_elf):
+    """A word-summing loop (one 16-byte line of code) over a flash table: without
+    prefetch every flash line read is a 5-cycle stall: one for the code line, one per
+    16-byte table line (64 words = 16 lines, more than the 8-line data cache); the
+    same words copied to SRAM leave the code line's miss only."""
+    no_pf = cm4_count.MemorySystem("no prefetch", prefetch=False)
+    cm = cm4_count.Cm4(sum_elf, memory=no_pf)
+    table = cm.addr("table")
+    assert cm4_count.FLASH <= table < cm4_count.FLASH + cm4_count.FLASH_SIZE and table % 16 == 0
+    r0, _, run = cm.call("sum_words", table, 64)
+    assert r0 == 3 * 64
+    # zero-wait count (TRM): movs 1, 64 x (ldr 2 + add 1 + subs 1), bne 63 x 3 + 1, mov 1, bx 3
+    assert run.cycles == 1 + 64 * 4 + 63 * 3 + 1 + 1 + 3
+    assert (run.stalls.fetch_misses, run.stalls.data_misses) == (1, 16)
+    assert run.stalls.total == 5 * 17 and run.memory_cycles == run.cycles + 85
+    _, _, run = cm.call("sum_words", table, 32)  # 8 lines (each call starts with cold caches)
+    assert run.stalls.data_misses == 8
+    in_ram = cm.write(cm.read(table, 256))
+    r0, _, run = cm.call("sum_words", in_ram, 64)
+    assert r0 == 3 * 64 and run.stalls.total == 5 and run.stalls.data_misses == 0
+    cm.memory = cm4_count.ZERO_WAIT
+    assert cm.call("sum_words", table, 64)[2].memory_cycles == run.cycles

@@ -63,6 +63,21 @@ def test_portable_c_kernels_on_the_target(exported, cmodel):
     _compare(exported, cmodel, q, target.run_vectors(elf, q))
 
 
+def test_tables_in_ram_bit_exact(exported, cmodel):
+    """Weight tables placed in SRAM (copied from flash at start-up: the hot tables of
+    robot type 0, fixed point and float) give the same bits as the host."""
+    name = exported.cfg.robot_types[0]
+    elf = target.build_image(exported.gen_dir, defines=target.ram_placement(name, "q15") +
+                             target.ram_placement(name, "f32"))
+    tb = target.table_bytes(elf)
+    for k in ("q15", "f32"):
+        assert tb[f"{k}_phi"]["in_ram_bytes"] == tb[f"{k}_phi"]["bytes"] > 0
+        rho = tb[f"{k}_rho"]
+        assert rho["bytes"] == len(exported.cfg.robot_types) * rho["in_ram_bytes"] > 0  # its own type only
+    q = random_queries(exported.cfg, 3_000, seed=35, wild=0.05)
+    _compare(exported, cmodel, q, target.run_vectors(elf, q))
+
+
 def test_target_reports_failure(exported, tmp_path):
     """A query the image rejects (too many neighbours for its buffer) is a clear error."""
     elf = target.build_image(exported.gen_dir)

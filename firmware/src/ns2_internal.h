@@ -4,6 +4,29 @@
 
 #include "ns2_deepset.h"
 
+/* Weight-table placement.  By default the generated tables are const data in
+ * flash (.rodata).  -DNS2_RAM_Q15_PHI / _Q15_RHO / _F32_PHI / _F32_RHO put the
+ * phi or rho tables of the fixed-point or float path into the initialised-data
+ * section .data.ns2_tables instead: the linker places it in SRAM with its
+ * initial values in flash, and the start-up code copies it (Crazyflie's and
+ * firmware/target's linker scripts both collect .data.* into .data).  SRAM has
+ * no wait states; flash at 168 MHz has five behind the ART accelerator, whose
+ * 8-line data cache cannot hold a streamed table (docs/target.md).  The values,
+ * and so every result, are the same wherever the tables are. */
+#define NS2_RAM_TABLE __attribute__((section(".data.ns2_tables")))
+#ifdef NS2_RAM_Q15_PHI
+#define NS2_TABLE_Q15_PHI NS2_RAM_TABLE
+#endif
+#ifdef NS2_RAM_Q15_RHO
+#define NS2_TABLE_Q15_RHO NS2_RAM_TABLE
+#endif
+#ifdef NS2_RAM_F32_PHI
+#define NS2_TABLE_F32_PHI NS2_RAM_TABLE
+#endif
+#ifdef NS2_RAM_F32_RHO
+#define NS2_TABLE_F32_RHO NS2_RAM_TABLE
+#endif
+
 /* n rounded up to a multiple of four (row blocks and input quads of the kernels) */
 #define NS2_PAD4(n) ((((n) + 3) / 4) * 4)
 
