@@ -11,7 +11,8 @@
 #   make firmware cross-build the library for the STM32F405 and print its size
 #   make app      the Crazyflie firmware with the app (build/app/cf2.elf, cf2.bin)
 #                 and its size report (JSON: stock, with the app, the difference);
-#                 NS2_INFER=fixed|float|both selects the inference paths
+#                 NS2_INFER=fixed|float|both selects the inference paths,
+#                 NS2_TABLES=ram puts the fixed-point phi tables in SRAM
 PYTHON ?= python3
 NS2 := $(PYTHON) -m ns2cli
 GEN := firmware/generated
@@ -71,8 +72,9 @@ $(GEN)/ns2_model_config.h:
 # crazyflie-firmware (../shared tarball unpacked under build/, or CRAZYFLIE_BASE=...)
 # with the app; `make -C firmware/app cload` flashes build/app/cf2.bin
 NS2_INFER ?= fixed
+NS2_TABLES ?= flash
 app: deps $(GEN)/ns2_model_config.h
-	$(PYTHON) -m ns2host.cfapp $(GEN) --out build/app --infer $(NS2_INFER)
+	$(PYTHON) -m ns2host.cfapp $(GEN) --out build/app --infer $(NS2_INFER) --tables $(NS2_TABLES)
 
 # Simulated flights -> data -> model, two curriculum rounds, then the swap
 # experiments (table and plots in build/sim/results).  SIM_SECONDS per team.

@@ -34,6 +34,7 @@ from .cbuild import REPO, GENERATED, BuildError
 APP_DIR = REPO / "firmware" / "app"
 CF_BUILD = crazyflie.BUILD / "cf"
 INFER = ("fixed", "float", "both")
+TABLES = ("flash", "ram")  # where the fixed-point phi tables live (NS2_TABLES)
 FLASH_K, RAM_K, CCM_K = 1008, 128, 64  # the firmware Makefile's MEM_SIZE_*_K
 PARAM_SIZE, LOG_SIZE, EVENT_SIZE = 20, 12, 20  # struct param_s, log_s, eventtrigger (32-bit)
 PARAM_GROUP, LOG_GROUP, START = 0x80, 0x80, 1
@@ -129,29 +130,32 @@ def app_inputs(gen_dir: Path) -> list[Path]:
     return files + [Path(gen_dir) / g for g in (*GENERATED, "ns2_vehicles.h")]
 
 
-def app_make_args(gen_dir: Path, infer: str, out: Path) -> list[str]:
+def app_make_args(gen_dir: Path, infer: str, out: Path, tables: str = "flash") -> list[str]:
     """Arguments of ``make`` for the app (README's command plus where things are)."""
     return ["-C", str(APP_DIR), f"CRAZYFLIE_BASE={crazyflie.firmware_dir()}", f"NS2_GEN={Path(gen_dir).resolve()}",
-            f"NS2_INFER={infer}", f"APP_BUILD={out}", f"PYTHON={sys.executable}", f"-j{os.cpu_count() or 1}"]
+            f"NS2_INFER={infer}", f"NS2_TABLES={tables}", f"APP_BUILD={out}", f"PYTHON={sys.executable}", f"-j{os.cpu_count() or 1}"]
 
 
-def build_app(gen_dir: Path, infer: str = "fixed", out: Path | None = None) -> Path:
+def build_app(gen_dir: Path, infer: str = "fixed", out: Path | None = None, tables: str = "flash") -> Path:
     """cf2 with the app: into ``out`` (incremental, e.g. build/app for ``make app``)
-    or a cache folder keyed by every input; returns the build folder."""
+    or a cache folder keyed by every input; returns the build folder.  ``tables``:
+    flash, or ram (the fixed-point phi tables in SRAM)."""
     if infer not in INFER:
         raise ValueError(f"infer={infer!r}: must be one of {INFER}")
+    if tables not in TABLES:
+        raise ValueError(f"tables={tables!r}: must be one of {TABLES}")
     gen_dir = Path(gen_dir).resolve()
     if out is not None:
         out = Path(out).resolve()
         out.mkdir(parents=True, exist_ok=True)
-        _make(app_make_args(gen_dir, infer, out), out / "ns2-build.log")
+        _make(app_make_args(gen_dir, infer, out, tables), out / "ns2-build.log")
         return out
     fw = crazyflie.firmware_dir()
-    h = hashlib.sha256(_firmware_id(fw) + infer.encode())
+    h = hashlib.sha256(_firmware_id(fw) + infer.encode() + tables.encode())
     for p in app_inputs(gen_dir):
         h.update(p.name.encode() + b"\0" + p.read_bytes())
-    return _cached(f"app-{infer}", h.digest(), lambda tmp: _make(app_make_args(gen_dir, infer, tmp),
-                                                                  tmp / "ns2-build.log"))
+    return _cached(f"app-{infer}-{tables}", h.digest(),
+                   lambda tmp: _make(app_make_args(gen_dir, infer, tmp, tables), tmp / "ns2-build.log"))
 
 
 def kconfig(build_dir: Path) -> dict[str, str]:
@@ -283,15 +287,15 @@ def app_objects_ram(build_dir: Path) -> dict[str, int]:
     return {"text": text, "data": data, "bss": bss}
 
 
-def report(gen_dir: Path, infer: str = "fixed", out: Path | None = None) -> dict:
+def report(gen_dir: Path, infer: str = "fixed", out: Path | None = None, tables: str = "flash") -> dict:
     """Flash/RAM/CCM of the stock firmware and with the app; what the app adds."""
-    stock, app = build_stock(), build_app(gen_dir, infer, out)
+    stock, app = build_stock(), build_app(gen_dir, infer, out, tables)
     s, a = sizes(stock / "cf2.elf"), sizes(app / "cf2.elf")
     cfg = kconfig(app)
     stack = int(cfg.get("CONFIG_APP_STACKSIZE", "0")) * 4
     d = {k: a[k] - s[k] for k in ("flash", "ram", "ccm", "text", "data", "bss")}
-    return {"infer": infer, "elf": str(app / "cf2.elf"), "bin": str(app / "cf2.bin"), "stock": s, "app": a,
-            "delta": d,
+    return {"infer": infer, "tables": tables, "elf": str(app / "cf2.elf"), "bin": str(app / "cf2.bin"),
+            "stock": s, "app": a, "delta": d,
             # what the app's RAM is: its task's static stack, its own bss (the app
             # objects' .data is their PARAM/LOG tables, which the linker puts in flash)
             "ram_added": {"bytes": d["ram"], "app_task_stack": stack, "app_bss": app_objects_ram(app)["bss"]},
@@ -351,10 +355,12 @@ def main(argv=None) -> None:
     ap = argparse.ArgumentParser(prog="python -m ns2host.cfapp", description=__doc__.splitlines()[0])
     ap.add_argument("gen", nargs="?", default=str(REPO / "firmware" / "generated"))
     ap.add_argument("--infer", choices=INFER, default="fixed")
+    ap.add_argument("--tables", choices=TABLES, default="flash",
+                    help="flash, or ram: the fixed-point phi tables in SRAM (docs/memory.md)")
     ap.add_argument("--out", default=None, help="build folder (default: a cache folder under build/cf)")
     a = ap.parse_args(argv)
     try:
-        print(json.dumps(report(Path(a.gen), a.infer, Path(a.out) if a.out else None), indent=2))
+        print(json.dumps(report(Path(a.gen), a.infer, Path(a.out) if a.out else None, a.tables), indent=2))
     except (BuildError, crazyflie.FirmwareMissing) as e:
         raise SystemExit(str(e))
 

@@ -119,6 +119,35 @@ def test_flash_budget_and_ram_of_the_default_app(app, stock, exported):
     assert a["bss"] - s["bss"] >= stack  # the app task's static stack is in the RAM it adds
 
 
+def test_phi_tables_in_sram_fit_the_real_firmware(app, stock, exported):
+    """NS2_TABLES=ram: every fixed-point phi table of the paper-sized network lies in
+    SRAM (section .data, copied from flash at start-up by the firmware's own .data
+    copy), its start-up image holds the same bytes as the flash build's table, and the
+    firmware with the app still leaves SRAM free."""
+    ram = cfapp.build_app(exported.gen_dir, tables="ram")
+    a, r = cfapp.Image(app / "cf2.elf"), cfapp.Image(ram / "cf2.elf")
+    try:
+        names = sorted(n for n in r.symbols if n.startswith("ns2_q15_phi_") and not n.endswith("_layers"))
+        assert len(names) == (len(exported.cfg.phi_dims()) - 1) * len(exported.cfg.neighbor_types), names
+        total = 0
+        for n in names:
+            addr, size = r.symbols[n]["st_value"], r.symbols[n]["st_size"]
+            assert 0x2000_0000 <= addr < 0x2002_0000, (n, hex(addr))        # SRAM
+            seg = next(g for g in r.elf.iter_segments() if g["p_type"] == "PT_LOAD"
+                       and g["p_vaddr"] <= addr < g["p_vaddr"] + g["p_filesz"])
+            assert 0x0800_0000 <= seg["p_paddr"] < 0x0810_0000                # its start-up image in flash
+            flash_addr = a.symbols[n]["st_value"]
+            assert 0x0800_0000 <= flash_addr < 0x0810_0000                    # the default build: flash
+            assert r.read(addr, size) == a.read(flash_addr, size), n
+            total += size
+    finally:
+        a.close()
+        r.close()
+    s, d = cfapp.sizes(stock / "cf2.elf"), cfapp.sizes(ram / "cf2.elf")
+    assert d["ram"] - cfapp.sizes(app / "cf2.elf")["ram"] >= total > 20_000
+    assert d["ram_free"] > 0 and d["ram"] - s["ram"] < s["ram_free"]
+
+
 def test_size_report_of_make_app(app, stock, exported):
     """`make app`'s report (python -m ns2host.cfapp): stock, with the app, what it adds."""
     import sys
