@@ -74,9 +74,10 @@ def test_controller_tracks_a_figure_eight(cfg, exported, kind):
 
 
 def test_controller_safety(cfg, exported):
-    sw = CLoopSwarm(cfg, ["small"], exported.gen_dir, [[0, 0, 1.0]])
-    ffi, lib = sw.c.ffi, sw.c.lib
-    c = ffi.addressof(sw.ctrl, 0)
+    cm = exported.cmodel()
+    ffi, lib = cm.ffi, cm.lib
+    ctrl = cm.controller([vehicle(cfg, "small")])
+    c = ffi.addressof(ctrl, 0)
     st, sp = ffi.new("ns2_ctrl_state_t *"), ffi.new("ns2_setpoint_t *")
     st.q = [1, 0, 0, 0]
     st.p = [0, 0, 1]
