@@ -36,7 +36,7 @@ def run_swaps(cfg: Config, gen_dir, case: str, learned: str | None, swaps: int =
     sw = CLoopSwarm(cfg, list(team), gen_dir, start, aero=True, learned=learned)
     log = sw.run(swaps * (SWAP_S + REST_S), sp)
     period = SWAP_S + REST_S
-    z_err = np.abs(log["p"][:, 0, 2] - log["p_d"][:, 0, 2])
+    z_err = np.abs(log["truth_p"][:, 0, 2] - log["p_d"][:, 0, 2])
     worst = [float(z_err[(log["t"] >= k * period) & (log["t"] < (k + 1) * period)].max()) for k in range(swaps)]
     return {"worst_z_error_m": worst, "log": log}
 
@@ -149,7 +149,7 @@ def ring_experiments(cfg: Config, gen_dir, out_dir, duration: float = 16.0, lear
             sp, start = rings([len(g) for g in groups], heights, radius=0.5, period=8.0)
             log = CLoopSwarm(cfg, team, gen_dir, start, aero=True, learned=mode).run(duration, sp)
             late = log["t"] > 2.0
-            worst = np.abs(log["p"][late, :, 2] - log["p_d"][late, :, 2]).max(axis=0)
+            worst = np.abs(log["truth_p"][late, :, 2] - log["p_d"][late, :, 2]).max(axis=0)
             res["BL" if mode is None else "NN"] = {
                 kind: {"mean_worst_z_error_m": float(worst[[t == kind for t in team]].mean()),
                        "max_worst_z_error_m": float(worst[[t == kind for t in team]].max())}

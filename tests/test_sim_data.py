@@ -58,6 +58,6 @@ def test_learned_term_beats_the_baseline_on_a_swap(cfg, sim_trained, learned):
     for mode in (None, learned):
         sp, start = swap(2, [0.5, 0.8], radius=0.4, duration=2.5, rest=0.5, seed=7)
         log = CLoopSwarm(cfg, ["small", "large"], gen, start, aero=True, learned=mode).run(6.0, sp)
-        worst[mode] = np.abs(log["p"][:, 0, 2] - log["p_d"][:, 0, 2]).max()
+        worst[mode] = np.abs(log["truth_p"][:, 0, 2] - log["p_d"][:, 0, 2]).max()
     print("worst-case z error of the small robot:", worst)
     assert worst[learned] < 0.7 * worst[None]
