@@ -252,12 +252,12 @@ def sim_collect(gen_dir, seconds_per_team, learned, seed, usd_dir, vehicle_files
 @click.option("--swaps", type=click.IntRange(min=1), default=6, show_default=True)
 @click.option("--learned", type=click.Choice(["float", "fixed"]), default="fixed", show_default=True)
 def sim_swaps(gen_dir, out_dir, swaps, learned):
-    """Swap experiments S2S, L2S, SS2L, SL2S, LL2S: baseline vs learned; table and plots."""
+    """Swap experiments S2S, L2S, SS2L, SL2S, LL2S, LL2S*: BL, BL-tuned (gain search, written to
+    OUT/gain_search.json once), NN, NN-default, Mellinger; swaps.json, swaps.md and plots in OUT."""
     from ns2exp.swarm import swap_experiments
 
-    res = swap_experiments(Config.load(), gen_dir, out_dir, swaps=swaps, learned=learned)
+    swap_experiments(Config.load(), gen_dir, out_dir, swaps=swaps, learned=learned)
     click.echo((Path(out_dir) / "swaps.md").read_text())
-    click.echo(json.dumps({k: round(v["improvement"], 2) for k, v in res.items()}))
 
 
 @sim.command("rings")
@@ -266,7 +266,8 @@ def sim_swaps(gen_dir, out_dir, swaps, learned):
 @click.option("--duration", type=click.FloatRange(min=4.0), default=16.0, show_default=True)
 @click.option("--learned", type=click.Choice(["float", "fixed"]), default="fixed", show_default=True)
 def sim_rings(gen_dir, out_dir, duration, learned):
-    """5-robot intertwined rings and the 16-robot three rings: baseline vs learned."""
+    """5-robot intertwined rings and the 16-robot three rings, the controllers of `sim swaps`
+    (the gain search of OUT/gain_search.json, run if missing); rings.json, rings.md in OUT."""
     from ns2exp.swarm import ring_experiments
 
     ring_experiments(Config.load(), gen_dir, out_dir, duration=duration, learned=learned)
