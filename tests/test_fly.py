@@ -99,3 +99,28 @@ def test_firmware_mellinger_flies(cfg, exported):
     late = log["t"] > 2.0
     assert np.abs(log["truth_p"][late, 0] - p0[0]).max() < 0.03
     assert 0.2 < log["pwm"][late].mean() < 0.95
+
+
+def test_swap_results_rows(cfg, exported, tmp_path, monkeypatch):
+    """swaps.json: a row per case and controller with the metrics; the gain search is
+    written once and reused; BL-tuned is the admissible candidate with the lowest objective."""
+    import json
+
+    from ns2exp import swarm
+
+    monkeypatch.setattr(swarm, "GAIN_GRID_Z", {"Lp_z": (2.5, 5.0), "Kv_z": (4.0, 8.0)})
+    monkeypatch.setattr(swarm, "GAIN_GRID_XY", {"Lp_xy": (2.0,), "Kv_xy": (4.0,)})
+    monkeypatch.setattr(swarm, "heat_maps", lambda *a: None)
+    res = swarm.swap_experiments(cfg, exported.gen_dir, tmp_path, swaps=1, cases=["L2S"])
+    rows = json.loads((tmp_path / "swaps.json").read_text())["rows"]
+    assert [r["controller"] for r in rows] == list(swarm.CONTROLLERS) and rows == res["rows"]
+    for r in rows:
+        assert 0 < r["median_worst_z_error_m"] <= r["max_worst_z_error_m"] < 0.5
+        assert 0 < r["z_error_rms_m"] <= r["max_worst_z_error_m"] and 0 < r["motor_cmd_rms"] < 0.1
+    search = json.loads((tmp_path / "gain_search.json").read_text())
+    ok = [c for c in search["candidates"] if c["admissible"]]
+    best = min(ok, key=lambda c: c["median_worst_z_error_m"])
+    assert {k: best[k] for k in swarm.DEFAULT_TUNING} == search["tuning"] == res["tuning"]
+    by = {r["controller"]: r for r in rows}
+    assert by["BL-tuned"]["median_worst_z_error_m"] <= by["BL"]["median_worst_z_error_m"]
+    assert "| L2S |" in (tmp_path / "swaps.md").read_text()

@@ -44,8 +44,8 @@ def sim_trained(cfg, exported, tmp_path_factory):
 def test_collected_data_set(sim_trained):
     ds, report, _ = sim_trained
     assert set(ds.scenario_names) == {"S", "L", "L->S", "S->L"}
-    # labels carry differentiation noise (about 0.7 g / 1.3 g std for small / large
-    # from the 2 mm/s velocity noise), and most samples have no neighbour: the
+    # labels carry differentiation noise (from the EKF's velocity estimate, as on the
+    # drone), and most samples have no neighbour: the
     # validation error stays well below the label variance, not near zero
     assert report["validation"]["mse"] < 0.75 * report["validation"]["label_var"]
 
