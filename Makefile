@@ -63,8 +63,10 @@ firmware: deps $(GEN)/ns2_model_config.h
 $(GEN)/ns2_model_config.h:
 	$(MAKE) export
 
-# Simulated flights -> data -> model, two curriculum rounds, then the swap
-# experiments (table and plots in build/sim/results).  SIM_SECONDS per team.
+# Simulated flights -> data -> model, two curriculum rounds, then the swap and ring
+# experiments: build/sim/results/swaps.json, rings.json (a row per case and controller:
+# BL, BL-tuned, NN, NN-default, Mellinger), gain_search.json, tables (.md) and plots.
+# SIM_SECONDS per team.
 SIM := build/sim
 SIM_SECONDS ?= 120
 $(SIM)/round1.npz: | deps $(GEN)/ns2_model_config.h
