@@ -76,8 +76,10 @@ NS2_TABLES ?= flash
 app: deps $(GEN)/ns2_model_config.h
 	$(PYTHON) -m ns2host.cfapp $(GEN) --out build/app --infer $(NS2_INFER) --tables $(NS2_TABLES)
 
-# Simulated flights -> data -> model, two curriculum rounds, then the swap
-# experiments (table and plots in build/sim/results).  SIM_SECONDS per team.
+# Simulated flights -> data -> model, two curriculum rounds, then the swap and ring
+# experiments: build/sim/results/swaps.json, rings.json (a row per case and controller:
+# BL, BL-tuned, NN, NN-default, Mellinger), gain_search.json, tables (.md) and plots.
+# SIM_SECONDS per team.
 SIM := build/sim
 SIM_SECONDS ?= 120
 $(SIM)/round1.npz: | deps $(GEN)/ns2_model_config.h

@@ -41,7 +41,7 @@ def main() -> None:
             pos = [[0.35 * (i % 4), 0.35 * (i // 4), 0.6 + 0.3 * (i % 2)] for i in range(n)]
             sw = CLoopSwarm(cfg, ["small"] * n, gen, pos, aero=True, learned="fixed")
             t0 = time.perf_counter()
-            sw.run(duration, hover_setpoints(np.array(pos)))
+            sw.run(duration, hover_setpoints(np.array(pos)), settle_s=0.0)
             rtf[f"{n}_robots"] = round(duration / (time.perf_counter() - t0), 2)
         result["c_in_the_loop_real_time_factor"] = rtf
         result["c_in_the_loop_60s_16_robots_wall_s_estimate"] = round(60.0 / rtf["16_robots"], 1)

@@ -375,11 +375,12 @@ def _sim_experiment(name: str):
 @_sim_experiment("swaps")
 @click.option("--swaps", type=click.IntRange(min=1), default=6, show_default=True, help="swaps per case")
 def sim_swaps(gen_dir, out_dir, swaps, learned, quiet, as_json):
-    """Swap experiments S2S, L2S, SS2L, SL2S, LL2S: baseline vs learned; table and plots."""
-    from ns2exp.swarm import SWAP_CASES, swap_experiments
+    """Swap experiments S2S, L2S, SS2L, SL2S, LL2S, LL2S*: BL, BL-tuned (gain search, written to
+    OUT/gain_search.json once), NN, NN-default, Mellinger; swaps.json, swaps.md and plots in OUT."""
+    from ns2exp.swarm import CONTROLLERS, SWAP_CASES, swap_experiments
 
     cfg = _export_config(gen_dir)
-    with _progress(quiet, len(SWAP_CASES), "case", "sim swaps") as update:
+    with _progress(quiet, len(SWAP_CASES) * len(CONTROLLERS), "flight", "sim swaps") as update:
         res = swap_experiments(cfg, gen_dir, out_dir, swaps=swaps, learned=learned, progress=update)
     _emit(as_json, res, (Path(out_dir) / "swaps.md").read_text())
 
@@ -388,11 +389,12 @@ def sim_swaps(gen_dir, out_dir, swaps, learned, quiet, as_json):
 @click.option("--duration", type=click.FloatRange(min=4.0), default=16.0, show_default=True,
               help="simulated seconds per flight")
 def sim_rings(gen_dir, out_dir, duration, learned, quiet, as_json):
-    """5-robot intertwined rings and the 16-robot three rings: baseline vs learned."""
-    from ns2exp.swarm import RING_CASES, ring_experiments
+    """5-robot intertwined rings and the 16-robot three rings, the controllers of `sim swaps`
+    (the gain search of OUT/gain_search.json, run if missing); rings.json, rings.md in OUT."""
+    from ns2exp.swarm import CONTROLLERS, RING_CASES, ring_experiments
 
     cfg = _export_config(gen_dir)
-    with _progress(quiet, 2 * len(RING_CASES), "flight", "sim rings") as update:
+    with _progress(quiet, len(RING_CASES) * len(CONTROLLERS), "flight", "sim rings") as update:
         res = ring_experiments(cfg, gen_dir, out_dir, duration=duration, learned=learned, progress=update)
     _emit(as_json, res, (Path(out_dir) / "rings.md").read_text())
 

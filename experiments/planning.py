@@ -295,7 +295,7 @@ def example_figure(pb: Problem, examples: dict, path: Path) -> None:
                                                    (bl, bl_log, "BL: planned (dashed), tracked (solid)"))):
         for i, tr in enumerate(res.trajs):
             ax.plot(tr.p[:, 1], tr.p[:, 2], "--", color=COLORS[i])
-            ax.plot(lg["p"][:, i, 1], lg["p"][:, i, 2], "-", color=COLORS[i], lw=1)
+            ax.plot(lg["truth_p"][:, i, 1], lg["truth_p"][:, i, 2], "-", color=COLORS[i], lw=1)
             mid = tr.T // 2
             ax.add_patch(plt.Circle((tr.p[mid, 1], tr.p[mid, 2]), pb.radius()[i], fill=False, color=COLORS[i]))
         ax.set_title(title, fontsize=8)

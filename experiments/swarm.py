@@ -1,9 +1,21 @@
-"""Flight-test experiments of the paper, reproduced in the simulator with the
-firmware controller in the loop: swaps "XY2Z" (robots X, Y above swap with Z
-below, all vertically aligned once per swap), baseline (f_a = 0) vs the learned
-feed-forward (NN), worst-case z error of the bottom robot per swap; plots like
-the paper's flight-test figure (box plots), f_a predicted vs true over time, and
-f_a,z heat maps of the exported model (learning-results figure)."""
+"""Flight-test experiments of the paper, reproduced in the simulator with every robot
+flown as a Crazyflie (sensing, the firmware's EKF, the app's code path; host/ns2_fly.c):
+swaps "XY2Z" (robots X, Y above swap with Z below, all vertically aligned once per
+swap) and rings, the z error of the measured robots, side by side for fair baselines:
+
+  BL            the project's controller, default gains, f_a = 0 (the paper's baseline)
+  BL-tuned      the same with the height and position gains of a documented search
+                under the same sensing (tune_gains: objective the L2S swap's median
+                worst z error without the learned force, subject to a motor-command
+                noise limit at hover)
+  NN            BL-tuned's gains with the learned f_a (the headline: NN vs BL-tuned)
+  NN-default    the learned f_a with the default gains (the rows before this change)
+  Mellinger     the firmware's controller_mellinger.c (default gains, mass set to the
+                vehicle's, thrust through the firmware's power distribution and
+                battery compensation) on the measured robots, the others flown by BL
+
+Plots like the paper's flight-test figure (box plots), f_a predicted vs true over time,
+and f_a,z heat maps of the exported model (learning-results figure)."""
 from __future__ import annotations
 
 import json
@@ -29,16 +41,134 @@ SWAP_CASES = {
 SWAP_S, REST_S, SPACING_M, BOTTOM_M = 2.5, 0.5, 0.3, 0.5
 
 
-def run_swaps(cfg: Config, gen_dir, case: str, learned: str | None, swaps: int = 6, seed: int = 0) -> dict:
+CONTROLLERS = ("BL", "BL-tuned", "NN", "NN-default", "Mellinger")
+NOISE_WINDOW = 11        # samples (0.1 s at 100 Hz): motor commands minus their moving average
+HOVER_NOISE_LIMIT = 2.0  # BL-tuned: motor-command noise at hover at most this times BL's
+# gain search, per axis group: Lp (1/s) and Kv per kg (N s/m/kg); default Lp 2 / 2.5, Kv 4 m
+GAIN_GRID_Z = {"Lp_z": (2.5, 3.75, 5.6, 8.4, 12.6, 19.0), "Kv_z": (4.0, 6.0, 9.0, 13.5, 20.0, 30.0)}
+GAIN_GRID_XY = {"Lp_xy": (2.0, 3.0, 4.5), "Kv_xy": (4.0, 6.0)}
+DEFAULT_TUNING = {"Lp_xy": 2.0, "Lp_z": 2.5, "Kv_xy": 4.0, "Kv_z": 4.0}
+
+
+def tuned(veh, tuning: dict | None) -> dict | None:
+    """ns2_gains_t overrides of one vehicle for a tuning (None: the default gains)."""
+    if tuning is None:
+        return None
+    t = tuning
+    return {"Lp": [t["Lp_xy"], t["Lp_xy"], t["Lp_z"]], "Kv": [t["Kv_xy"] * veh.mass] * 2 + [t["Kv_z"] * veh.mass]}
+
+
+def motor_noise(pwm: np.ndarray) -> float:
+    """rms of the motor commands (PWM in [0, 1]) minus their 0.1 s moving average, over
+    time, motors and the robots given ([T, ..., 4])."""
+    k = np.ones(NOISE_WINDOW) / NOISE_WINDOW
+    flat = pwm.reshape(len(pwm), -1)
+    smooth = np.stack([np.convolve(c, k, mode="same") for c in flat.T], axis=1)
+    h = NOISE_WINDOW // 2
+    return float(np.sqrt(((flat - smooth)[h:-h] ** 2).mean()))
+
+
+def _fly(cfg, team, gen_dir, start, sp, duration, controller: str, tuning, measured, seed: int = 0,
+         learned: str = "fixed") -> dict:
+    """One flight of ``team``; ``controller`` (one of CONTROLLERS) on the ``measured``
+    robots (indices), the others by BL (Mellinger) or the same controller."""
+    from ns2host.sim.vehicle import vehicle
+
+    n = len(team)
+    learned = learned if controller in ("NN", "NN-default") else None
+    use = tuning if controller in ("BL-tuned", "NN") else None
+    gains = [tuned(vehicle(cfg, t), use) for t in team]
+    ctrls = ["mellinger" if controller == "Mellinger" and i in measured else "ns2" for i in range(n)]
+    sw = CLoopSwarm(cfg, list(team), gen_dir, start, aero=True, learned=learned, gains=gains, controllers=ctrls,
+                    seed=seed)
+    return sw.run(duration, sp)
+
+
+def run_swaps(cfg: Config, gen_dir, case: str, learned: str | None = None, swaps: int = 6, seed: int = 0,
+              controller: str | None = None, tuning: dict | None = None) -> dict:
+    """The swap ``case``; ``controller`` (CONTROLLERS) or, for short, ``learned`` (None:
+    BL, "fixed"/"float": NN with default gains).  Worst z error of the bottom robot per
+    swap, its z error rms and motor-command noise."""
     team = SWAP_CASES[case]
     heights = BOTTOM_M + SPACING_M * np.arange(len(team))
     sp, start = swap(len(team), heights, radius=0.4, duration=SWAP_S, rest=REST_S, seed=seed)
-    sw = CLoopSwarm(cfg, list(team), gen_dir, start, aero=True, learned=learned)
-    log = sw.run(swaps * (SWAP_S + REST_S), sp)
     period = SWAP_S + REST_S
-    z_err = np.abs(log["p"][:, 0, 2] - log["p_d"][:, 0, 2])
+    if controller is None:
+        from ns2host.sim.vehicle import vehicle
+
+        sw = CLoopSwarm(cfg, list(team), gen_dir, start, aero=True, learned=learned, seed=seed,
+                        gains=[tuned(vehicle(cfg, t), tuning) for t in team])
+        log = sw.run(swaps * period, sp)
+    else:
+        log = _fly(cfg, team, gen_dir, start, sp, swaps * period, controller, tuning, measured=[0], seed=seed,
+                   learned=learned or "fixed")
+    z_err = np.abs(log["truth_p"][:, 0, 2] - log["p_d"][:, 0, 2])
     worst = [float(z_err[(log["t"] >= k * period) & (log["t"] < (k + 1) * period)].max()) for k in range(swaps)]
-    return {"worst_z_error_m": worst, "log": log}
+    return {"worst_z_error_m": worst, "z_error_rms_m": float(np.sqrt((z_err ** 2).mean())),
+            "motor_cmd_rms": motor_noise(log["pwm"][:, 0]), "log": log}
+
+
+def hover_noise(cfg: Config, gen_dir, tuning: dict | None, seconds: float = 4.0) -> float:
+    """Motor-command noise of a small robot hovering alone at 1 m with these gains."""
+    from ns2host.sim.cloop import hover_setpoints
+    from ns2host.sim.vehicle import vehicle
+
+    p0 = [[0.0, 0.0, 1.0]]
+    sw = CLoopSwarm(cfg, ["small"], gen_dir, p0, gains=[tuned(vehicle(cfg, "small"), tuning)])
+    return motor_noise(sw.run(seconds, hover_setpoints(p0))["pwm"])
+
+
+def tune_gains(cfg: Config, gen_dir, out: Path | None = None, swaps: int = 6) -> dict:
+    """BL-tuned: a grid search of the height gains (Lp_z x Kv_z), then of the position
+    gains (Lp_xy x Kv_xy) with the best height gains, under the simulator's sensing.
+    Objective: the L2S swap's median worst z error without the learned force; constraint:
+    motor-command noise at hover at most HOVER_NOISE_LIMIT times the default gains'.
+    Returns (and writes to out/gain_search.json) the tuning and every candidate."""
+    limit = HOVER_NOISE_LIMIT * hover_noise(cfg, gen_dir, None)
+    rows, best = [], dict(DEFAULT_TUNING)
+
+    def score(t: dict) -> float:
+        noise = hover_noise(cfg, gen_dir, t)
+        r = run_swaps(cfg, gen_dir, "L2S", None, swaps, tuning=t)
+        med = float(np.median(r["worst_z_error_m"]))
+        ok = noise <= limit and bool(np.isfinite(med)) and med < 0.5
+        rows.append({**t, "median_worst_z_error_m": med, "hover_motor_cmd_rms": noise, "admissible": ok})
+        return med if ok else np.inf
+
+    for grid in (GAIN_GRID_Z, GAIN_GRID_XY):
+        (ka, va), (kb, vb) = grid.items()
+        cands = [{**best, ka: a, kb: b} for a in va for b in vb]
+        scores = [score(t) for t in cands]
+        if np.isfinite(min(scores)):
+            best = cands[int(np.argmin(scores))]
+    res = {"tuning": best, "hover_noise_limit": limit, "objective": "L2S median worst z error, learned force off",
+           "key": _search_key(swaps), "candidates": rows}
+    if out is not None:
+        Path(out).mkdir(parents=True, exist_ok=True)
+        (Path(out) / "gain_search.json").write_text(json.dumps(res, indent=2) + "\n")
+    return res
+
+
+def _search_key(swaps: int) -> str:
+    from ns2host.sim.sensing import Sensing
+
+    return repr((GAIN_GRID_Z, GAIN_GRID_XY, HOVER_NOISE_LIMIT, NOISE_WINDOW, swaps, Sensing()))
+
+
+def load_or_tune(cfg: Config, gen_dir, out: Path, swaps: int = 6) -> dict:
+    """The tuning of out/gain_search.json when it was made by the same search (grid, limit,
+    sensing), else a new search (model-independent: f_a = 0)."""
+    f = Path(out) / "gain_search.json"
+    if f.is_file():
+        old = json.loads(f.read_text())
+        if old.get("key") == _search_key(swaps):
+            return old["tuning"]
+    return tune_gains(cfg, gen_dir, out, swaps)["tuning"]
+
+
+def _row(worst: list, rms: float, noise: float) -> dict:
+    return {"median_worst_z_error_m": float(np.median(worst)), "max_worst_z_error_m": float(np.max(worst)),
+            "z_error_rms_m": rms, "motor_cmd_rms": noise}
 
 
 def heat_maps(cfg: Config, gen_dir, out: Path) -> None:
@@ -80,8 +210,11 @@ def heat_maps(cfg: Config, gen_dir, out: Path) -> None:
     plt.close(fig)
 
 
-def swap_experiments(cfg: Config, gen_dir, out_dir, swaps: int = 6, cases=None, learned: str = "fixed",
-                     progress=None) -> dict:
+def swap_experiments(cfg: Config, gen_dir, out_dir, swaps: int = 6, cases=None, controllers=CONTROLLERS,
+                     learned: str = "fixed", progress=None) -> dict:
+    """Every swap case with every controller; out_dir/swaps.json (a row per case and
+    controller), swaps.md, box plots, f_a over time, heat maps (``progress(1)`` after
+    every case and controller)."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -89,47 +222,68 @@ def swap_experiments(cfg: Config, gen_dir, out_dir, swaps: int = 6, cases=None, 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     cases = list(cases or SWAP_CASES)
-    results, logs = {}, {}
+    tuning = load_or_tune(cfg, gen_dir, out)
+    rows, worst, logs = [], {}, {}
     for case in cases:
-        bl = run_swaps(cfg, gen_dir, case, None, swaps)
-        nn = run_swaps(cfg, gen_dir, case, learned, swaps)
-        if progress is not None:
-            progress(1)
-        results[case] = {"BL": bl["worst_z_error_m"], "NN": nn["worst_z_error_m"],
-                         "BL_median_m": float(np.median(bl["worst_z_error_m"])),
-                         "NN_median_m": float(np.median(nn["worst_z_error_m"]))}
-        results[case]["improvement"] = results[case]["BL_median_m"] / max(results[case]["NN_median_m"], 1e-9)
-        logs[case] = nn["log"]
-    (out / "swaps.json").write_text(json.dumps(results, indent=2) + "\n")
-    lines = ["| case | BL median worst z error (cm) | NN (cm) | BL / NN |", "|---|---|---|---|"]
-    for case, r in results.items():
-        lines.append(f"| {case} | {100 * r['BL_median_m']:.1f} | {100 * r['NN_median_m']:.1f} | {r['improvement']:.2f} |")
-    (out / "swaps.md").write_text("\n".join(lines) + "\n")
-    # box plots per case, BL vs NN (paper's flight-test figure)
-    fig, ax = plt.subplots(figsize=(1.8 * len(cases) + 2, 3.5))
+        for ctrl in controllers:
+            r = run_swaps(cfg, gen_dir, case, learned, swaps=swaps, controller=ctrl, tuning=tuning)
+            rows.append({"case": case, "controller": ctrl, **_row(r["worst_z_error_m"], r["z_error_rms_m"],
+                                                                   r["motor_cmd_rms"]),
+                         "worst_z_error_m": r["worst_z_error_m"]})
+            worst[case, ctrl] = r["worst_z_error_m"]
+            if ctrl == "NN":
+                logs[case] = r["log"]
+            if progress is not None:
+                progress(1)
+    res = {"swaps": swaps, "tuning": tuning, "rows": rows}
+    (out / "swaps.json").write_text(json.dumps(res, indent=2) + "\n")
+    (out / "swaps.md").write_text(swap_table(res))
+    fig, ax = plt.subplots(figsize=(1.2 * len(cases) * len(controllers) + 2, 3.5))
     data, labels = [], []
     for case in cases:
-        data += [np.array(results[case]["BL"]) * 100, np.array(results[case]["NN"]) * 100]
-        labels += [f"{case}\nBL", f"{case}\nNN"]
+        for ctrl in controllers:
+            data.append(np.array(worst[case, ctrl]) * 100)
+            labels.append(f"{case}\n{ctrl}")
     ax.boxplot(data)
-    ax.set_xticks(range(1, len(labels) + 1), labels)
+    ax.set_xticks(range(1, len(labels) + 1), labels, fontsize=7)
     ax.set_ylabel("worst-case z error (cm)")
     fig.tight_layout()
     fig.savefig(out / "swaps_boxplot.png", dpi=110)
     plt.close(fig)
-    # f_a predicted vs true over time, bottom robot of the first case
-    log = logs[cases[0]]
-    fig, ax = plt.subplots(figsize=(7, 3))
-    ax.plot(log["t"], log["truth_fa"][:, 0, 2] * 1000 / G, label="true f_a,z")
-    ax.plot(log["t"], log["fa_hat"][:, 0, 2] * 1000 / G, label="predicted (on board)")
-    ax.set_xlabel("t (s)")
-    ax.set_ylabel("g")
-    ax.legend()
-    fig.tight_layout()
-    fig.savefig(out / "fa_over_time.png", dpi=110)
-    plt.close(fig)
+    if "NN" in controllers:  # f_a predicted (on board, sliced, estimated states) vs true, bottom robot
+        log = logs[cases[0]]
+        fig, ax = plt.subplots(figsize=(7, 3))
+        ax.plot(log["t"], log["truth_fa"][:, 0, 2] * 1000 / G, label="true f_a,z")
+        ax.plot(log["t"], log["fa_hat"][:, 0, 2] * 1000 / G, label="predicted (on board)")
+        ax.set_xlabel("t (s)")
+        ax.set_ylabel("g")
+        ax.legend()
+        fig.tight_layout()
+        fig.savefig(out / "fa_over_time.png", dpi=110)
+        plt.close(fig)
     heat_maps(cfg, gen_dir, out)
-    return results
+    return res
+
+
+def swap_table(res: dict) -> str:
+    """Markdown: per case, each controller's median / max worst z error, z rms, motor noise;
+    BL-tuned / NN is the headline ratio."""
+    by = {(r["case"], r["controller"]): r for r in res["rows"]}
+    ctrls = list(dict.fromkeys(r["controller"] for r in res["rows"]))
+    lines = ["| case | " + " | ".join(ctrls) + (" | BL-tuned / NN |" if {"NN", "BL-tuned"} <= set(ctrls) else " |"),
+             "|---" * (len(ctrls) + 1 + ({"NN", "BL-tuned"} <= set(ctrls))) + "|"]
+    for case in dict.fromkeys(r["case"] for r in res["rows"]):
+        cells = [f"{100 * by[case, c]['median_worst_z_error_m']:.1f} / {100 * by[case, c]['max_worst_z_error_m']:.1f}"
+                 for c in ctrls]
+        if {"NN", "BL-tuned"} <= set(ctrls):
+            cells.append(f"{by[case, 'BL-tuned']['median_worst_z_error_m'] / by[case, 'NN']['median_worst_z_error_m']:.2f}")
+        lines.append(f"| {case} | " + " | ".join(cells) + " |")
+    lines += ["", "median / max worst z error of the bottom robot (cm). z error rms (cm) and motor-command noise "
+              "(PWM rms, %):", "", "| case | " + " | ".join(ctrls) + " |", "|---" * (len(ctrls) + 1) + "|"]
+    for case in dict.fromkeys(r["case"] for r in res["rows"]):
+        lines.append(f"| {case} | " + " | ".join(
+            f"{100 * by[case, c]['z_error_rms_m']:.1f} / {100 * by[case, c]['motor_cmd_rms']:.2f}" for c in ctrls) + " |")
+    return "\n".join(lines) + "\n"
 
 
 # name -> (robot types per ring, ring heights)
@@ -140,34 +294,41 @@ RING_CASES = {
 }
 
 
-def ring_experiments(cfg: Config, gen_dir, out_dir, duration: float = 16.0, learned: str = "fixed",
-                     progress=None) -> dict:
-    """Worst-case z error of every robot, BL vs NN, mean and max per type (``progress(1)``
-    after every flight)."""
+def ring_experiments(cfg: Config, gen_dir, out_dir, duration: float = 16.0, controllers=CONTROLLERS,
+                     learned: str = "fixed", progress=None) -> dict:
+    """Worst z error of every robot after 2 s, per robot type and controller (Mellinger
+    flies the small robots, BL the large); out_dir/rings.json (a row per case, robot
+    type and controller) and rings.md (``progress(1)`` after every flight)."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    results = {}
+    tuning = load_or_tune(cfg, gen_dir, out)
+    rows = []
     for name, (groups, heights) in RING_CASES.items():
         team = [t for g in groups for t in g]
-        res = {}
-        for mode in (None, learned):
+        small = [i for i, t in enumerate(team) if t == "small"]
+        for ctrl in controllers:
             sp, start = rings([len(g) for g in groups], heights, radius=0.5, period=8.0)
-            log = CLoopSwarm(cfg, team, gen_dir, start, aero=True, learned=mode).run(duration, sp)
+            log = _fly(cfg, team, gen_dir, start, sp, duration, ctrl, tuning, measured=small, learned=learned)
             if progress is not None:
                 progress(1)
             late = log["t"] > 2.0
-            worst = np.abs(log["p"][late, :, 2] - log["p_d"][late, :, 2]).max(axis=0)
-            res["BL" if mode is None else "NN"] = {
-                kind: {"mean_worst_z_error_m": float(worst[[t == kind for t in team]].mean()),
-                       "max_worst_z_error_m": float(worst[[t == kind for t in team]].max())}
-                for kind in sorted(set(team))}
-        results[name] = res
-    (out / "rings.json").write_text(json.dumps(results, indent=2) + "\n")
-    lines = ["| experiment | robot type | BL mean / max worst z error (cm) | NN (cm) |", "|---|---|---|---|"]
-    for name, res in results.items():
-        for kind in res["BL"]:
-            b, n = res["BL"][kind], res["NN"][kind]
-            lines.append(f"| {name} | {kind} | {100 * b['mean_worst_z_error_m']:.1f} / {100 * b['max_worst_z_error_m']:.1f}"
-                         f" | {100 * n['mean_worst_z_error_m']:.1f} / {100 * n['max_worst_z_error_m']:.1f} |")
+            z_err = np.abs(log["truth_p"][late, :, 2] - log["p_d"][late, :, 2])
+            worst = z_err.max(axis=0)
+            for kind in sorted(set(team)):
+                if ctrl == "Mellinger" and kind != "small":
+                    continue  # flown by BL
+                sel = [t == kind for t in team]
+                rows.append({"case": name, "robot_type": kind, "controller": ctrl,
+                             **_row(list(worst[sel]), float(np.sqrt((z_err[:, sel] ** 2).mean())),
+                                    motor_noise(log["pwm"][:, sel])),
+                             "mean_worst_z_error_m": float(worst[sel].mean())})
+    res = {"duration_s": duration, "tuning": tuning, "rows": rows}
+    (out / "rings.json").write_text(json.dumps(res, indent=2) + "\n")
+    lines = ["| experiment | robot type | controller | mean / max worst z error (cm) | z rms (cm) | motor noise (%) |",
+             "|---|---|---|---|---|---|"]
+    for r in rows:
+        lines.append(f"| {r['case']} | {r['robot_type']} | {r['controller']} | {100 * r['mean_worst_z_error_m']:.1f} / "
+                     f"{100 * r['max_worst_z_error_m']:.1f} | {100 * r['z_error_rms_m']:.1f} | "
+                     f"{100 * r['motor_cmd_rms']:.2f} |")
     (out / "rings.md").write_text("\n".join(lines) + "\n")
-    return results
+    return res

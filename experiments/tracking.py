@@ -46,6 +46,6 @@ def track(pb: Problem, trajs: list, gen_dir, t_pre: float = 1.0, t_post: float =
     duration = t_pre + trajs[0].T * trajs[0].dt + t_post
     log = sw.run(duration, plan_setpoints(trajs, pb.kappa(), t_pre))
     w = log["t"] >= t_pre
-    err = np.linalg.norm(log["p"][w] - log["p_d"][w], axis=2).max(0)
+    err = np.linalg.norm(log["truth_p"][w] - log["p_d"][w], axis=2).max(0)
     fa = np.abs(log["truth_fa"][w, :, 2]).max(0) / GRAMS_TO_N
     return {"worst_error_m": err.tolist(), "worst_fa_g": fa.tolist(), "log": log}

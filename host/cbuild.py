@@ -231,6 +231,19 @@ def load_sim():
     return _module(key, "_ns2_sim", build)
 
 
+def fill_vehicle(v, veh) -> None:
+    """cdata ``ns2_vehicle_t`` from an ns2codegen.vehicle.Vehicle."""
+    v.mass_kg, v.inertia, v.arm_m, v.kappa_m = veh.mass, list(veh.inertia), veh.arm, veh.kappa
+    setattr(v, "lambda", veh.lam)  # 'lambda' is a Python keyword
+    v.f_max_N, v.psi2 = veh.f_max, list(veh.psi2)
+
+
+def fill_gains(g, gains: dict) -> None:
+    """cdata ``ns2_gains_t`` from a dict of its fields (ns2codegen.vehicle.default_gains)."""
+    for k, val in gains.items():
+        setattr(g, k, val)
+
+
 class CModel:
     """The firmware inference, built for the host, with numpy batch calls."""
 
@@ -252,13 +265,9 @@ class CModel:
         ffi, lib = self.ffi, self.lib
         ctrl = ffi.new("ns2_ctrl_t[]", len(vehicles))
         for i, veh in enumerate(vehicles):
-            v = ffi.new("ns2_vehicle_t *")
-            v.mass_kg, v.inertia, v.arm_m, v.kappa_m = veh.mass, list(veh.inertia), veh.arm, veh.kappa
-            setattr(v, "lambda", veh.lam)  # 'lambda' is a Python keyword
-            v.f_max_N, v.psi2 = veh.f_max, list(veh.psi2)
-            g = ffi.new("ns2_gains_t *")
-            for k, val in default_gains(veh).items():
-                setattr(g, k, val)
+            v, g = ffi.new("ns2_vehicle_t *"), ffi.new("ns2_gains_t *")
+            fill_vehicle(v, veh)
+            fill_gains(g, default_gains(veh))
             lib.ns2_ctrl_init(ffi.addressof(ctrl, i), v, g)
         return ctrl
 

@@ -10,6 +10,7 @@ through here, so there is one place that knows where the firmware is.
 from __future__ import annotations
 
 import os
+import re
 import shutil
 import subprocess
 import tempfile
@@ -78,6 +79,34 @@ def firmware_dir() -> Path:
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     return dest
+
+
+def autoconf_dir() -> Path:
+    """The folder of the firmware's generated ``autoconf.h`` (the stock ``cf2_defconfig``),
+    made once with the firmware's own Kconfig (``make cf2_defconfig && make prepare``):
+    every firmware source is compiled with ``-include autoconf.h``, as its Kbuild does."""
+    root = firmware_dir()
+    gen = root / "build" / "include" / "generated"
+    if not (gen / "autoconf.h").is_file():
+        for target in ("cf2_defconfig", "prepare"):
+            r = subprocess.run(["make", target], cwd=root, capture_output=True, text=True)
+            if r.returncode != 0:
+                raise FirmwareMissing(f"{root}: `make {target}` failed:\n{r.stdout[-2000:]}{r.stderr[-2000:]}")
+    return gen
+
+
+def extract_function(path: Path, name: str) -> str:
+    """The C source text of the function ``name`` (its definition) in ``path``."""
+    text = path.read_text()
+    m = re.search(r"^[A-Za-z_][\w \*]*\b" + re.escape(name) + r"\s*\([^;{]*\)\s*\{", text, re.M)
+    if m is None:
+        raise FirmwareMissing(f"{path}: no definition of {name}")
+    depth, i = 0, m.end() - 1
+    while True:
+        depth += {"{": 1, "}": -1}.get(text[i], 0)
+        i += 1
+        if depth == 0:
+            return text[m.start():i] + "\n"
 
 
 if __name__ == "__main__":  # the app Makefile asks here where the firmware is (stdlib only)

@@ -68,15 +68,16 @@ def test_controller_tracks_a_figure_eight(cfg, exported, kind):
     within 5 cm of a 1 m x 0.5 m figure-eight flown in 6 s (peak speed 0.7 m/s)."""
     sw = CLoopSwarm(cfg, [kind], exported.gen_dir, [[0, 0, 1.0]])
     log = sw.run(12.0, figure_eight([0, 0, 1.0]))
-    err = np.linalg.norm(log["p"][:, 0] - log["p_d"][:, 0], axis=1)
+    err = np.linalg.norm(log["truth_p"][:, 0] - log["p_d"][:, 0], axis=1)
     assert err[log["t"] > 6.0].max() < 0.05, err.max()
     assert (log["status"] & 1).sum() == 0  # never a bad state
 
 
 def test_controller_safety(cfg, exported):
-    sw = CLoopSwarm(cfg, ["small"], exported.gen_dir, [[0, 0, 1.0]])
-    ffi, lib = sw.c.ffi, sw.c.lib
-    c = ffi.addressof(sw.ctrl, 0)
+    cm = exported.cmodel()
+    ffi, lib = cm.ffi, cm.lib
+    ctrl = cm.controller([vehicle(cfg, "small")])
+    c = ffi.addressof(ctrl, 0)
     st, sp = ffi.new("ns2_ctrl_state_t *"), ffi.new("ns2_setpoint_t *")
     st.q = [1, 0, 0, 0]
     st.p = [0, 0, 1]
@@ -102,4 +103,4 @@ def test_hover_holds(cfg, exported):
     sw = CLoopSwarm(cfg, ["small", "large"], exported.gen_dir, [[0, 0, 1.0], [1.0, 0, 1.0]])
     log = sw.run(4.0, hover_setpoints([[0, 0, 1.0], [1.0, 0, 1.0]]))
     late = log["t"] > 2.0
-    assert np.abs(log["p"][late] - log["p_d"][late]).max() < 0.03
+    assert np.abs(log["truth_p"][late] - log["p_d"][late]).max() < 0.03

@@ -133,7 +133,7 @@ def test_sysid_file_drives_config_labels_and_the_controller(cfg, exported, tmp_p
     # the controller on the identified psi_2 / f_max hovers a vehicle with the identified psi_1
     hover = hover_setpoints([[0.0, 0.0, 0.6]])
     log = CLoopSwarm(cfg2, ["small"], exported.gen_dir, [[0.0, 0.0, 0.6]]).run(3.0, hover)
-    assert np.abs(log["p"][-100:, 0, 2] - 0.6).max() < 0.01
+    assert np.abs(log["truth_p"][-100:, 0, 2] - 0.6).max() < 0.01
     # the strong robot flies (simulator truth); labels with the table's psi_1 vs the identified one
     log = CLoopSwarm(cfg, ["small*"], exported.gen_dir, [[0.0, 0.0, 0.6]], aero=True).run(3.0, hover)
     root = tmp_path / "logs"

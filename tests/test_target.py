@@ -119,13 +119,14 @@ def _controller_steps(ffi, n, seed):
 @pytest.mark.parametrize("kind", ["small", "large"])
 def test_controller_steps_bit_exact_on_stm32(exported, cfg, kind):
     """5,000 controller steps on the emulated MCU equal the host build bit for bit."""
-    from ns2host.sim.cloop import CLoopSwarm
+    from ns2host.sim.vehicle import vehicle
 
-    sw = CLoopSwarm(cfg, [kind], exported.gen_dir, [[0, 0, 1.0]])
-    ffi, lib = sw.c.ffi, sw.c.lib
+    cm = exported.cmodel()
+    ffi, lib = cm.ffi, cm.lib
     n = 5000
     steps = _controller_steps(ffi, n, seed=12)
-    c = ffi.addressof(sw.ctrl, 0)
+    ctrl = cm.controller([vehicle(cfg, kind)])
+    c = ffi.addressof(ctrl, 0)
     veh, gains = bytes(ffi.buffer(ffi.addressof(c[0], "veh"))), bytes(ffi.buffer(ffi.addressof(c[0], "g")))
     host_out = ffi.new("ns2_step_out_t[]", n)
     fresh = ffi.new("ns2_ctrl_t *")

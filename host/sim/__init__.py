@@ -4,7 +4,10 @@ vehicle.py    vehicle parameters (those of ns2codegen.vehicle), actuation matrix
 dynamics.py   rigid-body dynamics with the first-order motor delay, eq. (dynamics),
               vectorized over robots, RK4 in C (host/ns2_sim.c)
 aero.py       the ground-truth interaction forces (downwash, ground effect, drag)
-cloop.py      C-in-the-loop: the firmware controller and inference per robot
+sensing.py    what a Crazyflie senses: mocap (rate, noise, latency, loss), IMU (noise,
+              bias), the EKF's measurement noise; sources in docs/sensing.md
+cloop.py      C-in-the-loop: every robot as a Crazyflie at 1 kHz (host/ns2_fly.c): IMU,
+              the firmware's EKF, the app's code path ns2_pilot or the firmware's Mellinger
 scenarios.py  swaps, random walks, rings, near-field passes
 collect.py    data collection: simulated flights -> uSD logs -> labelled data set
 usdlogs.py    the simulator's flight logs as Crazyflie uSD-card files

@@ -1,24 +1,31 @@
-"""C-in-the-loop: every robot runs its own instance of the firmware controller
-(firmware/src/ns2_controller.c, built for the host) at the Crazyflie's rates,
-attitude 500 Hz and position 100 Hz, and predicts f_a from its own neighbour set
-with the firmware inference (float or fixed point) when the learned term is on
-(the baseline sets it to zero, as in the paper)."""
+"""C-in-the-loop: every robot flies as a Crazyflie does, at the stabilizer's 1 kHz, in
+C (host/ns2_fly.c): IMU with noise and bias -> the firmware's own EKF (kalman_core,
+fed by one mocap marker at 100 Hz with latency and loss) -> the drone's code path
+ns2_pilot (firmware/src: peer table from the same broadcast, sliced prediction, the
+controller at 500/100 Hz, psi_2 PWM) or the firmware's Mellinger controller -> motors
+(psi_1) -> rigid-body dynamics.  The learned term is off in the baseline (f_a = 0, as
+in the paper).  The ground truth (true state, interaction force) stays in Python and
+in the log's ``truth_*`` fields; the drone's log fields are what the drone knows."""
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
 
 from ns2codegen.config import Config
-from ns2codegen.data.labels import psi1_newtons
 
-from ..cbuild import CModel
+from ..cbuild import fill_gains, fill_vehicle
+from ..cfhost import load_fly
 from .aero import calibrated
 from .dynamics import Dynamics, SwarmState
-from .vehicle import G, base_type, vehicle
+from .sensing import Sensing
+from .vehicle import G, base_type, default_gains, vehicle
 
-ATT_HZ, POS_HZ = 500, 100
+TICK_HZ, ATT_HZ, POS_HZ = 1000, 500, 100
+STEP_TICKS = TICK_HZ // ATT_HZ  # ticks per Python step (the interaction force is held over it)
+CONTROLLERS = ("ns2", "mellinger")
 
 
 @dataclass
@@ -35,8 +42,9 @@ LOG_HZ = 100  # what a Crazyflie logs to its uSD card, about every 10 ms
 
 @dataclass
 class FlightLog:
-    """What the drones log (t, p, v, q, w, pwm, battery; [T, N, ...]) plus, kept
-    apart, the simulator's ground truth (f_a) and the setpoints, for evaluation only."""
+    """What the drones log (t, p, v, q: the EKF's estimate; w: filtered gyro; pwm,
+    battery; [T, N, ...]) plus, kept apart, the simulator's ground truth (truth_p,
+    truth_v, truth_fa) and the setpoints, for evaluation only."""
     t: list = field(default_factory=list)
     p: list = field(default_factory=list)
     v: list = field(default_factory=list)
@@ -44,6 +52,8 @@ class FlightLog:
     w: list = field(default_factory=list)
     pwm: list = field(default_factory=list)
     battery_V: list = field(default_factory=list)
+    truth_p: list = field(default_factory=list)
+    truth_v: list = field(default_factory=list)
     truth_fa: list = field(default_factory=list)
     p_d: list = field(default_factory=list)
     fa_hat: list = field(default_factory=list)
@@ -55,88 +65,128 @@ class FlightLog:
 
 class CLoopSwarm:
     def __init__(self, cfg: Config, types: list[str], gen_dir, positions, learned: str | None = None,
-                 aero: bool = False, battery_V: float = 3.9, substeps: int = 1):
+                 aero: bool = False, battery_V: float = 3.9, controllers=None, gains=None,
+                 sensing: Sensing | None = None, seed: int = 0):
         """learned: None (baseline, f_a = 0), "float" or "fixed"; aero: ground-truth
-        interactions (host/sim/aero.py) on or off."""
+        interactions (host/sim/aero.py) on or off; controllers: per robot "ns2" (the
+        app's path, default) or "mellinger" (the firmware's); gains: per robot None
+        (default_gains) or a dict of ns2_gains_t fields replacing some defaults;
+        sensing: the figures of host/sim/sensing.py; seed: noise, biases and losses."""
+        if learned not in (None, "float", "fixed"):
+            raise ValueError(f"learned must be None, 'float' or 'fixed', got {learned!r}")
         self.cfg = cfg
         self.types = types
+        n = len(types)
+        controllers = list(controllers or ["ns2"] * n)
+        if len(controllers) != n or any(c not in CONTROLLERS for c in controllers):
+            raise ValueError(f"controllers: one of {CONTROLLERS} per robot, got {controllers}")
         self.type_idx = np.array([cfg.robot_types.index(base_type(t)) for t in types])
         self.vehicles = [vehicle(cfg, t) for t in types]
         self.dyn = Dynamics(self.vehicles)
         self.state = SwarmState.hover(positions, self.vehicles)
-        self.c = CModel(gen_dir)
         self.learned = learned
         self.aero = calibrated(self.vehicles, vehicle(cfg, cfg.robot_types[0])) if aero else None
         self.battery_V = battery_V
-        self.substeps = substeps
-        ffi, lib = self.c.ffi, self.c.lib
-        n = len(types)
-        self.ctrl = self.c.controller(self.vehicles)
-        assert ffi.sizeof("ns2_ctrl_state_t") == 13 * 4 and ffi.sizeof("ns2_setpoint_t") == 13 * 4
-        self.states = np.zeros((n, 13), np.float32)   # ns2_ctrl_state_t: p, v, q, w
+        self.sensing = sensing or Sensing()
+        self.rng = np.random.default_rng(seed)
+        self.ffi, self.lib = load_fly(gen_dir)
+        ffi, lib = self.ffi, self.lib
+        if n > lib.NS2_FLY_MAX_ROBOTS:
+            raise ValueError(f"at most {lib.NS2_FLY_MAX_ROBOTS} robots, got {n}")
+        self.robots = ffi.new("ns2_fly_robot_t[]", n)
+        acc_b, acc_scale, gyro_b = self.sensing.biases(self.rng, n)
+        se = self.sensing
+        for i, veh in enumerate(self.vehicles):
+            it = ffi.new("ns2_fly_init_t *")
+            it.kind = lib.NS2_FLY_MELLINGER if controllers[i] == "mellinger" else lib.NS2_FLY_PILOT
+            it.id, it.type = i + 1, int(self.type_idx[i])
+            it.par, it.psi1, it.p0 = list(self.dyn.par[i]), list(veh.psi1), list(self.state.p[i])
+            it.bias_acc_g, it.bias_gyro_dps, it.acc_scale = list(acc_b[i]), list(gyro_b[i]), acc_scale[i]
+            it.sd_acc_g, it.sd_gyro_dps, it.ext_pos_std_m = se.acc_sd_g, se.gyro_sd_dps, se.ext_pos_std_m
+            fill_vehicle(it.veh, veh)
+            g = default_gains(veh)
+            g.update((gains[i] if gains is not None else None) or {})
+            fill_gains(it.gains, g)
+            lib.ns2_pilot_default_cfg(ffi.addressof(it, "pilot_cfg"), it.type)
+            it.pilot_cfg.enable = int(learned is not None)
+            it.pilot_cfg.fixed = int(learned != "float")
+            lib.ns2_fly_init(ffi.addressof(self.robots, i), it)
+        self.controllers = controllers
         self.sps = np.zeros((n, 13), np.float32)      # ns2_setpoint_t: p, v, a, yaw, w
-        self.fa_hat = np.zeros((n, 3))
-        self.pwm = np.zeros((n, 4), np.float32)
-        self._psi1 = np.array([veh.psi1 for veh in self.vehicles])
+        self.est = ffi.new("float[13]")
 
-    def _predict(self) -> None:
-        """Each robot predicts f_a,z from its own neighbour set (decentralized)."""
-        st, n = self.state, len(self.types)
-        if self.learned is None:
-            self.fa_hat[:] = 0.0
-            return
-        from ns2codegen.queries import Queries
+    def _estimate(self, i: int) -> np.ndarray:
+        self.lib.ns2_fly_estimate(self.ffi.addressof(self.robots, i), self.est)
+        return np.frombuffer(self.ffi.buffer(self.est), np.float32).astype(float)
 
-        rel = np.concatenate([st.p[None, :, :] - st.p[:, None, :], st.v[None, :, :] - st.v[:, None, :]], axis=2)
-        order = np.argsort(np.linalg.norm(rel[..., :3], axis=2), axis=1)[:, 1:]  # nearest first, not itself
-        q = Queries(self.type_idx.astype(np.uint8), st.p.astype(np.float32), st.v.astype(np.float32),
-                    np.full(n, n - 1), self.type_idx[order].astype(np.uint8),
-                    np.take_along_axis(rel, order[..., None], 1).astype(np.float32))
-        out, _ = self.c.predict(q, fixed=self.learned == "fixed")
-        scale = 2.0 ** -self.c.lib.NS2_Q_OUT_FRAC if self.learned == "fixed" else 1.0
-        self.fa_hat[:, 2] = out.astype(float) * scale * G / 1000.0  # grams -> N
-
-    def run(self, duration: float, setpoints: Callable, log_hz: int = LOG_HZ) -> dict:
-        """Fly for ``duration`` s; ``setpoints(t, state)`` gives the Setpoints."""
-        ffi, lib, n = self.c.ffi, self.c.lib, len(self.types)
-        dt = 1.0 / ATT_HZ
-        steps = int(round(duration * ATT_HZ))
-        every = ATT_HZ // POS_HZ
+    def run(self, duration: float, setpoints: Callable, log_hz: int = LOG_HZ, trace_robot: int | None = None,
+            settle_s: float = 2.0) -> dict:
+        """Fly for ``duration`` s; ``setpoints(t, state)`` (true state) gives the Setpoints,
+        read at 100 Hz.  First ``settle_s`` s (not logged) hovering at the first setpoint, as
+        after a take-off: the EKF converges from its initial covariance.  trace_robot: also
+        return ``trace``, the inputs and outputs of every ns2_pilot_tick of that robot
+        (ns2_fly_trace_t records)."""
+        ffi, lib, n, se = self.ffi, self.lib, len(self.types), self.sensing
+        settle = int(round(settle_s * ATT_HZ))
+        steps = settle + int(round(duration * ATT_HZ))
+        every_log = TICK_HZ // log_hz
+        frame_every = TICK_HZ // se.mocap_hz
         log = FlightLog()
         ptr = lambda ctype, a: ffi.cast(ctype, ffi.from_buffer(a))  # noqa: E731
-        fa32 = np.zeros((n, 3), np.float32)
+        x = np.ascontiguousarray(self.state.pack(), float)
+        frames: deque = deque()
+        frame = ffi.new("ns2_fly_frame_t *")
+        tr_max = steps + 1
+        tr = ffi.new("ns2_fly_trace_t[]", tr_max) if trace_robot is not None else ffi.NULL
+        n_tr = 0
         for k in range(steps):
-            t = k * dt
-            st = self.state
-            self.states[:] = np.concatenate([st.p, st.v, st.q, st.w], axis=1)
-            do_pos = k % every == 0
-            if do_pos:
-                self._predict()
-                sp = setpoints(t, st)
+            ms = k * STEP_TICKS
+            t = (k - settle) / ATT_HZ
+            st = SwarmState.unpack(x)
+            if k == 0:
+                sp0 = setpoints(0.0, st)
+                z = np.zeros_like(sp0.p)
+                hover = Setpoints(sp0.p, z, z, sp0.yaw)
+            if ms % (TICK_HZ // POS_HZ) == 0:
+                sp = hover if k < settle else setpoints(t, st)
                 self.sps[:, 0:3], self.sps[:, 3:6], self.sps[:, 6:9] = sp.p, sp.v, sp.a
                 self.sps[:, 9], self.sps[:, 10:13] = sp.yaw, 0.0
-                fa32[:] = self.fa_hat
-            lib.ns2_host_ctrl_tick(self.ctrl, n, ptr("ns2_ctrl_state_t *", self.states),
-                                   ptr("ns2_setpoint_t *", self.sps),
-                                   ptr("float *", fa32) if self.learned else ffi.NULL, int(do_pos),
-                                   1.0 / POS_HZ, dt, self.battery_V, ptr("float *", self.pwm))
-            u_c = psi1_newtons(self._psi1, self.pwm, np.full(n, self.battery_V))
+            if ms % frame_every == 0:  # a mocap frame of every marker, broadcast after latency_ms
+                p_meas = (st.p + self.rng.normal(0.0, se.mocap_sd_m, st.p.shape)).astype(np.float32)
+                rx = (self.rng.random(n) >= se.loss).astype(np.uint8)
+                frames.append((ms + se.latency_ms, p_meas, rx))
+            fr = ffi.NULL
+            if frames and frames[0][0] < ms + STEP_TICKS:
+                tick, p_meas, rx = frames.popleft()
+                frame.tick, frame.p, frame.rx = tick, ptr("float *", p_meas), ptr("uint8_t *", rx)
+                fr = frame
             f_a = self.aero(st.p, st.v, st.u.sum(axis=1)) if self.aero else np.zeros((n, 3))
-            if k % (ATT_HZ // log_hz) == 0:
+            if k >= settle and ms % every_log == 0:
+                est = np.array([self._estimate(i) for i in range(n)])
                 log.t.append(t)
-                log.p.append(st.p.copy())
-                log.v.append(st.v.copy())
-                log.q.append(st.q.copy())
-                log.w.append(st.w.copy())
-                log.pwm.append(self.pwm.astype(float))
+                log.p.append(est[:, 0:3])
+                log.v.append(est[:, 3:6])
+                log.q.append(est[:, 6:10])
+                log.w.append(est[:, 10:13])
+                log.pwm.append(np.array([list(self.robots[i].pwm) for i in range(n)]))
                 log.battery_V.append(np.full(n, self.battery_V))
+                log.truth_p.append(st.p.copy())
+                log.truth_v.append(st.v.copy())
                 log.truth_fa.append(f_a.copy())
                 log.p_d.append(self.sps[:, 0:3].astype(float))
-                log.fa_hat.append(self.fa_hat.copy())
-                log.status.append([self.ctrl[i].status for i in range(n)])
-            for _ in range(self.substeps):
-                self.state = self.dyn.step(self.state, u_c, dt / self.substeps, f_a=f_a)
-        return log.arrays()
+                log.fa_hat.append([[0.0, 0.0, self.robots[i].pilot.fa_hat_g * G / 1000.0 if self.learned else 0.0]
+                                   for i in range(n)])
+                log.status.append([self.robots[i].pilot.ctrl.status for i in range(n)])
+            noise = self.rng.standard_normal((STEP_TICKS, n, 6), dtype=np.float32)
+            fa = np.ascontiguousarray(f_a, float)
+            n_tr += lib.ns2_fly_run(self.robots, n, ptr("double *", x), ptr("double *", fa), ms, STEP_TICKS,
+                                    ptr("float *", noise), ptr("ns2_setpoint_t *", self.sps), fr, self.battery_V,
+                                    tr + n_tr if tr != ffi.NULL else ffi.NULL, trace_robot or 0, tr_max - n_tr)
+        self.state = SwarmState.unpack(x.copy())
+        out = log.arrays()
+        if trace_robot is not None:
+            out["trace"] = (tr, n_tr)
+        return out
 
 
 def hover_setpoints(p0: np.ndarray) -> Callable:

@@ -3,7 +3,7 @@ type mix fly random walks (with ground contact height included) and swaps, and
 optionally every pair of robot types flies close-range passes (``near_field``:
 one robot slowly under the other at vertical gaps from the collision distance to
 1.2 m, the near-field downwash that swaps only cross in a tenth of a second); the
-drones' logs (with sensor noise) become a training set through the same path as
+drones' logs (their EKF's estimates, from noisy sensors) become a training set through the same path as
 real logs (ns2codegen.data.from_logs), never through the ground truth."""
 from __future__ import annotations
 
@@ -20,9 +20,6 @@ from .cloop import CLoopSwarm
 from .scenarios import near_field, random_walk, swap
 from .usdlogs import write_flight, write_manifest
 
-POS_NOISE_M = 0.001      # motion capture
-VEL_NOISE_MPS = 0.002    # state estimate
-
 
 def teams(cfg: Config, max_size: int = 3) -> list[tuple[str, ...]]:
     """Every multiset of 1..max_size robot types (for two types: S, L, SS, SL, LL,
@@ -34,7 +31,7 @@ def teams(cfg: Config, max_size: int = 3) -> list[tuple[str, ...]]:
 
 
 def fly(cfg: Config, team, gen_dir, kind: str, duration: float, seed: int, learned=None,
-        rng: np.random.Generator | None = None, near_gap_max: float = 1.2) -> Flight:
+        near_gap_max: float = 1.2) -> Flight:
     n = len(team)
     if kind == "swap":
         heights = 0.4 + 0.25 * np.arange(n)
@@ -48,12 +45,10 @@ def fly(cfg: Config, team, gen_dir, kind: str, duration: float, seed: int, learn
         sp, start = random_walk(n, seed=seed)
     else:
         raise ValueError(f"unknown flight kind {kind!r}: random, swap or near")
-    sw = CLoopSwarm(cfg, list(team), gen_dir, start, aero=True, learned=learned)
+    sw = CLoopSwarm(cfg, list(team), gen_dir, start, aero=True, learned=learned, seed=seed)
     log = sw.run(duration, sp)
-    rng = rng or np.random.default_rng(seed)
-    return Flight(list(team), log["t"], log["p"] + rng.normal(0, POS_NOISE_M, log["p"].shape),
-                  log["v"] + rng.normal(0, VEL_NOISE_MPS, log["v"].shape), log["q"], log["pwm"],
-                  log["battery_V"])
+    # what the drones log: the EKF's estimate (labels from estimated states, as on the real drone)
+    return Flight(list(team), log["t"], log["p"], log["v"], log["q"], log["pwm"], log["battery_V"])
 
 
 def collect(cfg: Config, gen_dir, seconds_per_team: float, seed: int = 0, learned=None,

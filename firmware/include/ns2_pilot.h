@@ -1,0 +1,75 @@
+/*
+ * ns2_pilot.h - what the Crazyflie app does per stabilizer tick, as a library:
+ * the one code path of the drone (firmware/app/src/ns2_app.c) and of the
+ * simulator (host/ns2_fly.c).  No firmware headers, no dynamic memory.
+ *
+ * Per 500 Hz tick (ns2_pilot_tick), in the app's order and at its rates:
+ *  - at each 100 Hz position tick: finish the running prediction (rho) into
+ *    fa_hat (limited to +-fa_limit_g), take the neighbour list from the peer
+ *    table (ns2_peers: positions recorded with ns2_pilot_peer, velocities by
+ *    finite differences), begin the next prediction (ns2_job_begin) from the
+ *    current state, then ns2_ctrl_position with f_a = [0, 0, fa_hat] (zero when
+ *    enable = 0: the paper's baseline) and the gains in pl->gains;
+ *  - every tick: one slice of phi_per_tick phi evaluations (ns2_job_step_*),
+ *    then ns2_ctrl_attitude (delay compensation, mixing, psi_2 PWM).
+ * So the learned force used at a position tick was begun one period (10 ms)
+ * earlier, from the state and neighbours of then: the on-board latency.
+ */
+#ifndef NS2_PILOT_H
+#define NS2_PILOT_H
+
+#include <stdint.h>
+
+#include "ns2_controller.h"
+#include "ns2_deepset.h"
+#include "ns2_peers.h"
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+#define NS2_PILOT_POS_HZ 100u /* position loop and prediction period */
+#define NS2_PILOT_ATT_HZ 500u /* attitude loop and prediction slices */
+#define NS2_PILOT_GRAVITY 9.81f
+
+typedef struct {
+    uint8_t enable;       /* 1: learned feed-forward; 0: baseline (f_a = 0) */
+    uint8_t fixed;        /* 1: fixed-point inference, 0: float */
+    uint8_t self_type;    /* robot type of this robot (NS2_TYPE_*) */
+    uint8_t phi_per_tick; /* phi evaluations per 500 Hz tick */
+    uint16_t max_age_ms;  /* peers older than this are left out */
+    float fa_limit_g;     /* |f_a,z| limit, g */
+} ns2_pilot_cfg_t;
+
+typedef struct {
+    ns2_pilot_cfg_t cfg;
+    ns2_gains_t gains;    /* copied into ctrl at every position tick */
+    ns2_ctrl_t ctrl;      /* ctrl.pwm: the motor commands of the last tick */
+    ns2_peers_t peers;
+    ns2_job_t job;
+    uint8_t job_begun;
+    float fa_hat_g;       /* learned f_a,z in use, g */
+    int32_t status;       /* ns2_info_t status of the last finished prediction */
+    uint16_t n_used;      /* neighbours it used */
+    float e[3];           /* position error p - p_d at the last position tick, m */
+    ns2_neighbor_t nbrs[NS2_PEERS_MAX];
+} ns2_pilot_t;
+
+/* Defaults of the app's PARAM group ns2 (enable, fixed, type, 4 phi per tick, 100 ms, 20 g). */
+void ns2_pilot_default_cfg(ns2_pilot_cfg_t *cfg, uint8_t self_type);
+/* Peer table emptied (velocity filter weight 0.5), gains set, controller reset. */
+void ns2_pilot_init(ns2_pilot_t *pl, const ns2_pilot_cfg_t *cfg, const ns2_vehicle_t *veh, const ns2_gains_t *g);
+/* Controller state (integrators, filters) and the running prediction reset, as on the ground. */
+void ns2_pilot_reset(ns2_pilot_t *pl, const ns2_vehicle_t *veh);
+/* A position of robot `id` (robot type `type`) received at t_ms: ns2_peers_update. */
+int32_t ns2_pilot_peer(ns2_pilot_t *pl, uint8_t id, uint8_t type, uint32_t t_ms, const float p[3]);
+/* One 500 Hz tick; do_pos: also the 100 Hz position tick (first); self_id: own
+ * radio id (left out of the neighbours); now_ms: the clock of the peer table. */
+void ns2_pilot_tick(ns2_pilot_t *pl, const ns2_ctrl_state_t *s, const ns2_setpoint_t *sp, int do_pos,
+                    uint8_t self_id, uint32_t now_ms, float battery_V);
+
+#ifdef __cplusplus
+}
+#endif
+
+#endif /* NS2_PILOT_H */

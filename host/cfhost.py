@@ -1,0 +1,142 @@
+"""Host build of the real Crazyflie's estimator and stock controller next to the ns2
+library: the simulator's flight kernel (host/ns2_fly.c).
+
+From crazyflie-firmware (``ns2host.crazyflie.firmware_dir()``), compiled as its Python
+bindings do (``bindings/setup.py``: the same include folders, ``-fno-strict-aliasing
+-DUNIT_TEST_MODE``) plus ``-include autoconf.h`` of the stock cf2 configuration, as its
+Kbuild does:
+  the extended Kalman filter  src/modules/src/kalman_core/{kalman_core,mm_position}.c,
+                              axis3fSubSampler.c and the CMSIS-DSP matrix functions;
+  the IMU low-pass filters    src/utils/src/filter.c (lpf2p);
+  the Mellinger controller    controller_mellinger.c, power_distribution_quadrotor.c and
+                              motorsCompensateBatteryVoltage (taken verbatim from
+                              src/drivers/src/motors.c, whose other code drives timers).
+The ns2 library (firmware/src, ns2_pilot.c included) is compiled with its own strict
+flags (ns2host.cbuild.compile_objects) against one export folder.  One cffi module per
+export folder, cached under build/host/<hash>.
+"""
+from __future__ import annotations
+
+import hashlib
+import re
+import subprocess
+from functools import lru_cache
+from pathlib import Path
+
+from .cbuild import CDEF, GENERATED, REPO, BuildError, _key, _module, compile_objects, flags, host_cc
+from .crazyflie import autoconf_dir, extract_function, firmware_dir
+
+FW_INCLUDES = [  # bindings/setup.py
+    "src/modules/interface", "src/modules/interface/controller", "src/modules/interface/kalman_core",
+    "src/modules/interface/outlierfilter", "src/hal/interface", "src/utils/interface",
+    "src/utils/interface/lighthouse", "src/config", "src/drivers/interface", "src/platform/interface",
+    "vendor/CMSIS/CMSIS/DSP/Include", "vendor/CMSIS/CMSIS/Core/Include",
+]
+FW_SOURCES = [
+    "src/modules/src/kalman_core/kalman_core.c",
+    "src/modules/src/kalman_core/mm_position.c",
+    "src/modules/src/axis3fSubSampler.c",
+    "src/utils/src/filter.c",
+    "src/utils/src/num.c",
+    "src/modules/src/controller/controller_mellinger.c",
+    "src/modules/src/power_distribution_quadrotor.c",
+    "vendor/CMSIS/CMSIS/DSP/Source/MatrixFunctions/arm_mat_mult_f32.c",
+    "vendor/CMSIS/CMSIS/DSP/Source/MatrixFunctions/arm_mat_scale_f32.c",
+    "vendor/CMSIS/CMSIS/DSP/Source/MatrixFunctions/arm_mat_trans_f32.c",
+    "vendor/CMSIS/CMSIS/DSP/Source/FastMathFunctions/arm_cos_f32.c",
+    "vendor/CMSIS/CMSIS/DSP/Source/FastMathFunctions/arm_sin_f32.c",
+    "vendor/CMSIS/CMSIS/DSP/Source/CommonTables/arm_common_tables.c",
+]
+FW_FLAGS = ["-std=gnu11", "-O2", "-fPIC", "-fno-strict-aliasing", "-Wno-address-of-packed-member",
+            "-DUNIT_TEST_MODE"]
+# (file, function) copied out of firmware files that cannot be compiled for the host whole
+FW_EXTRACTED = [("src/drivers/src/motors.c", "motorsCompensateBatteryVoltage")]
+FW_EXTRACTED_DEFINES = [("src/drivers/interface/motors.h", "NBR_OF_MOTORS")]  # motors.h needs the STM32 HAL
+EXTRACT_PRELUDE = '#include <math.h>\n#include <stdint.h>\n#include "platform_defaults.h"\n#include "cfassert.h"\n'
+HOST_FLY = ["host/ns2_fly.c", "host/ns2_sim.c"]
+
+FLY_CDEF = CDEF + """
+typedef struct { uint8_t enable; uint8_t fixed; uint8_t self_type; uint8_t phi_per_tick; uint16_t max_age_ms;
+                 float fa_limit_g; } ns2_pilot_cfg_t;
+typedef struct { ns2_pilot_cfg_t cfg; ns2_gains_t gains; ns2_ctrl_t ctrl; ns2_peers_t peers; ns2_job_t job;
+                 uint8_t job_begun; float fa_hat_g; int32_t status; uint16_t n_used; float e[3]; ...; } ns2_pilot_t;
+void ns2_pilot_default_cfg(ns2_pilot_cfg_t *cfg, uint8_t self_type);
+void ns2_pilot_init(ns2_pilot_t *pl, const ns2_pilot_cfg_t *cfg, const ns2_vehicle_t *veh, const ns2_gains_t *g);
+int32_t ns2_pilot_peer(ns2_pilot_t *pl, uint8_t id, uint8_t type, uint32_t t_ms, const float p[3]);
+void ns2_pilot_tick(ns2_pilot_t *pl, const ns2_ctrl_state_t *s, const ns2_setpoint_t *sp, int do_pos,
+                    uint8_t self_id, uint32_t now_ms, float battery_V);
+#define NS2_FLY_MAX_ROBOTS ...
+#define NS2_FLY_MAX_PEERS ...
+#define NS2_FLY_PILOT ...
+#define NS2_FLY_MELLINGER ...
+typedef struct { uint32_t kind; uint8_t id, type; double par[21]; double psi1[5]; float p0[3];
+                 float bias_acc_g[3], bias_gyro_dps[3]; float acc_scale; float sd_acc_g, sd_gyro_dps; float ext_pos_std_m;
+                 ns2_vehicle_t veh; ns2_gains_t gains; ns2_pilot_cfg_t pilot_cfg; } ns2_fly_init_t;
+typedef struct { uint32_t kind; ns2_pilot_t pilot; float pwm[4]; ...; } ns2_fly_robot_t;
+typedef struct { uint32_t tick; const float *p; const uint8_t *rx; } ns2_fly_frame_t;
+typedef struct { ns2_ctrl_state_t s; ns2_setpoint_t sp; uint32_t do_pos, now_ms; float battery_V; uint32_t n_peers;
+                 uint8_t peer_id[...]; uint8_t peer_type[...]; uint32_t peer_t[...]; float peer_p[...][3];
+                 float pwm[4]; float fa_hat_g; } ns2_fly_trace_t;
+void ns2_fly_init(ns2_fly_robot_t *r, const ns2_fly_init_t *in);
+uint32_t ns2_fly_run(ns2_fly_robot_t *rob, uint32_t n, double *x, const double *f_a, uint32_t ms0, uint32_t ticks,
+                     const float *noise, const ns2_setpoint_t *sp, const ns2_fly_frame_t *frame, float battery_V,
+                     ns2_fly_trace_t *tr, uint32_t tr_robot, uint32_t tr_max);
+void ns2_fly_estimate(const ns2_fly_robot_t *r, float out[13]);
+"""
+
+
+def _run(cmd: list[str]) -> None:
+    r = subprocess.run(cmd, capture_output=True, text=True)
+    if r.returncode != 0:
+        raise BuildError(f"{' '.join(cmd)}\n{r.stdout}{r.stderr}")
+
+
+@lru_cache(maxsize=None)
+def load_fly(gen_dir: str | Path):
+    """Build (or reuse) the flight kernel for the export in ``gen_dir``; returns (ffi, lib)."""
+    from cffi import FFI
+
+    gen_dir = Path(gen_dir).resolve()
+    for g in GENERATED:
+        if not (gen_dir / g).is_file():
+            raise BuildError(f"{gen_dir / g} missing: run `ns2 export` first")
+    fw, auto = firmware_dir(), autoconf_dir()
+    f = flags()
+    fw_inc = [f"-I{fw / i}" for i in FW_INCLUDES] + [f"-I{auto}"]
+    ns2_inc = [f"-I{REPO / i}" for i in f["NS2_INCLUDES"]] + [f"-I{gen_dir}", f"-I{REPO / 'host'}"]
+    h = hashlib.sha256(_key(gen_dir, f).encode() + FLY_CDEF.encode() + repr(FW_FLAGS).encode())
+    for p in [fw / s for s in FW_SOURCES] + [fw / s for s, _ in FW_EXTRACTED + FW_EXTRACTED_DEFINES] + [REPO / s for s in HOST_FLY] \
+            + [REPO / "host" / "ns2_fly.h", auto / "autoconf.h"]:
+        h.update(p.name.encode() + p.read_bytes())
+
+    def build(tmp: Path, name: str) -> None:
+        objs = compile_objects(gen_dir, tmp, host_cc(), ["-fPIC"], f)
+        extracted = tmp / "cf_extracted.c"
+        defines = "".join(next(ln for ln in (fw / h).read_text().splitlines()
+                               if re.match(rf"\s*#define\s+{d}\b", ln)).strip() + "\n" for h, d in FW_EXTRACTED_DEFINES)
+        extracted.write_text(EXTRACT_PRELUDE + defines + "".join(extract_function(fw / s, fn) for s, fn in FW_EXTRACTED))
+        for src in [fw / s for s in FW_SOURCES] + [extracted]:
+            obj = tmp / f"cf_{src.stem}.o"
+            _run([host_cc(), *FW_FLAGS, *fw_inc, "-include", "autoconf.h", "-c", str(src), "-o", str(obj)])
+            objs.append(obj)
+        for src in HOST_FLY:
+            obj = tmp / f"{Path(src).stem}.o"
+            # firmware headers as system headers: their warnings are not ours
+            _run([host_cc(), *FW_FLAGS, "-ffp-contract=off", "-Wall", "-Wextra", "-Werror", "-Wconversion",
+                  "-Wdouble-promotion", *[a.replace("-I", "-isystem", 1) for a in fw_inc], *ns2_inc, "-include", "autoconf.h", "-c", str(REPO / src), "-o", str(obj)])
+            objs.append(obj)
+        ffi = FFI()
+        ffi.cdef(FLY_CDEF)
+        ffi.set_source(name, '#include "autoconf.h"\n' + "".join(f'#include "{x}"\n' for x in (
+                           "ns2_deepset.h", "ns2_peers.h", "ns2_controller.h", "ns2_ctrl_vectors.h", "ns2_host.h",
+                           "ns2_fly.h")),
+                       include_dirs=[str(fw / i) for i in FW_INCLUDES] + [str(auto)]
+                       + [str(REPO / i) for i in f["NS2_INCLUDES"]] + [str(gen_dir), str(REPO / "host"),
+                                                                        str(REPO / "firmware" / "target")],
+                       extra_objects=[str(o) for o in objs], libraries=["m"],
+                       extra_compile_args=["-std=gnu11", "-O2", "-ffp-contract=off", "-fno-strict-aliasing",
+                                           "-DUNIT_TEST_MODE", "-Wno-address-of-packed-member",
+                                           "-Wno-pointer-to-int-cast"])
+        ffi.compile(tmpdir=str(tmp), verbose=False)
+
+    return _module("fly_" + h.hexdigest()[:18], "_ns2_fly", build)

@@ -1,0 +1,92 @@
+/* ns2_fly.h - host-only: simulated Crazyflies at 1 kHz with the firmware's
+ * sensing chain, EKF and controllers (see ns2_fly.c). */
+#ifndef NS2_FLY_H
+#define NS2_FLY_H
+
+#include <stdint.h>
+
+#include "axis3fSubSampler.h"
+#include "controller_mellinger.h"
+#include "filter.h"
+#include "kalman_core.h"
+#include "stabilizer_types.h"
+
+#include "ns2_pilot.h"
+
+#define NS2_FLY_MAX_ROBOTS 32u
+#define NS2_FLY_MAX_PEERS 10u /* PEER_LOCALIZATION_MAX_NEIGHBORS */
+#define NS2_FLY_PILOT 0u      /* the app's code path, ns2_pilot */
+#define NS2_FLY_MELLINGER 1u  /* the firmware's controller_mellinger.c */
+
+typedef struct {
+    uint32_t kind;             /* NS2_FLY_PILOT or NS2_FLY_MELLINGER */
+    uint8_t id, type;          /* radio id (not 0), robot type */
+    double par[21];            /* ns2_sim.c parameters: m, J, lambda, B0 */
+    double psi1[5];            /* PWM -> force (g), Table cfprops */
+    float p0[3];               /* start position (kalman.initialX/Y/Z) */
+    float bias_acc_g[3], bias_gyro_dps[3];
+    float acc_scale;           /* the firmware's accScale (|acc| at rest, in g, found at start-up) */
+    float sd_acc_g, sd_gyro_dps; /* white noise per 1 kHz sample */
+    float ext_pos_std_m;       /* EKF's mocap std dev (locSrv.extPosStdDev) */
+    ns2_vehicle_t veh;
+    ns2_gains_t gains;
+    ns2_pilot_cfg_t pilot_cfg;
+} ns2_fly_init_t;
+
+typedef struct {
+    uint32_t kind;
+    uint8_t id, type;
+    double par[21];
+    double psi1[5];
+    float bias_acc_g[3], bias_gyro_dps[3];
+    float acc_scale, sd_acc_g, sd_gyro_dps, ext_pos_std_m;
+    kalmanCoreData_t kc;
+    Axis3fSubSampler_t acc_ss, gyro_ss;
+    lpf2pData gyro_lpf[3], acc_lpf[3];
+    Axis3f acc_latest;
+    uint32_t next_predict_ms;
+    state_t est;               /* the estimate every controller sees */
+    sensorData_t sensors;      /* filtered IMU of the last tick */
+    ns2_pilot_t pilot;
+    controllerMellinger_t mel;
+    control_t control;
+    float supply_V;
+    float pwm[4];              /* motor commands in [0, 1] */
+    uint32_t n_peers;          /* peer-localization table */
+    uint8_t peer_id[NS2_FLY_MAX_PEERS], peer_type[NS2_FLY_MAX_PEERS];
+    uint32_t peer_t[NS2_FLY_MAX_PEERS];
+    float peer_p[NS2_FLY_MAX_PEERS][3];
+} ns2_fly_robot_t;
+
+/* One mocap broadcast frame: noisy positions [n][3] of all robots, received by robot i when rx[i]. */
+typedef struct {
+    uint32_t tick;
+    const float *p;
+    const uint8_t *rx;
+} ns2_fly_frame_t;
+
+/* The inputs of one ns2_pilot_tick of the traced robot, its peer updates and outputs. */
+typedef struct {
+    ns2_ctrl_state_t s;
+    ns2_setpoint_t sp;
+    uint32_t do_pos, now_ms;
+    float battery_V;
+    uint32_t n_peers;
+    uint8_t peer_id[NS2_FLY_MAX_PEERS], peer_type[NS2_FLY_MAX_PEERS];
+    uint32_t peer_t[NS2_FLY_MAX_PEERS];
+    float peer_p[NS2_FLY_MAX_PEERS][3];
+    float pwm[4];
+    float fa_hat_g;
+} ns2_fly_trace_t;
+
+void ns2_fly_init(ns2_fly_robot_t *r, const ns2_fly_init_t *in);
+/* ticks 1 kHz ticks from ms0 for n robots; x [n][17] true states (advanced in place),
+ * f_a [n][3] world (held), noise [ticks][n][6] standard normal (gyro, acc), sp [n],
+ * frame NULL or one broadcast delivered at frame->tick.  Returns the trace records written. */
+uint32_t ns2_fly_run(ns2_fly_robot_t *rob, uint32_t n, double *x, const double *f_a, uint32_t ms0, uint32_t ticks,
+                     const float *noise, const ns2_setpoint_t *sp, const ns2_fly_frame_t *frame, float battery_V,
+                     ns2_fly_trace_t *tr, uint32_t tr_robot, uint32_t tr_max);
+/* p, v, q, w (ns2_ctrl_state_t layout) the controllers see now. */
+void ns2_fly_estimate(const ns2_fly_robot_t *r, float out[13]);
+
+#endif /* NS2_FLY_H */
