@@ -30,7 +30,15 @@ extern "C" {
 
 #define NS2_PILOT_POS_HZ 100u /* position loop and prediction period */
 #define NS2_PILOT_ATT_HZ 500u /* attitude loop and prediction slices */
-#define NS2_PILOT_GRAVITY 9.81f
+
+/* Inference paths compiled in (the app's NS2_INFER: ns2_app_config.h); with both,
+ * cfg.fixed picks one at run time. */
+#ifndef NS2_PILOT_Q15
+#define NS2_PILOT_Q15 1
+#endif
+#ifndef NS2_PILOT_F32
+#define NS2_PILOT_F32 1
+#endif
 
 typedef struct {
     uint8_t enable;       /* 1: learned feed-forward; 0: baseline (f_a = 0) */
@@ -63,8 +71,17 @@ void ns2_pilot_init(ns2_pilot_t *pl, const ns2_pilot_cfg_t *cfg, const ns2_vehic
 void ns2_pilot_reset(ns2_pilot_t *pl, const ns2_vehicle_t *veh);
 /* A position of robot `id` (robot type `type`) received at t_ms: ns2_peers_update. */
 int32_t ns2_pilot_peer(ns2_pilot_t *pl, uint8_t id, uint8_t type, uint32_t t_ms, const float p[3]);
-/* One 500 Hz tick; do_pos: also the 100 Hz position tick (first); self_id: own
- * radio id (left out of the neighbours); now_ms: the clock of the peer table. */
+/* The parts of a tick, for callers that time them (the app's LOG ns2.inferUs):
+ * period: finish the running prediction into fa_hat_g, begin the next (100 Hz);
+ * position: ns2_ctrl_position with f_a = [0, 0, fa_hat_g] (100 Hz, after period);
+ * slice: phi_per_tick phi evaluations; attitude: ns2_ctrl_attitude (500 Hz). */
+void ns2_pilot_period(ns2_pilot_t *pl, const ns2_ctrl_state_t *s, uint8_t self_id, uint32_t now_ms);
+void ns2_pilot_position(ns2_pilot_t *pl, const ns2_ctrl_state_t *s, const ns2_setpoint_t *sp);
+void ns2_pilot_slice(ns2_pilot_t *pl);
+void ns2_pilot_attitude(ns2_pilot_t *pl, const ns2_ctrl_state_t *s, float battery_V);
+/* One 500 Hz tick: with do_pos (the 100 Hz position tick) period and position
+ * first, then slice and attitude; self_id: own radio id (left out of the
+ * neighbours); now_ms: the clock of the peer table. */
 void ns2_pilot_tick(ns2_pilot_t *pl, const ns2_ctrl_state_t *s, const ns2_setpoint_t *sp, int do_pos,
                     uint8_t self_id, uint32_t now_ms, float battery_V);
 

@@ -37,13 +37,33 @@ int32_t ns2_pilot_peer(ns2_pilot_t *pl, uint8_t id, uint8_t type, uint32_t t_ms,
     return ns2_peers_update(&pl->peers, id, type, t_ms, p);
 }
 
-/* Finish the running prediction into fa_hat, begin the next from s and the peers. */
-static void predict_period(ns2_pilot_t *pl, const ns2_ctrl_state_t *s, uint8_t self_id, uint32_t now_ms)
+#if NS2_PILOT_Q15
+/* fixed point unless cfg.fixed = 0 with the float path compiled in too */
+static int pilot_use_fixed(const ns2_pilot_t *pl)
+{
+    return !NS2_PILOT_F32 || pl->cfg.fixed != 0u;
+}
+#endif
+
+static float pilot_finish(ns2_pilot_t *pl, ns2_info_t *info)
+{
+#if NS2_PILOT_Q15
+    if (pilot_use_fixed(pl)) {
+        return ldexpf((float)ns2_job_finish_q15(&pl->job, info), -NS2_Q_OUT_FRAC);
+    }
+#endif
+#if NS2_PILOT_F32
+    return ns2_job_finish_f32(&pl->job, info);
+#else
+    return 0.0f; /* not reached: without the float path the fixed one returned */
+#endif
+}
+
+void ns2_pilot_period(ns2_pilot_t *pl, const ns2_ctrl_state_t *s, uint8_t self_id, uint32_t now_ms)
 {
     if (pl->job_begun) {
         ns2_info_t info;
-        const float f = pl->cfg.fixed ? ldexpf((float)ns2_job_finish_q15(&pl->job, &info), -NS2_Q_OUT_FRAC)
-                                      : ns2_job_finish_f32(&pl->job, &info);
+        const float f = pilot_finish(pl, &info);
         const float lim = pl->cfg.fa_limit_g;
         pl->status = info.status;
         pl->n_used = info.n_used;
@@ -55,22 +75,41 @@ static void predict_period(ns2_pilot_t *pl, const ns2_ctrl_state_t *s, uint8_t s
     pl->job_begun = 1u;
 }
 
+void ns2_pilot_position(ns2_pilot_t *pl, const ns2_ctrl_state_t *s, const ns2_setpoint_t *sp)
+{
+    const float fa[3] = {0.0f, 0.0f, pl->cfg.enable ? pl->fa_hat_g * 1e-3f * (float)NS2_G_MPS2 : 0.0f}; /* g -> N */
+    pl->ctrl.g = pl->gains;
+    ns2_ctrl_position(&pl->ctrl, s, sp, fa, 1.0f / (float)NS2_PILOT_POS_HZ);
+    for (int a = 0; a < 3; ++a) {
+        pl->e[a] = s->p[a] - sp->p[a];
+    }
+}
+
+void ns2_pilot_slice(ns2_pilot_t *pl)
+{
+#if NS2_PILOT_Q15
+    if (pilot_use_fixed(pl)) {
+        (void)ns2_job_step_q15(&pl->job, pl->cfg.phi_per_tick);
+        return;
+    }
+#endif
+#if NS2_PILOT_F32
+    (void)ns2_job_step_f32(&pl->job, pl->cfg.phi_per_tick);
+#endif
+}
+
+void ns2_pilot_attitude(ns2_pilot_t *pl, const ns2_ctrl_state_t *s, float battery_V)
+{
+    ns2_ctrl_attitude(&pl->ctrl, s, 1.0f / (float)NS2_PILOT_ATT_HZ, battery_V);
+}
+
 void ns2_pilot_tick(ns2_pilot_t *pl, const ns2_ctrl_state_t *s, const ns2_setpoint_t *sp, int do_pos,
                     uint8_t self_id, uint32_t now_ms, float battery_V)
 {
     if (do_pos) {
-        predict_period(pl, s, self_id, now_ms);
-        const float fa[3] = {0.0f, 0.0f, pl->cfg.enable ? pl->fa_hat_g * 1e-3f * NS2_PILOT_GRAVITY : 0.0f};
-        pl->ctrl.g = pl->gains;
-        ns2_ctrl_position(&pl->ctrl, s, sp, fa, 1.0f / (float)NS2_PILOT_POS_HZ);
-        for (int a = 0; a < 3; ++a) {
-            pl->e[a] = s->p[a] - sp->p[a];
-        }
+        ns2_pilot_period(pl, s, self_id, now_ms);
+        ns2_pilot_position(pl, s, sp);
     }
-    if (pl->cfg.fixed) {
-        (void)ns2_job_step_q15(&pl->job, pl->cfg.phi_per_tick);
-    } else {
-        (void)ns2_job_step_f32(&pl->job, pl->cfg.phi_per_tick);
-    }
-    ns2_ctrl_attitude(&pl->ctrl, s, 1.0f / (float)NS2_PILOT_ATT_HZ, battery_V);
+    ns2_pilot_slice(pl);
+    ns2_pilot_attitude(pl, s, battery_V);
 }

@@ -3,7 +3,8 @@
  * controller (firmware/src/ns2_controller.c) with the learned interaction force
  * f_a,z as feed-forward, as the firmware's out-of-tree controller.
  *
- * Thin glue; all logic is in the tested library (firmware/src):
+ * Thin glue; all logic is in the tested library (firmware/src), the per-tick part
+ * in ns2_pilot (the same code path the simulator flies, host/ns2_fly.c):
  *  - neighbours: positions of the other Crazyflies from the firmware's peer
  *    localization (mocap broadcasts), drained every 1 ms into the app's own table
  *    of up to NS2_PEERS_MAX = 16 robots (the firmware keeps 10 and never frees a
@@ -30,7 +31,8 @@
  * event ns2Sync with the written value as seq; ns2codegen.logs.align aligns the
  * robots' clocks on it.
  * PARAM: ns2 (switches, limits, sync), ns2type (robot types of radio ids), ns2gain.
- * LOG ns2: faHat (g), inferUs (worst prediction slice of the last period, us),
+ * LOG ns2: faHat (g), inferUs (the longest prediction step of the last period, the
+ * finish + begin at the position tick or a slice, us),
  * nUsed, status, ctrlStatus, ex/ey/ez (position error, m).
  */
 #include <math.h>
@@ -60,6 +62,7 @@
 #include "ns2_controller.h"
 #include "ns2_deepset.h"
 #include "ns2_peers.h"
+#include "ns2_pilot.h"
 #include "ns2_vehicles.h"
 
 #if !NS2_HAVE_VEHICLES
@@ -67,19 +70,13 @@
 #endif
 
 #define NS2_DEG2RAD 0.017453292519943295f
-#define NS2_GRAVITY ((float)NS2_G_MPS2)
 
 static const ns2_vehicle_t vehicles[NS2_NUM_ROBOT_TYPES] = NS2_VEHICLES_INIT;
 static const ns2_gains_t default_gains[NS2_NUM_ROBOT_TYPES] = NS2_DEFAULT_GAINS_INIT;
 
-static struct {
-    uint8_t enable;     /* 1: learned feed-forward; 0: baseline (f_a = 0) */
-    uint8_t fixed;      /* 1: fixed-point inference, 0: float (NS2_INFER=both) */
-    uint8_t selfType;   /* robot type of this Crazyflie (NS2_TYPE_*) */
-    uint8_t phiPerTick; /* phi evaluations per 500 Hz tick */
-    uint16_t maxAgeMs;  /* peers older than this are ignored */
-    float faLimit;      /* |f_a,z| limit, g */
-} cfg = {1, 1, NS2_TYPE_SMALL, 4, 100, 20.0f};
+/* PARAM ns2: switches and limits of ns2_pilot (enable, fixed, self_type,
+ * phi_per_tick, max_age_ms, fa_limit_g), copied into the pilot at every tick */
+static ns2_pilot_cfg_t cfg = {1, 1, NS2_TYPE_SMALL, 4, 100, 20.0f};
 
 static uint32_t syncSeq;   /* PARAM ns2.sync: a new value logs the event ns2Sync */
 static uint32_t syncLogged;
@@ -89,12 +86,8 @@ static uint32_t typeMask1; /* radio id i is robot type 1 when bit i is set */
 static uint32_t typeMask2; /* ... type 2 (for a third robot type) */
 
 static ns2_gains_t gains;  /* PARAM ns2gain, copied into the controller at 100 Hz */
-static ns2_ctrl_t ctrl;
-static uint8_t ctrlType = 0xFFu; /* robot type ctrl was initialized for */
-static ns2_peers_t peers;
-static ns2_job_t job;
-static bool jobBegun;
-static ns2_neighbor_t nbrs[NS2_PEERS_MAX];
+static ns2_pilot_t pilot;  /* the drone's code path: peers, sliced prediction, controller */
+static uint8_t ctrlType = 0xFFu; /* robot type the pilot was initialized for */
 
 static float faHat;        /* g */
 static uint32_t inferUs;   /* us */
@@ -125,7 +118,7 @@ static uint8_t type_of(uint8_t id)
 
 static uint8_t self_type(void)
 {
-    return cfg.selfType < NS2_NUM_ROBOT_TYPES ? cfg.selfType : 0u;
+    return cfg.self_type < NS2_NUM_ROBOT_TYPES ? cfg.self_type : 0u;
 }
 
 /* Reset the controller state (integrators, filters) and the prediction; a new
@@ -136,8 +129,8 @@ static void reset_controller(void)
         ctrlType = self_type();
         gains = default_gains[ctrlType];
     }
-    ns2_ctrl_init(&ctrl, &vehicles[ctrlType], &gains);
-    jobBegun = false;
+    pilot.gains = gains;
+    ns2_pilot_reset(&pilot, &vehicles[ctrlType]);
     faHat = 0.0f;
 }
 
@@ -167,42 +160,6 @@ static void to_setpoint(const setpoint_t *sp, ns2_setpoint_t *d)
     d->yaw = sp->attitude.yaw * NS2_DEG2RAD;
 }
 
-/* The inference paths compiled in (NS2_APP_FIXED, NS2_APP_FLOAT: ns2_lib.c, the
- * Makefile's NS2_INFER); ns2.fixed picks one when both are. */
-#if NS2_APP_FIXED
-static bool use_fixed(void)
-{
-    return !NS2_APP_FLOAT || cfg.fixed != 0u;
-}
-#endif
-
-static float finish_prediction(ns2_info_t *info)
-{
-#if NS2_APP_FIXED
-    if (use_fixed()) {
-        return ldexpf((float)ns2_job_finish_q15(&job, info), -NS2_Q_OUT_FRAC);
-    }
-#endif
-#if NS2_APP_FLOAT
-    return ns2_job_finish_f32(&job, info);
-#else
-    return 0.0f; /* not reached: without the float path the fixed one returned */
-#endif
-}
-
-static void step_prediction(void)
-{
-#if NS2_APP_FIXED
-    if (use_fixed()) {
-        (void)ns2_job_step_q15(&job, cfg.phiPerTick);
-        return;
-    }
-#endif
-#if NS2_APP_FLOAT
-    (void)ns2_job_step_f32(&job, cfg.phiPerTick);
-#endif
-}
-
 /* Drain the firmware's peer localization into the app's table (ns2_peers, up to
  * NS2_PEERS_MAX robots), every stabilizer tick.  The firmware keeps at most
  * PEER_LOCALIZATION_MAX_NEIGHBORS = 10 robots and never frees a slot, so an 11th
@@ -219,44 +176,22 @@ static void drain_peers(void)
             continue;
         }
         const float p[3] = {o->pos.x, o->pos.y, o->pos.z};
-        (void)ns2_peers_update(&peers, o->id, type_of(o->id), o->pos.timestamp, p);
+        (void)ns2_pilot_peer(&pilot, o->id, type_of(o->id), o->pos.timestamp, p);
         o->pos.timestamp = 0u;
         o->id = 0u;
     }
 }
 
-/* Finish the running prediction (rho) into faHat, then begin the next one from
- * the current state and the neighbours' latest positions. */
-static void predict_period(const ns2_ctrl_state_t *s, uint32_t now_ms)
+static uint32_t elapsed_us(uint64_t t0)
 {
-    if (jobBegun) {
-        ns2_info_t info;
-        const uint64_t t0 = usecTimestamp();
-        const float f = finish_prediction(&info);
-        const uint32_t us = (uint32_t)(usecTimestamp() - t0);
-        inferUs = us > sliceUsMax ? us : sliceUsMax;
-        sliceUsMax = 0;
-        status = info.status;
-        nUsed = (uint8_t)info.n_used;
-        faHat = f > cfg.faLimit ? cfg.faLimit : (f < -cfg.faLimit ? -cfg.faLimit : f);
-    }
-    const uint8_t self = (uint8_t)(configblockGetRadioAddress() & 0xFFu);
-    const uint16_t n = ns2_peers_neighbors(&peers, self, s->p, s->v, now_ms, cfg.maxAgeMs, nbrs, NS2_PEERS_MAX);
-    (void)ns2_job_begin(&job, self_type(), s->p, s->v, nbrs, n);
-    jobBegun = true;
-}
-
-static void predict_slice(void)
-{
-    const uint64_t t0 = usecTimestamp();
-    step_prediction();
-    const uint32_t us = (uint32_t)(usecTimestamp() - t0);
-    sliceUsMax = us > sliceUsMax ? us : sliceUsMax;
+    return (uint32_t)(usecTimestamp() - t0);
 }
 
 void controllerOutOfTreeInit(void)
 {
-    ns2_peers_init(&peers, 0.5f);
+    ctrlType = self_type();
+    gains = default_gains[ctrlType];
+    ns2_pilot_init(&pilot, &cfg, &vehicles[ctrlType], &gains);
     reset_controller();
 }
 
@@ -287,32 +222,45 @@ void controllerOutOfTree(control_t *control, const setpoint_t *setpoint, const s
     }
     ns2_ctrl_state_t s;
     to_ctrl_state(state, sensors, &s);
+    pilot.cfg = cfg; /* live parameters */
+    pilot.cfg.self_type = ctrlType;
+    pilot.gains = gains;
     if (RATE_DO_EXECUTE(RATE_100_HZ, tick)) {
+        /* ns2_pilot_tick's steps, timed: finish + begin the prediction, position loop */
         ns2_setpoint_t sp;
         to_setpoint(setpoint, &sp);
-        predict_period(&s, (uint32_t)T2M(xTaskGetTickCount()));
-        const float fa[3] = {0.0f, 0.0f, cfg.enable ? faHat * 1e-3f * NS2_GRAVITY : 0.0f}; /* g -> N */
-        ctrl.g = gains;
-        ns2_ctrl_position(&ctrl, &s, &sp, fa, 1.0f / (float)RATE_100_HZ);
-        ex = s.p[0] - sp.p[0];
-        ey = s.p[1] - sp.p[1];
-        ez = s.p[2] - sp.p[2];
+        const uint64_t t0 = usecTimestamp();
+        ns2_pilot_period(&pilot, &s, (uint8_t)(configblockGetRadioAddress() & 0xFFu),
+                         (uint32_t)T2M(xTaskGetTickCount()));
+        const uint32_t us = elapsed_us(t0);
+        inferUs = us > sliceUsMax ? us : sliceUsMax;
+        sliceUsMax = 0;
+        status = pilot.status;
+        nUsed = (uint8_t)pilot.n_used;
+        faHat = pilot.fa_hat_g;
+        ns2_pilot_position(&pilot, &s, &sp);
+        ex = pilot.e[0];
+        ey = pilot.e[1];
+        ez = pilot.e[2];
     }
-    predict_slice();
-    ns2_ctrl_attitude(&ctrl, &s, 1.0f / (float)RATE_500_HZ, pmGetBatteryVoltage());
-    ctrlStatus = ctrl.status;
+    const uint64_t t1 = usecTimestamp();
+    ns2_pilot_slice(&pilot);
+    const uint32_t us = elapsed_us(t1);
+    sliceUsMax = us > sliceUsMax ? us : sliceUsMax;
+    ns2_pilot_attitude(&pilot, &s, pmGetBatteryVoltage());
+    ctrlStatus = pilot.ctrl.status;
     for (int m = 0; m < STABILIZER_NR_OF_MOTORS; ++m) {
-        control->normalizedForces[m] = ctrl.pwm[m];
+        control->normalizedForces[m] = pilot.ctrl.pwm[m];
     }
 }
 
 PARAM_GROUP_START(ns2)
 PARAM_ADD(PARAM_UINT8, enable, &cfg.enable)
 PARAM_ADD(PARAM_UINT8, fixed, &cfg.fixed)
-PARAM_ADD(PARAM_UINT8, selfType, &cfg.selfType)
-PARAM_ADD(PARAM_UINT8, phiPerTick, &cfg.phiPerTick)
-PARAM_ADD(PARAM_UINT16, maxAgeMs, &cfg.maxAgeMs)
-PARAM_ADD(PARAM_FLOAT, faLimit, &cfg.faLimit)
+PARAM_ADD(PARAM_UINT8, selfType, &cfg.self_type)
+PARAM_ADD(PARAM_UINT8, phiPerTick, &cfg.phi_per_tick)
+PARAM_ADD(PARAM_UINT16, maxAgeMs, &cfg.max_age_ms)
+PARAM_ADD(PARAM_FLOAT, faLimit, &cfg.fa_limit_g)
 PARAM_ADD(PARAM_UINT32, sync, &syncSeq)
 PARAM_GROUP_STOP(ns2)
 

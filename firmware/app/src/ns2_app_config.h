@@ -13,5 +13,8 @@
 #if !NS2_APP_FIXED && !NS2_APP_FLOAT
 #error "ns2 app: no inference path (NS2_INFER=fixed, float or both)"
 #endif
+/* the drone's code path (ns2_pilot) uses the paths compiled in */
+#define NS2_PILOT_Q15 NS2_APP_FIXED
+#define NS2_PILOT_F32 NS2_APP_FLOAT
 
 #endif /* NS2_APP_CONFIG_H */

@@ -13,3 +13,4 @@
 #endif
 #include "../../src/ns2_peers.c"
 #include "../../src/ns2_controller.c"
+#include "../../src/ns2_pilot.c"

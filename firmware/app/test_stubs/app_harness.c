@@ -99,7 +99,7 @@ static int swarm(int n_robots, int per_ms)
         n_max = nUsed > n_max ? nUsed : n_max;
     }
     printf("{\"robots\": %d, \"per_ms\": %d, \"firmware_table_max\": %d, \"app_peers\": %u, \"n_used\": %u}\n",
-           n_robots, per_ms, held_max, (unsigned)peers.count, (unsigned)n_max);
+           n_robots, per_ms, held_max, (unsigned)pilot.peers.count, (unsigned)n_max);
     return 0;
 }
 
