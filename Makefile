@@ -8,6 +8,8 @@
 #   make export-onboard  the same with the one-tick on-board variant of the
 #                 network (narrower intermediate layers, H and L of the paper)
 #   make firmware cross-build the library for the STM32F405 and print its size
+#   make fuzz     inference, sliced API, peer table, controller and HIL parser
+#                 under ASan + UBSan, FUZZ_COUNT structured inputs (JSON report)
 PYTHON ?= python3
 NS2 := $(PYTHON) -m ns2codegen.cli
 GEN := firmware/generated
@@ -15,7 +17,7 @@ DEFAULT := build/default
 ONBOARD := build/onboard
 CHECKPOINT ?= $(DEFAULT)/model.pt
 
-.PHONY: all deps export export-onboard test bench firmware sim paper-data clean
+.PHONY: all deps export export-onboard test bench firmware fuzz sim paper-data clean
 
 all: export
 
@@ -62,6 +64,13 @@ firmware: deps $(GEN)/ns2_model_config.h
 
 $(GEN)/ns2_model_config.h:
 	$(MAKE) export
+
+# Structured fuzzing under -fsanitize=address,undefined (fuzz/ns2_fuzz.c, host/fuzz.py);
+# a bounded run of the same drivers is part of `make test` (tests/test_fuzz.py).
+FUZZ_COUNT ?= 1000000
+FUZZ_SEED ?= 1
+fuzz: deps $(GEN)/ns2_model_config.h
+	$(PYTHON) -m ns2host.fuzz --gen $(GEN) --count $(FUZZ_COUNT) --seed $(FUZZ_SEED)
 
 # Simulated flights -> data -> model, two curriculum rounds, then the swap
 # experiments (table and plots in build/sim/results).  SIM_SECONDS per team.
