@@ -16,6 +16,7 @@ class _Errors(click.Group):
     def invoke(self, ctx):
         from .checkpoint import CheckpointError
         from .data.dataset import DatasetError
+        from .errors import Ns2Error
         from .fileio import OutputError
         from .logs.align import LogError
         from .logs.usdlog import UsdLogError
@@ -25,7 +26,7 @@ class _Errors(click.Group):
         try:
             return super().invoke(ctx)
         except (ConfigError, CheckpointError, DatasetError, OutputError, QuantizationError, LogError, UsdLogError,
-                SysidError) as e:
+                SysidError, Ns2Error) as e:
             raise click.ClickException(str(e)) from e
 
 
@@ -108,7 +109,7 @@ def train(data_paths, config_path, out, epochs, seed, batch_size, lr, hidden, la
                                         ("phi_first", phi_first)) if v is not None})
     if overrides:
         cfg = cfg.with_overrides(**overrides)
-    ds = Dataset.concat([Dataset.load(p) for p in data_paths])
+    ds = Dataset.concat([Dataset.load(p, cfg.neighbor_types) for p in data_paths])
     _parent_ok(out)
     n_epochs = epochs or cfg.train["epochs"]
     with tqdm(total=int(len(ds) * (1 - cfg.train["validation_fraction"])) * n_epochs, unit="sample",
@@ -307,6 +308,8 @@ def plan_cmd(checkpoint, problem_path, baseline, out_dir, scenarios, dims, trial
         rrt = RRTParams(**{**rrt.__dict__, "max_samples": max_samples})
     scp_params = SCPParams(time_limit_s=time_limit)
     try:
+        if problem_path:
+            ex.load_problem(cfg, problem_path)  # refuse a bad file before any training
         if checkpoint is None and not (problem_path and baseline):
             checkpoint = ex.default_checkpoint(cfg, Path("build/plan"), log=click.echo)
         if problem_path:

@@ -137,10 +137,11 @@ def decode(data: bytes, allow_truncated: bool = False) -> UsdLog:
     rows: dict[int, list] = {eid: [] for eid in types}
     stamps: dict[int, list] = {eid: [] for eid in types}
     packers = {eid: et.struct for eid, et in types.items()}
-    note, n = "", 0
+    note, n, tail = "", 0, 0
     while i < end:
         if i + _ENTRY_HEAD.size > end:
             note = f"dropped {end - i} trailing bytes (an incomplete entry header) at byte {i}"
+            tail = end - i
             break
         eid, stamp = _ENTRY_HEAD.unpack_from(data, i)
         if eid not in types:
@@ -160,6 +161,11 @@ def decode(data: bytes, allow_truncated: bool = False) -> UsdLog:
         stamps[eid].append(stamp)
         i += _ENTRY_HEAD.size + pk.size
         n += 1
+    if not crc_ok and tail == 4:
+        # entries that end exactly where a complete log keeps its CRC-32: this is a
+        # complete file whose CRC does not match, i.e. corrupt data, not a truncation
+        raise UsdLogError("CRC-32 mismatch in a complete file (its entries end where the CRC is): the data are "
+                          "corrupt, not truncated, and allow_truncated does not apply")
     if not crc_ok:
         note = "no valid CRC (truncated file); " + (note or "all entries complete")
     events = {}
