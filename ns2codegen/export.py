@@ -6,7 +6,9 @@ Output (deterministic: the same checkpoint gives byte-identical files):
   ns2_model_fixed.h    int16/int32 tables, Q formats, shifts
   ns2_model_manifest.json  hash, dims, Q formats, Lipschitz bound, overflow proof,
                        measured |fixed - float| error
-All four are staged first and renamed into place only when all were written.
+The set is written to a new folder and swapped in as a whole
+(fileio.write_folder_set), and every header carries the model's id
+(NS2_MODEL_ID) and refuses to compile (#error) next to a header of another model.
 """
 from __future__ import annotations
 
@@ -20,7 +22,7 @@ import numpy as np
 from . import __version__
 from .checkpoint import load_checkpoint
 from .config import VEHICLE_KEYS, c_identifier
-from .fileio import atomic_write_files
+from .fileio import write_folder_set
 from .queries import random_queries
 from .quantize import ExportModel, from_checkpoint
 from .vehicle import default_gains, has_rigid_body, vehicle
@@ -138,7 +140,7 @@ def render(m: ExportModel) -> dict[str, str]:
             qnets.append(dict(base, layers=[dict(wb=fixed_layout(l.w, l.b, l.shift), layer=l,
                                                  n_quads=pad4(l.n_in) // 4, n_blocks=pad4(l.w.shape[0]) // 4)
                                             for l in qnet.layers]))
-    ctx = {"version": __version__, "model_hash": m.model_hash, "types": types,
+    ctx = {"version": __version__, "model_hash": m.model_hash, "model_id": "0x" + m.model_hash[:15], "types": types,
            "num_robot_types": cfg.num_robot_types, "num_neighbor_types": len(types),
            "env_index": cfg.env_index, "max_neighbors": m.max_neighbors, "hidden": m.hidden,
            "layers": cfg.model["layers"], "max_width": max(max(cfg.phi_dims()), max(cfg.rho_dims())),
@@ -205,5 +207,5 @@ def export(checkpoint: str | Path, out_dir: str | Path) -> dict:
     files = render(m)
     man = manifest(m, measure_errors(m))
     files[MANIFEST] = json.dumps(man, indent=2, sort_keys=True) + "\n"
-    atomic_write_files(Path(out_dir), files)
+    write_folder_set(Path(out_dir), files)
     return man

@@ -1,0 +1,96 @@
+"""Export atomic as a set (issue 17 D5): the new set is written to a new folder and
+swapped in; a kill at any step leaves the complete old or the complete new set,
+never a mix, and headers of two models refuse to compile together (#error)."""
+import filecmp
+import shutil
+import subprocess
+import sys
+
+import pytest
+
+from ns2host.cbuild import flags
+
+HEADERS = ("ns2_model_config.h", "ns2_model_float.h", "ns2_model_fixed.h", "ns2_vehicles.h")
+SET = HEADERS + ("ns2_model_manifest.json",)
+
+
+def _compile(tmp_path, inc_dirs, headers):
+    f = flags()
+    src = tmp_path / "mix.c"
+    src.write_text("".join(f'#include "{h}"\n' for h in headers) + "int main(void) { return 0; }\n")
+    return subprocess.run(["gcc", *f["NS2_STD_FLAGS"], *f["NS2_WARN_FLAGS"], *[f"-I{d}" for d in inc_dirs],
+                           "-c", str(src), "-o", str(tmp_path / "mix.o")], capture_output=True, text=True)
+
+
+def test_mixed_set_does_not_compile(exported, onboard, tmp_path):
+    assert exported.manifest["model_hash"] != onboard.manifest["model_hash"]
+    r = _compile(tmp_path, [exported.gen_dir], HEADERS)
+    assert r.returncode == 0, r.stderr
+    mixed = tmp_path / "mixed"   # the D5 state: config and float of model B, the rest of model A
+    shutil.copytree(exported.gen_dir, mixed)
+    for h in ("ns2_model_config.h", "ns2_model_float.h"):
+        shutil.copy(onboard.gen_dir / h, mixed / h)
+    r = _compile(tmp_path, [mixed], HEADERS)
+    assert r.returncode != 0 and "mixed export set" in r.stderr, r.stderr
+    r = _compile(tmp_path, [mixed], ("ns2_model_fixed.h", "ns2_model_float.h"))  # any order, any pair
+    assert r.returncode != 0 and "mixed export set" in r.stderr
+
+
+# a subprocess writes the set of model B over model A's and is SIGKILLed at one step
+KILLER = """
+import os, signal, sys
+from pathlib import Path
+from ns2codegen import fileio
+step, out, src = sys.argv[1], Path(sys.argv[2]), Path(sys.argv[3])
+files = {p.name: p.read_text() for p in src.iterdir() if p.name.startswith("ns2_")}
+die = lambda *a, **k: os.kill(os.getpid(), signal.SIGKILL)
+n = [0]
+def nth(real, k):
+    def f(*a, **kw):
+        n[0] += 1
+        if n[0] == k:
+            die()
+        return real(*a, **kw)
+    return f
+if step == "writing":
+    os.fsync = nth(os.fsync, 3)
+elif step == "before-swap":
+    fileio._exchange = die
+elif step == "between-renames":
+    fileio._exchange = lambda a, b: False
+    os.rename = nth(os.rename, 2)
+elif step == "after-swap":
+    fileio.shutil.rmtree = die
+fileio.write_folder_set(out, files)
+"""
+
+
+def _same(a, b):
+    return all(filecmp.cmp(a / n, b / n, shallow=False) for n in SET)
+
+
+@pytest.mark.parametrize("step", ["writing", "before-swap", "between-renames", "after-swap"])
+def test_a_kill_at_any_step_leaves_one_whole_set(exported, onboard, tmp_path, step):
+    out = tmp_path / "gen"
+    shutil.copytree(exported.gen_dir, out)
+    (out / "README.md").write_text("kept\n")
+    r = subprocess.run([sys.executable, "-c", KILLER, step, str(out), str(onboard.gen_dir)],
+                       capture_output=True, text=True)
+    assert r.returncode == -9, r.stderr   # it was killed at that step
+    if step == "between-renames":   # the folder is briefly absent, the old set is complete beside it
+        assert not out.exists()
+        (aside,) = tmp_path.glob(".gen.old-*")
+        assert _same(exported.gen_dir, aside)
+    elif step == "after-swap":
+        assert _same(onboard.gen_dir, out) and (out / "README.md").read_text() == "kept\n"
+    else:
+        assert _same(exported.gen_dir, out)
+    if out.exists():
+        assert _compile(tmp_path, [out], HEADERS).returncode == 0
+    # the next export repairs and cleans up: the new set, the README, nothing left over
+    r = subprocess.run([sys.executable, "-m", "ns2codegen.cli", "export", str(onboard.checkpoint), "--out", str(out)],
+                       capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    assert _same(onboard.gen_dir, out) and (out / "README.md").read_text() == "kept\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["gen", "mix.c", "mix.o"] or \
+        sorted(p.name for p in tmp_path.iterdir()) == ["gen"]
