@@ -21,6 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ns2codegen.errors import Ns2Error
+
 REPO = Path(__file__).resolve().parent.parent
 BUILD_ROOT = Path(os.environ.get("NS2_BUILD_DIR", REPO / "build")) / "host"
 GENERATED = ("ns2_model_config.h", "ns2_model_float.h", "ns2_model_fixed.h")
@@ -97,8 +99,19 @@ double ns2_host_ns_per_call(int fixed, uint32_t reps, uint8_t robot_type, const 
 """
 
 
-class BuildError(RuntimeError):
-    """The C library does not compile."""
+class BuildError(Ns2Error, RuntimeError):
+    """The C library does not compile (the message: one line, the first compiler
+    error; ``details`` the whole command and output)."""
+
+    def __init__(self, message: str, details: str = ""):
+        super().__init__(message)
+        self.details = details
+
+
+def compile_error(what: str, cmd: list[str], r) -> BuildError:
+    out = r.stdout + r.stderr
+    first = next((l for l in out.splitlines() if "error" in l), out.strip().splitlines()[0] if out.strip() else "")
+    return BuildError(f"{what} does not compile: {first.strip()}", f"{' '.join(cmd)}\n{out}")
 
 
 def flags() -> dict[str, list[str]]:
@@ -140,7 +153,7 @@ def compile_objects(gen_dir: Path, out: Path, cc: str, extra: list[str], f: dict
                f"-I{REPO / 'host'}", f"-I{REPO / 'firmware' / 'target'}", "-c", str(REPO / src), "-o", str(obj)]
         r = subprocess.run(cmd, capture_output=True, text=True)
         if r.returncode != 0:
-            raise BuildError(f"{' '.join(cmd)}\n{r.stdout}{r.stderr}")
+            raise compile_error(f"{src} with the headers of {gen_dir}", cmd, r)
         objs.append(obj)
     return objs
 
@@ -216,7 +229,7 @@ def load_sim():
         cmd = [host_cc(), "-std=c99", "-O2", *f["NS2_WARN_FLAGS"], "-fPIC", "-c", str(src), "-o", str(obj)]
         r = subprocess.run(cmd, capture_output=True, text=True)
         if r.returncode != 0:
-            raise BuildError(f"{' '.join(cmd)}\n{r.stdout}{r.stderr}")
+            raise compile_error(str(src), cmd, r)
         ffi = FFI()
         ffi.cdef(SIM_CDEF)
         ffi.set_source(name, "#include <stdint.h>\n" + SIM_CDEF, extra_objects=[str(obj)],

@@ -21,7 +21,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from .cbuild import BUILD_ROOT, GENERATED, REPO, BuildError, flags, host_cc
+from .cbuild import BUILD_ROOT, GENERATED, REPO, BuildError, compile_error, flags, host_cc
 
 DRIVER = REPO / "fuzz" / "ns2_fuzz.c"
 TARGETS = ("infer", "sliced", "peers", "ctrl", "hil")
@@ -59,7 +59,7 @@ def build(gen_dir: str | Path) -> Path:
     cmd = [host_cc(), *cmd_flags, *map(str, sources), "-o", str(tmp), "-lm"]
     r = subprocess.run(cmd, capture_output=True, text=True)
     if r.returncode != 0:
-        raise BuildError(f"{' '.join(cmd)}\n{r.stdout}{r.stderr}")
+        raise compile_error("the fuzz driver", cmd, r)
     os.replace(tmp, exe)
     tmp.parent.rmdir()
     return exe

@@ -27,7 +27,7 @@ class _Errors(click.Group):
             return super().invoke(ctx)
         except (ConfigError, CheckpointError, DatasetError, OutputError, QuantizationError, LogError, UsdLogError,
                 SysidError, Ns2Error) as e:
-            raise click.ClickException(str(e)) from e
+            raise click.ClickException(" ".join(str(e).split())) from e  # one line
 
 
 @click.group(cls=_Errors)

@@ -246,6 +246,11 @@ def _number(x) -> bool:
 # parameters that must be > 0 for the controller (B0 and the motor model divide by them)
 POSITIVE_VEHICLE_KEYS = ("mass_g", "max_thrust_g", "lambda", "diameter_m", "arm_length_m", "inertia_kgm2",
                          "thrust_to_torque_m")
+# largest physical magnitude of each parameter (beyond: a typo or a corrupt file;
+# float32 in the firmware would turn 1e308 into Inf)
+VEHICLE_MAX = {"mass_g": 1e5, "max_thrust_g": 1e6, "diameter_m": 10.0, "lambda": 1e4, "psi1": 1e6, "psi2": 1e6,
+               "psi3": 1e6, "arm_length_m": 10.0, "inertia_kgm2": 1e3, "thrust_to_torque_m": 1.0}
+MODEL_MAX = {"hidden": 1024, "layers": 16, "phi_first": 1024, "width": 1024, "max_neighbors": 255}
 
 
 def _check_vehicle(t: dict) -> None:
@@ -264,6 +269,9 @@ def _check_vehicle(t: dict) -> None:
             raise ConfigError(f"robot type {name}: {key} must be {what}, got {t[key]!r}")
         if key in POSITIVE_VEHICLE_KEYS and not all(x > 0 for x in vals):
             raise ConfigError(f"robot type {name}: {key} must be positive, got {t[key]!r}")
+        if not all(abs(x) <= VEHICLE_MAX[key] for x in vals):
+            raise ConfigError(f"robot type {name}: {key} must be at most {VEHICLE_MAX[key]:g} in magnitude, "
+                              f"got {t[key]!r}")
 
 
 def _validate(raw: dict) -> None:
@@ -271,15 +279,13 @@ def _validate(raw: dict) -> None:
         if sec not in raw:
             raise ConfigError(f"config is missing section [{sec}]")
     m = raw["model"]
-    for key in ("hidden", "layers", "phi_first", "width", "max_neighbors"):
-        if not isinstance(m.get(key), int) or m[key] < 1:
-            raise ConfigError(f"model.{key} must be a positive integer")
+    for key, most in MODEL_MAX.items():
+        if not isinstance(m.get(key), int) or isinstance(m[key], bool) or not 1 <= m[key] <= most:
+            raise ConfigError(f"model.{key} must be an integer in [1, {most}], got {m.get(key)!r}")
     if m["layers"] < 2:
         raise ConfigError("model.layers must be >= 2")
-    if m["max_neighbors"] > 255:
-        raise ConfigError("model.max_neighbors must be <= 255")
-    if not (isinstance(m.get("gamma"), (int, float)) and m["gamma"] > 0):
-        raise ConfigError("model.gamma must be a positive number")
+    if not (_number(m.get("gamma")) and 0 < m["gamma"] <= 1e6):
+        raise ConfigError(f"model.gamma must be a number in (0, 1e6], got {m.get('gamma')!r}")
     types = raw["robot_types"]
     if not isinstance(types, list) or not types:
         raise ConfigError("need at least one [[robot_types]] entry")

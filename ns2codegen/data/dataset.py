@@ -170,7 +170,10 @@ class Dataset:
         neighbour types (those of the config it is used with)."""
         try:
             with np.load(path, allow_pickle=False) as z:
-                meta = json.loads(str(z["meta"]))
+                try:
+                    meta = json.loads(str(z["meta"]))
+                except json.JSONDecodeError as e:
+                    raise DatasetError(f"meta: not JSON ({e})") from None
                 if not isinstance(meta, dict) or meta.get("format") != FORMAT:
                     raise DatasetError(f"meta: not an {FORMAT} file")
                 names, scen = meta.get("neighbor_types"), meta.get("scenario_names")

@@ -204,7 +204,8 @@ def logs_to_flights(cfg: Config, folder: str | Path, allow_truncated: bool = Fal
         types = [r["type"] for r in fl["robots"]]
         unknown = [t for t in types if t not in cfg.robot_types]
         if unknown:
-            raise LogError(f"flight {name!r}: robot types {unknown} are not in the config {cfg.robot_types}")
+            raise LogError(f"{folder / 'flights.toml'}: flight {name!r}: robot types {unknown} are not in the "
+                           f"config {cfg.robot_types}")
         robots, notes = [], []
         for r in fl["robots"]:
             log = read(folder / r["file"], allow_truncated=allow_truncated)
@@ -217,7 +218,7 @@ def logs_to_flights(cfg: Config, folder: str | Path, allow_truncated: bool = Fal
         try:
             pieces, rep = align(types, robots, rate, max_gap_s=max_gap_s, z_min=z_min)
         except LogError as e:
-            raise LogError(f"flight {name!r}: {e}") from e
+            raise LogError(f"{folder / 'flights.toml'}: flight {name!r}: {e}") from e
         reports.append(dict(rep, name=name, notes=notes))
         flights += pieces
     if not flights:
