@@ -1,6 +1,7 @@
 """Export atomic as a set (issue 17 D5): the new set is written to a new folder and
 swapped in; a kill at any step leaves the complete old or the complete new set,
 never a mix, and headers of two models refuse to compile together (#error)."""
+import copy
 import filecmp
 import shutil
 import subprocess
@@ -8,6 +9,7 @@ import sys
 
 import pytest
 
+from ns2codegen.config import Config
 from ns2host.cbuild import flags
 
 HEADERS = ("ns2_model_config.h", "ns2_model_float.h", "ns2_model_fixed.h", "ns2_vehicles.h")
@@ -94,3 +96,45 @@ def test_a_kill_at_any_step_leaves_one_whole_set(exported, onboard, tmp_path, st
     assert _same(onboard.gen_dir, out) and (out / "README.md").read_text() == "kept\n"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["gen", "mix.c", "mix.o"] or \
         sorted(p.name for p in tmp_path.iterdir()) == ["gen"]
+
+
+def test_fixed_output_range_is_stated_and_covers_the_controller_limit(cfg, exported):
+    """The fixed-point output saturates at +-32768 2^-out_frac g (the float path does
+    not): the manifest and the header state that range, the export checks that the
+    controller's fa_max lies inside it, so that after the controller's clamp a
+    saturated fixed output and the float output agree (16 large neighbours just
+    overhead: the legal worst case of issue 17)."""
+    import dataclasses
+
+    from ns2codegen.export import check_output_range, output_range_g
+    from ns2codegen.quantize import QuantizationError
+    from ns2codegen.vehicle import G, default_gains, vehicle
+
+    em, man = exported.em, exported.manifest
+    lo, hi = output_range_g(em)
+    assert man["fixed_output_range_g"]["value"] == [lo, hi] == [-32768 * 2.0 ** -em.q15.out_frac,
+                                                                32767 * 2.0 ** -em.q15.out_frac]
+    text = (exported.gen_dir / "ns2_model_config.h").read_text()
+    assert "#define NS2_Q_OUT_MIN_G" in text and "#define NS2_Q_OUT_MAX_G" in text
+    c = exported.cmodel()
+    ffi, lib = c.ffi, c.lib
+    n = lib.NS2_MAX_NEIGHBORS
+    nb = ffi.new("ns2_neighbor_t[]", n)
+    large = cfg.robot_types.index("large")
+    for j in range(n):
+        nb[j].type = large
+        nb[j].rel = [0.0, 0.0, 0.2 + 0.01 * j, 0.0, 0.0, 0.0]
+    p, v = ffi.new("float[3]", [0, 0, 1.0]), ffi.new("float[3]", [0, 0, 0])
+    for rt in range(len(cfg.robot_types)):
+        f = lib.ns2_predict_f32(rt, p, v, nb, n, ffi.NULL)
+        g = lib.ns2_predict_q15_g(rt, p, v, nb, n, ffi.NULL)
+        assert lo <= g <= hi
+        fa_max = default_gains(vehicle(cfg, cfg.robot_types[rt]))["fa_max_N"] * 1000.0 / G
+        assert fa_max <= min(-lo, hi)
+        clamp = lambda x: max(-fa_max, min(fa_max, x))  # noqa: E731
+        assert abs(clamp(f) - clamp(g)) <= 2.0 ** -em.q15.out_frac + 0.05 * abs(clamp(f)) + 0.5
+    heavy = copy.deepcopy(cfg.raw)
+    heavy["robot_types"][0]["mass_g"] = 1e5   # fa_max 30 kg: beyond any int16 output range
+    bad = dataclasses.replace(em, cfg=Config.from_dict(heavy))
+    with pytest.raises(QuantizationError, match="fa_max"):
+        check_output_range(bad)
