@@ -13,6 +13,8 @@
 #                 and its size report (JSON: stock, with the app, the difference);
 #                 NS2_INFER=fixed|float|both selects the inference paths,
 #                 NS2_TABLES=ram puts the fixed-point phi tables in SRAM
+#   make fuzz     inference, sliced API, peer table, controller and HIL parser
+#                 under ASan + UBSan, FUZZ_COUNT structured inputs (JSON report)
 PYTHON ?= python3
 NS2 := $(PYTHON) -m ns2cli
 GEN := firmware/generated
@@ -20,7 +22,7 @@ DEFAULT := build/default
 ONBOARD := build/onboard
 CHECKPOINT ?= $(DEFAULT)/model.pt
 
-.PHONY: all deps export export-onboard test bench firmware app sim paper-data clean
+.PHONY: all deps export export-onboard test bench firmware app fuzz sim paper-data clean
 
 all: export
 
@@ -75,6 +77,13 @@ NS2_INFER ?= fixed
 NS2_TABLES ?= flash
 app: deps $(GEN)/ns2_model_config.h
 	$(PYTHON) -m ns2host.cfapp $(GEN) --out build/app --infer $(NS2_INFER) --tables $(NS2_TABLES)
+
+# Structured fuzzing under -fsanitize=address,undefined (fuzz/ns2_fuzz.c, host/fuzz.py);
+# a bounded run of the same drivers is part of `make test` (tests/test_fuzz.py).
+FUZZ_COUNT ?= 1000000
+FUZZ_SEED ?= 1
+fuzz: deps $(GEN)/ns2_model_config.h
+	$(PYTHON) -m ns2host.fuzz --gen $(GEN) --count $(FUZZ_COUNT) --seed $(FUZZ_SEED)
 
 # Simulated flights -> data -> model, two curriculum rounds, then the swap and ring
 # experiments: build/sim/results/swaps.json, rings.json (a row per case and controller:

@@ -35,7 +35,7 @@ class _Errors(click.Group):
         try:
             return super().invoke(ctx)
         except Ns2Error as e:
-            raise click.ClickException(str(e)) from e
+            raise click.ClickException(" ".join(str(e).split())) from e  # one line
         except ModuleNotFoundError as e:
             top = (e.name or "").split(".")[0]
             if top not in _EXTRAS:
@@ -191,7 +191,7 @@ def train(data_paths, config_path, out, epochs, seed, batch_size, lr, hidden, la
                                         ("phi_first", phi_first)) if v is not None})
     if overrides:
         cfg = cfg.with_overrides(**overrides)
-    ds = Dataset.concat([Dataset.load(p) for p in data_paths])
+    ds = Dataset.concat([Dataset.load(p, cfg.neighbor_types) for p in data_paths])
     _parent_ok(out)
     n_epochs = epochs or cfg.train["epochs"]
     total = int(len(ds) * (1 - cfg.train["validation_fraction"])) * n_epochs
@@ -448,6 +448,8 @@ def plan_cmd(checkpoint, model_dir, config_path, problem_path, baseline, out_dir
     if problem_path and not Path(problem_path).is_file():
         raise PlanningError(f"problem file not found: {problem_path}")
     cfg = _plan_config(checkpoint, config_path)
+    if problem_path:
+        ex.load_problem(cfg, problem_path)  # refuse a bad file before any training
     if checkpoint is None and not (problem_path and baseline):
         folder = Path(model_dir) if model_dir else Path(out_dir) / "model"
         checkpoint = ex.default_checkpoint(cfg, folder, log=lambda msg: click.echo(msg, err=True))

@@ -23,6 +23,7 @@ import numpy as np
 from ns2codegen.errors import Ns2Error
 
 from .crazyflie import BUILD, REPO  # the source checkout (see firmware_sources)
+
 BUILD_ROOT = BUILD / "host"
 GENERATED = ("ns2_model_config.h", "ns2_model_float.h", "ns2_model_fixed.h")
 # host-only helpers, plus the controller vector loop shared with the QEMU image
@@ -55,6 +56,14 @@ uint16_t ns2_job_step_q15(ns2_job_t *job, uint16_t max_phi);
 float ns2_job_finish_f32(ns2_job_t *job, ns2_info_t *info);
 int16_t ns2_job_finish_q15(ns2_job_t *job, ns2_info_t *info);
 #define NS2_PEERS_MAX ...
+#define NS2_PEERS_RESTARTED ...
+#define NS2_CTRL_BAD_STATE ...
+#define NS2_CTRL_BAD_SETPOINT ...
+#define NS2_CTRL_SATURATED ...
+#define NS2_CTRL_RESET ...
+#define NS2_CTRL_RECOVERING ...
+#define NS2_CTRL_BAD_CONFIG ...
+#define NS2_CTRL_RECOVERY_TICKS ...
 typedef struct { uint8_t id; uint8_t type; uint8_t samples; uint32_t t_ms; float p[3]; float v[3]; } ns2_peer_t;
 typedef struct { ns2_peer_t peer[...]; uint8_t count; float alpha; } ns2_peers_t;
 void ns2_peers_init(ns2_peers_t *s, float alpha);
@@ -91,7 +100,18 @@ double ns2_host_ns_per_call(int fixed, uint32_t reps, uint8_t robot_type, const 
 
 
 class BuildError(Ns2Error, RuntimeError):
-    """The C library does not compile."""
+    """The C library does not compile (the message: one line, the first compiler
+    error; ``details`` the whole command and output)."""
+
+    def __init__(self, message: str, details: str = ""):
+        super().__init__(message)
+        self.details = details
+
+
+def compile_error(what: str, cmd: list[str], r) -> BuildError:
+    out = r.stdout + r.stderr
+    first = next((l for l in out.splitlines() if "error" in l), out.strip().splitlines()[0] if out.strip() else "")
+    return BuildError(f"{what} does not compile: {first.strip()}", f"{' '.join(cmd)}\n{out}")
 
 
 def firmware_sources() -> Path:
@@ -143,7 +163,7 @@ def compile_objects(gen_dir: Path, out: Path, cc: str, extra: list[str], f: dict
                f"-I{REPO / 'host'}", f"-I{REPO / 'firmware' / 'target'}", "-c", str(REPO / src), "-o", str(obj)]
         r = subprocess.run(cmd, capture_output=True, text=True)
         if r.returncode != 0:
-            raise BuildError(f"{' '.join(cmd)}\n{r.stdout}{r.stderr}")
+            raise compile_error(f"{src} with the headers of {gen_dir}", cmd, r)
         objs.append(obj)
     return objs
 
@@ -221,7 +241,7 @@ def load_sim():
                "-o", str(obj)]
         r = subprocess.run(cmd, capture_output=True, text=True)
         if r.returncode != 0:
-            raise BuildError(f"{' '.join(cmd)}\n{r.stdout}{r.stderr}")
+            raise compile_error(str(src), cmd, r)
         ffi = FFI()
         ffi.cdef(SIM_CDEF)
         ffi.set_source(name, "#include <stdint.h>\n" + SIM_CDEF, extra_objects=[str(obj)],

@@ -25,6 +25,7 @@ SYNC = b"\xa5\x5a"
 PREDICT, PING, RESULT, PONG, ERROR = 0x01, 0x02, 0x81, 0x82, 0xEE
 MAX_PAYLOAD = 1024
 MAX_NEIGHBORS = 32
+MAX_REPLY = 32  # body bytes of a frame sent by the target (NS2_HIL_MAX_REPLY)
 ERROR_CODES = {1: "bad CRC", 2: "bad length", 3: "unknown type", 4: "malformed body"}
 
 
@@ -166,9 +167,11 @@ class HilClient:
         raise HilError(f"{last} after {self.retries + 1} attempts")
 
     def ping(self, data: bytes = b"ns2") -> bytes:
+        if len(data) > MAX_REPLY:
+            raise ValueError(f"PING body of {len(data)} bytes: the target echoes at most {MAX_REPLY}")
         body = self._exchange(PING, data, PONG)
         if body != data:
-            raise HilError("PING echo differs")
+            raise HilError(f"PING echo differs ({len(body)} bytes back, {len(data)} sent)")
         return body
 
     def predict(self, robot_type: int, p, v, types, rels) -> Result:

@@ -23,8 +23,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .cbuild import REPO, BUILD_ROOT, GENERATED, BuildError, flags
 from ns2codegen.errors import Ns2Error
+
+from .cbuild import REPO, BUILD_ROOT, GENERATED, BuildError, compile_error, flags
 
 ARM_CC = os.environ.get("ARM_CC", "arm-none-eabi-gcc")
 TARGET_DIR = REPO / "firmware" / "target"
@@ -112,7 +113,7 @@ def build_image(gen_dir: Path, program: str = "qemu_vectors.c", opt: str | None 
                "-Wl,--gc-sections", *map(str, sources), "-lm", "-o", str(su / out.name)]
         r = subprocess.run(cmd, capture_output=True, text=True)
         if r.returncode != 0:
-            raise BuildError(f"{' '.join(cmd)}\n{r.stdout}{r.stderr}")
+            raise compile_error(f"the target image {out.name}", cmd, r)
         os.replace(su / out.name, out)
     return out
 

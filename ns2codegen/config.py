@@ -135,6 +135,10 @@ class Config:
                 raise ConfigError(f"vehicle file {path}: robot type {veh['name']!r} is not in the config "
                                   f"{[t['name'] for t in raw['robot_types']]}")
             entry.update({k: v for k, v in veh.items() if k != "name"}, vehicle_file=Path(path).name)
+            try:
+                _check_vehicle(entry)
+            except ConfigError as e:
+                raise ConfigError(f"vehicle file {path}: {e}") from None
         return Config.from_dict(raw)
 
     # --- construction --------------------------------------------------------
@@ -146,7 +150,14 @@ class Config:
 
     @staticmethod
     def load(path: str | Path | None = None) -> "Config":
-        return Config.from_dict(read_toml(Path(path) if path is not None else DEFAULT_CONFIG, "config file"))
+        path = Path(path) if path is not None else DEFAULT_CONFIG
+        raw = read_toml(path, "config file")
+        try:
+            return Config.from_dict(raw)
+        except ConfigError as e:
+            raise ConfigError(f"config file {path}: {e}") from None
+        except (TypeError, AttributeError, KeyError) as e:  # a value of the wrong kind deep inside
+            raise ConfigError(f"config file {path}: malformed ({type(e).__name__}: {e})") from None
 
 
 def read_toml(path, what: str, error: type[Exception] = ConfigError) -> dict:
@@ -229,20 +240,53 @@ def _range_list(value, n: int, what: str) -> None:
             raise ConfigError(f"{what}: need finite lo < hi, got {r!r}")
 
 
+def _number(x) -> bool:
+    return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
+
+
+# parameters that must be > 0 for the controller (B0 and the motor model divide by them)
+POSITIVE_VEHICLE_KEYS = ("mass_g", "max_thrust_g", "lambda", "diameter_m", "arm_length_m", "inertia_kgm2",
+                         "thrust_to_torque_m")
+# largest physical magnitude of each parameter (beyond: a typo or a corrupt file;
+# float32 in the firmware would turn 1e308 into Inf)
+VEHICLE_MAX = {"mass_g": 1e5, "max_thrust_g": 1e6, "diameter_m": 10.0, "lambda": 1e4, "psi1": 1e6, "psi2": 1e6,
+               "psi3": 1e6, "arm_length_m": 10.0, "inertia_kgm2": 1e3, "thrust_to_torque_m": 1.0}
+MODEL_MAX = {"hidden": 1024, "layers": 16, "phi_first": 1024, "width": 1024, "max_neighbors": 255}
+
+
+def _check_vehicle(t: dict) -> None:
+    """Vehicle parameters of one robot type: required ones present, every one of
+    VEHICLE_KEYS a finite number (or list of them), the physical ones > 0."""
+    name = t["name"]
+    for key in ("mass_g", "max_thrust_g", "lambda"):
+        if key not in t:
+            raise ConfigError(f"robot type {name}: {key} is missing")
+    for key, n in VEHICLE_KEYS.items():
+        if key not in t:
+            continue
+        vals = t[key] if n else [t[key]]
+        what = f"{n} finite numbers" if n else "a finite number"
+        if not (isinstance(vals, list) and len(vals) == max(n, 1) and all(_number(x) for x in vals)):
+            raise ConfigError(f"robot type {name}: {key} must be {what}, got {t[key]!r}")
+        if key in POSITIVE_VEHICLE_KEYS and not all(x > 0 for x in vals):
+            raise ConfigError(f"robot type {name}: {key} must be positive, got {t[key]!r}")
+        if not all(abs(x) <= VEHICLE_MAX[key] for x in vals):
+            raise ConfigError(f"robot type {name}: {key} must be at most {VEHICLE_MAX[key]:g} in magnitude, "
+                              f"got {t[key]!r}")
+
+
 def _validate(raw: dict) -> None:
     for sec in ("model", "train", "robot_types", "environment", "neighbors", "interaction_volume"):
         if sec not in raw:
             raise ConfigError(f"config is missing section [{sec}]")
     m = raw["model"]
-    for key in ("hidden", "layers", "phi_first", "width", "max_neighbors"):
-        if not isinstance(m.get(key), int) or m[key] < 1:
-            raise ConfigError(f"model.{key} must be a positive integer")
+    for key, most in MODEL_MAX.items():
+        if not isinstance(m.get(key), int) or isinstance(m[key], bool) or not 1 <= m[key] <= most:
+            raise ConfigError(f"model.{key} must be an integer in [1, {most}], got {m.get(key)!r}")
     if m["layers"] < 2:
         raise ConfigError("model.layers must be >= 2")
-    if m["max_neighbors"] > 255:
-        raise ConfigError("model.max_neighbors must be <= 255")
-    if not (isinstance(m.get("gamma"), (int, float)) and m["gamma"] > 0):
-        raise ConfigError("model.gamma must be a positive number")
+    if not (_number(m.get("gamma")) and 0 < m["gamma"] <= 1e6):
+        raise ConfigError(f"model.gamma must be a number in (0, 1e6], got {m.get('gamma')!r}")
     types = raw["robot_types"]
     if not isinstance(types, list) or not types:
         raise ConfigError("need at least one [[robot_types]] entry")
@@ -253,9 +297,7 @@ def _validate(raw: dict) -> None:
     if len(set(idents)) != len(idents):
         raise ConfigError(f"type names collide as C identifiers: {names}")
     for t in types:
-        for key in ("mass_g", "max_thrust_g", "lambda"):
-            if not (isinstance(t.get(key), (int, float)) and t[key] > 0):
-                raise ConfigError(f"robot type {t['name']}: {key} must be positive")
+        _check_vehicle(t)
     env, nb = raw["environment"], raw["neighbors"]
     _range_list(env.get("pos_box"), 3, "environment.pos_box")
     _range_list(env.get("vel_box"), 3, "environment.vel_box")

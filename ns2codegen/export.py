@@ -9,7 +9,9 @@ Output (deterministic: the same checkpoint gives byte-identical files):
                        measured |fixed - float| error
   ns2_config.toml      the whole config the model was trained with (``export_config``
                        reads it back: every command given an export folder uses it)
-All are staged first and renamed into place only when all were written.
+The set is written to a new folder and swapped in as a whole
+(fileio.write_folder_set), and every header carries the model's id
+(NS2_MODEL_ID) and refuses to compile (#error) next to a header of another model.
 """
 from __future__ import annotations
 
@@ -23,10 +25,10 @@ import numpy as np
 from . import __version__
 from .checkpoint import load_checkpoint
 from .config import VEHICLE_KEYS, Config, ConfigError, c_identifier, dump_toml
-from .fileio import atomic_write_files
+from .fileio import write_folder_set
 from .queries import random_queries
 from .quantize import ExportModel, from_checkpoint, pad4
-from .vehicle import default_gains, has_rigid_body, vehicle
+from .vehicle import G, default_gains, has_rigid_body, vehicle
 
 TEMPLATES = Path(__file__).resolve().parent / "templates"  # package data
 HEADERS = ("ns2_model_config.h", "ns2_model_float.h", "ns2_model_fixed.h", "ns2_vehicles.h")
@@ -122,6 +124,29 @@ def measure_errors(m: ExportModel) -> dict:
     return out
 
 
+def output_range_g(m: ExportModel) -> list[float]:
+    """Grams that the int16 output of ns2_predict_q15 can represent: larger
+    predictions saturate here (the float path does not)."""
+    scale = 2.0 ** -m.q15.out_frac
+    return [-32768 * scale, 32767 * scale]
+
+
+def check_output_range(m: ExportModel) -> None:
+    """The controller limits the learned force to fa_max_N per robot type; that limit
+    must lie inside the fixed-point output range, so that a saturated output is
+    always clamped by the controller to the same value the float output would be."""
+    from .quantize import QuantizationError
+
+    lo, hi = output_range_g(m)
+    for t in m.cfg.robot_types:
+        if not has_rigid_body(m.cfg, t):
+            continue
+        fa_max_g = default_gains(vehicle(m.cfg, t))["fa_max_N"] * 1000.0 / G
+        if fa_max_g > min(-lo, hi):
+            raise QuantizationError(f"robot type {t}: the controller's fa_max ({fa_max_g:.3g} g) exceeds the "
+                                    f"fixed-point output range [{lo:g}, {hi:g}] g (out_frac {m.q15.out_frac})")
+
+
 def render(m: ExportModel) -> dict[str, str]:
     cfg, q = m.cfg, m.q15
     types = [{"name": n, "ident": c_identifier(n), "index": i, "is_env": i == cfg.env_index}
@@ -138,13 +163,13 @@ def render(m: ExportModel) -> dict[str, str]:
             qnets.append(dict(base, layers=[dict(wb=fixed_layout(l.w, l.b, l.shift), layer=l,
                                                  n_quads=pad4(l.n_in) // 4, n_blocks=pad4(l.w.shape[0]) // 4)
                                             for l in qnet.layers]))
-    ctx = {"version": __version__, "model_hash": m.model_hash, "types": types,
+    ctx = {"version": __version__, "model_hash": m.model_hash, "model_id": "0x" + m.model_hash[:15], "types": types,
            "num_robot_types": cfg.num_robot_types, "num_neighbor_types": len(types),
            "env_index": cfg.env_index, "max_neighbors": m.max_neighbors, "hidden": m.hidden,
            "layers": cfg.model["layers"], "max_width": max(max(cfg.phi_dims()), max(cfg.rho_dims())),
            "lipschitz": lip["per_neighbor_input"], "volumes": m.volumes, "boxes": m.boxes,
            "nets": nets, "qnets": qnets, "q": q, "in_scale": q.in_scale,
-           "out_scale": 2.0 ** -q.out_frac,
+           "out_scale": 2.0 ** -q.out_frac, "out_range_g": output_range_g(m),
            "min_margin_bits": min(p["margin_bits"] for p in q.proof),
            "quad_counts": quad_counts(q)}
     if all(has_rigid_body(cfg, t) for t in cfg.robot_types):
@@ -191,6 +216,15 @@ def manifest(m: ExportModel, errors: dict) -> dict:
             "layers": q.proof,
             "min_margin_bits": min(p["margin_bits"] for p in q.proof),
         },
+        "fixed_output_range_g": {
+            "value": output_range_g(m),
+            "method": "int16 at out_frac fractional bits: ns2_predict_q15 saturates outside this range while the "
+                      "float path does not (the output format comes from calibration queries with headroom; the "
+                      "interval-arithmetic bound below is far too loose to set it). The controller clamps the "
+                      "learned force to fa_max_N, which the export checks lies inside this range, so a saturated "
+                      "fixed output gives the same control as the float one",
+            "controller_fa_max_g": {t: round(default_gains(vehicle(cfg, t))["fa_max_N"] * 1000.0 / G, 6)
+                                    for t in cfg.robot_types if has_rigid_body(cfg, t)}},
         "float_activation_bound": {
             "value": meta["float_activation_bound"],
             "method": "float64 interval arithmetic over the input box with all neighbour slots "
@@ -203,11 +237,12 @@ def manifest(m: ExportModel, errors: dict) -> dict:
 def export(checkpoint: str | Path, out_dir: str | Path) -> dict:
     """Export ``checkpoint`` into ``out_dir``; returns the manifest."""
     m = from_checkpoint(load_checkpoint(checkpoint))
+    check_output_range(m)
     files = render(m)
     man = manifest(m, measure_errors(m))
     files[MANIFEST] = json.dumps(man, indent=2, sort_keys=True) + "\n"
     files[CONFIG_FILE] = dump_toml(m.cfg.raw, f"ns2codegen {__version__}: the config of model {m.model_hash}")
-    atomic_write_files(Path(out_dir), files)
+    write_folder_set(Path(out_dir), files)
     return man
 
 

@@ -46,16 +46,28 @@ class SysidError(Ns2Error, ValueError):
     """Load-cell data that cannot be used (missing columns, too few rows, ...)."""
 
 
+# physical range of each column; a value outside it is a corrupt row
+COLUMN_RANGE = {"pwm": (0.0, 1.0), "vbat_V": (0.0, 10.0), "force_g": (-1e4, 1e4), "force_max_g": (-1e4, 1e4),
+                "time_s": (-1e6, 1e6)}
+
+
 def read_csv(path: str | Path, required: tuple[str, ...], optional: tuple[str, ...] = ()) -> dict:
-    """Numeric columns of a CSV file; empty optional cells become NaN."""
+    """Numeric columns of a CSV file; empty optional cells become NaN; values outside
+    COLUMN_RANGE are refused."""
     path = Path(path)
     try:
-        with open(path, newline="") as f:
+        with open(path, newline="", encoding="utf-8") as f:
             rows = list(csv.DictReader(f))
     except OSError as e:
         raise SysidError(f"cannot read {path}: {e.strerror or e}") from e
+    except (UnicodeDecodeError, csv.Error) as e:
+        raise SysidError(f"{path}: not a CSV text file: {e}") from e
     if not rows:
         raise SysidError(f"{path}: no data rows")
+    extra = [k for k, r in enumerate(rows) if None in r]
+    if extra:
+        raise SysidError(f"{path}: row {extra[0] + 1} has more cells than the header's columns "
+                         f"{[c for c in rows[0] if c is not None]} (a value with a comma?)")
     missing = [c for c in required if c not in rows[0]]
     if missing:
         raise SysidError(f"{path}: missing columns {missing} (has {list(rows[0])})")
@@ -67,6 +79,11 @@ def read_csv(path: str | Path, required: tuple[str, ...], optional: tuple[str, .
             raise SysidError(f"{path}: column {col!r} has a non-numeric value: {e}") from e
         if col in required and not np.all(np.isfinite(out[col])):
             raise SysidError(f"{path}: column {col!r} has empty or non-finite values")
+        lo, hi = COLUMN_RANGE.get(col, (-math.inf, math.inf))
+        bad = np.flatnonzero(~((out[col] >= lo) & (out[col] <= hi)) & ~np.isnan(out[col]))
+        if len(bad):
+            raise SysidError(f"{path}: column {col!r} row {int(bad[0]) + 1} is {out[col][bad[0]]:g}, outside "
+                             f"[{lo:g}, {hi:g}]")
     return out
 
 

@@ -13,8 +13,13 @@ import numpy as np
 import torch
 
 from .config import Config
-from .data.dataset import Dataset, split_by_pieces
+from .data.dataset import Dataset, DatasetError, split_by_pieces
+from .errors import Ns2Error
 from .model import HeteroDeepSet
+
+
+class TrainingError(Ns2Error, ValueError):
+    """Training diverged (a non-finite loss): nothing is written."""
 
 
 @dataclass
@@ -76,10 +81,14 @@ def train(cfg: Config, ds: Dataset, epochs: int | None = None, seed: int | None 
     batch_size = tr["batch_size"] if batch_size is None else batch_size
     lr = tr["lr"] if lr is None else lr
     if list(ds.neighbor_types) != cfg.neighbor_types:
-        raise ValueError(f"data set types {ds.neighbor_types} do not match config {cfg.neighbor_types}")
+        raise DatasetError(f"data set neighbor_types {ds.neighbor_types} do not match the config's "
+                           f"{cfg.neighbor_types}")
     torch.manual_seed(seed)
     val_mask = split_by_pieces(ds, tr["pieces_per_scenario"], tr["validation_fraction"], seed)
     train_ds, val_ds = ds.subset(~val_mask), ds.subset(val_mask)
+    if len(train_ds) == 0 or len(val_ds) == 0:
+        raise DatasetError(f"data set: {len(ds)} samples give {len(train_ds)} for training and {len(val_ds)} "
+                           "for validation; both need at least one")
     data = Batched.of(train_ds)
     model = HeteroDeepSet(cfg)
     model.spectral_normalize_()
@@ -104,6 +113,8 @@ def train(cfg: Config, ds: Dataset, epochs: int | None = None, seed: int | None 
             if progress is not None:
                 progress(y.numel())
         history.append(total / max(n, 1))
+        if not np.isfinite(history[-1]):
+            raise TrainingError(f"training diverged in epoch {epoch + 1} (loss {history[-1]}); lower --lr")
     elapsed = time.perf_counter() - t0
     model.eval()
     report = {"epochs": epochs, "seed": seed, "batch_size": batch_size, "lr": lr,

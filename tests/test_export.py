@@ -218,26 +218,24 @@ def test_unwritable_output(exported, tmp_path):
 
 
 def test_failure_mid_write_leaves_old_headers(exported, previous_out, monkeypatch):
-    real = os.replace
     calls = []
+    real_fsync = os.fsync
 
-    def failing_fdopen(fd, *a, **k):
+    def failing_fsync(fd):
         calls.append(fd)
         if len(calls) == 3:
-            os.close(fd)
             raise OSError(28, "No space left on device")
-        return real_fdopen(fd, *a, **k)
+        return real_fsync(fd)
 
-    real_fdopen = os.fdopen
-    monkeypatch.setattr(os, "fdopen", failing_fdopen)
+    monkeypatch.setattr(os, "fsync", failing_fsync)
     from ns2codegen.fileio import OutputError
 
     with pytest.raises(OutputError, match="No space left"):
         export_mod.export(exported.checkpoint, previous_out)
-    assert len(calls) == 3  # two headers were staged before the third failed
-    monkeypatch.setattr(os, "fdopen", real_fdopen)
-    assert real is os.replace
+    assert len(calls) == 3  # two headers were written before the third failed
+    monkeypatch.setattr(os, "fsync", real_fsync)
     _unchanged(exported, previous_out)
+    assert sorted(p.name for p in previous_out.parent.iterdir()) == ["out"]  # no new set left behind
 
 
 # ------------------------------------------------------------------ a third robot type

@@ -98,3 +98,17 @@ def test_frame_reader_resynchronizes():
     assert frames == [(hil.RESULT, 3, bytes(18))]
     assert r.bad_frames >= 1 and r.garbage_bytes > 0
     assert hil.crc16(b"123456789") == 0x29B1  # CRC-16/CCITT-FALSE check value
+
+
+def test_ping_longer_than_a_reply_is_refused():
+    """Issue 17 D1: the target echoes at most MAX_REPLY bytes (the C side is checked
+    under ASan by tests/test_fuzz.py); the client refuses to ask for more."""
+    master, slave = os.openpty()
+    try:
+        client = hil.HilClient(os.ttyname(slave), timeout=0.2, retries=0)
+        with pytest.raises(ValueError, match="at most 32"):
+            client.ping(b"x" * 35)
+        client.close()
+    finally:
+        os.close(master)
+        os.close(slave)

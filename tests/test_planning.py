@@ -3,7 +3,6 @@ SCP, outputs and tracking.  Every rule is re-checked on the result here."""
 from __future__ import annotations
 
 import json
-import time
 from dataclasses import replace
 
 import numpy as np
@@ -350,17 +349,15 @@ def test_bad_input_is_refused_quickly(cfg):
                       LIMITS), fm).run()
     with pytest.raises(PlanningError, match="infeasible limits"):
         Problem(cfg, SWAP_SL, Limits(pos_lo=LIMITS.pos_lo, pos_hi=LIMITS.pos_hi, v_max=0.0)).validate()
-    t0 = time.perf_counter()
+    # bounded by counts, not by time: the refusal comes after max_rounds rounds of at
+    # most max_samples samples each (no test asserts on wall-clock time; see benchmarks)
     slow = Limits(pos_lo=LIMITS.pos_lo, pos_hi=LIMITS.pos_hi, v_max=0.02)   # goal out of reach in H steps
     with pytest.raises(PlanningError, match="no path found .* in 2 rounds"):
         AORRT(Problem(cfg, SWAP_SL[:1], slow), fm, RRTParams(SearchParams(max_samples=3000), max_rounds=2)).run()
-    assert time.perf_counter() - t0 < 10.0
     # the wall-clock safety net: an absurd sample budget still ends, with a clear message
-    t0 = time.perf_counter()
     with pytest.raises(PlanningError, match="safety time limit"):
         AORRT(Problem(cfg, SWAP_SL[:1], slow), fm,
               RRTParams(SearchParams(max_samples=10 ** 9, time_s=0.3), total_time_s=0.8)).run()
-    assert time.perf_counter() - t0 < 5.0
     # parameters are refused where they are constructed
     with pytest.raises(PlanningError, match="max_samples must be a positive integer"):
         SearchParams(max_samples=0)

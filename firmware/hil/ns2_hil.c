@@ -8,7 +8,8 @@ uint16_t ns2_hil_crc16(const uint8_t *data, uint16_t n, uint16_t crc)
     for (uint16_t i = 0; i < n; ++i) {
         crc = (uint16_t)(crc ^ (uint16_t)((uint16_t)data[i] << 8));
         for (int b = 0; b < 8; ++b) {
-            crc = (crc & 0x8000u) ? (uint16_t)((crc << 1) ^ 0x1021u) : (uint16_t)(crc << 1);
+            const uint16_t shifted = (uint16_t)((uint32_t)crc << 1);
+            crc = (crc & 0x8000u) ? (uint16_t)(shifted ^ 0x1021u) : shifted;
         }
     }
     return crc;
@@ -45,18 +46,20 @@ static float get_f32(const uint8_t *p)
     return f;
 }
 
+/* Frames sent by the target carry at most NS2_HIL_MAX_REPLY body bytes (a longer
+ * PING body is echoed truncated); the length field always matches what is sent. */
 static void send(ns2_hil_t *h, uint8_t type, uint16_t seq, const uint8_t *body, uint16_t n)
 {
-    uint8_t out[4u + 3u + 32u + 2u];
+    uint8_t out[4u + 3u + NS2_HIL_MAX_REPLY + 2u];
+    if (n > NS2_HIL_MAX_REPLY) {
+        n = NS2_HIL_MAX_REPLY;
+    }
     const uint16_t len = (uint16_t)(3u + n);
     out[0] = NS2_HIL_SYNC0;
     out[1] = NS2_HIL_SYNC1;
     put_u16(&out[2], len);
     out[4] = type;
     put_u16(&out[5], seq);
-    if (n > 32u) {
-        n = 32u;
-    }
     memcpy(&out[7], body, n);
     put_u16(&out[7u + n], ns2_hil_crc16(&out[2], (uint16_t)(2u + len), 0xFFFFu));
     h->write(out, (uint16_t)(9u + n));

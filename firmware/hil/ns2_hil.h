@@ -7,10 +7,10 @@
  *
  * Requests:  0x01 PREDICT  u8 robot_type, u8 n, f32 p[3], f32 v[3],
  *                          n x (u8 type, f32 rel[6])            (all LE, packed)
- *            0x02 PING     any bytes, echoed
+ *            0x02 PING     any bytes, echoed (the first NS2_HIL_MAX_REPLY of them)
  * Responses: 0x81 RESULT   i32 status, u32 float bits, i16 fixed, u16 n_used,
  *                          u16 n_invalid, u16 n_outside, u16 n_truncated
- *            0x82 PONG     the PING bytes
+ *            0x82 PONG     the PING bytes, at most NS2_HIL_MAX_REPLY
  *            0xEE ERROR    u8 code (NS2_HIL_E_*); sequence 0xFFFF when unknown
  * A frame with a bad CRC or length is answered with ERROR and the parser
  * resynchronizes on the next 0xA5 0x5A found after the bad frame's start.
@@ -26,6 +26,7 @@
 #define NS2_HIL_SYNC1 0x5Au
 #define NS2_HIL_MAX_PAYLOAD 1024u
 #define NS2_HIL_MAX_NEIGHBORS 32u
+#define NS2_HIL_MAX_REPLY 32u /* body bytes of a frame sent by the target */
 
 #define NS2_HIL_PREDICT 0x01u
 #define NS2_HIL_PING 0x02u

@@ -21,12 +21,27 @@
  * Quadrotor X: motor i at (x_i, y_i) = arm / sqrt(2) * [(+,-), (-,-), (-,+), (+,+)]
  * (Crazyflie M1..M4), yaw torque +-k f_i with signs [-, +, -, +].
  *
- * Safety (defined outputs, never undefined behaviour):
- *   - non-finite state: all motors off (u = 0, PWM = 0), status NS2_CTRL_BAD_STATE;
- *   - non-finite setpoint: the last valid setpoint is kept, NS2_CTRL_BAD_SETPOINT;
+ * Safety (defined outputs, never undefined behaviour; every input is checked
+ * against the physical limits NS2_CTRL_*_MAX below, not only for NaN/Inf):
+ *   - bad state (non-finite or beyond the limits, quaternion norm outside
+ *     [0.5, 2], dt outside [NS2_CTRL_DT_MIN_S, NS2_CTRL_DT_MAX_S], battery
+ *     voltage outside [0, NS2_CTRL_BAT_MAX_V]): all motors off (u = 0, PWM = 0), status
+ *     NS2_CTRL_BAD_STATE, and the controller's memory (integrators, filtered
+ *     derivatives) is reset to that of ns2_ctrl_init;
+ *   - bad setpoint (non-finite or beyond the limits): the last valid setpoint is
+ *     kept, NS2_CTRL_BAD_SETPOINT; the yaw setpoint is taken modulo 2 pi;
  *   - non-finite fa_hat: treated as 0; |fa_hat| limited to fa_max (NS2_CTRL_FA_LIMITED);
  *   - integrators are clamped (int_v_max, int_w_max); f_d keeps a minimum
- *     upward component so that R_d is always defined.
+ *     upward component so that R_d is always defined;
+ *   - should the controller's memory ever become non-finite all the same, it is
+ *     reset as for a bad state (NS2_CTRL_RESET, motors off for that tick);
+ *   - vehicle parameters that cannot fly (mass, inertia, arm, kappa, lambda,
+ *     f_max not finite and > 0, psi2 not finite): NS2_CTRL_BAD_CONFIG, motors off.
+ * Recovery is bounded: after a bad state or a reset the controller is exactly a
+ * freshly initialized one (its outputs from the next good position tick on are
+ * bit for bit those of ns2_ctrl_init + the same good inputs), and it reports
+ * NS2_CTRL_RECOVERING until NS2_CTRL_RECOVERY_TICKS good attitude ticks have
+ * run (the derivative filters have restarted).
  */
 #ifndef NS2_CONTROLLER_H
 #define NS2_CONTROLLER_H
@@ -47,6 +62,20 @@ extern "C" {
 #define NS2_CTRL_BAD_SETPOINT 2u
 #define NS2_CTRL_FA_LIMITED 4u
 #define NS2_CTRL_SATURATED 8u
+#define NS2_CTRL_RESET 16u       /* non-finite memory was reset this tick */
+#define NS2_CTRL_RECOVERING 32u  /* fewer than NS2_CTRL_RECOVERY_TICKS good ticks since a fault */
+#define NS2_CTRL_BAD_CONFIG 64u  /* vehicle parameters unusable: motors stay off */
+
+/* Physical limits of the inputs (beyond them an input is treated as corrupt). */
+#define NS2_CTRL_P_MAX_M 1.0e3f       /* |position| per axis, state and setpoint */
+#define NS2_CTRL_V_MAX_MS 1.0e2f      /* |velocity| per axis */
+#define NS2_CTRL_A_MAX_MS2 1.0e3f     /* |acceleration setpoint| per axis */
+#define NS2_CTRL_W_MAX_RADS 1.0e2f    /* |body rate| per axis (gyro range 35 rad/s) */
+#define NS2_CTRL_YAW_MAX_RAD 1.0e6f   /* |yaw setpoint| (then taken modulo 2 pi) */
+#define NS2_CTRL_DT_MIN_S 1.0e-5f     /* time step range of both loops */
+#define NS2_CTRL_DT_MAX_S 1.0f
+#define NS2_CTRL_BAT_MAX_V 10.0f      /* battery voltage range [0, 10] V */
+#define NS2_CTRL_RECOVERY_TICKS 50u   /* attitude ticks (0.1 s at 500 Hz) */
 
 typedef struct {
     float mass_kg;
@@ -99,6 +128,8 @@ typedef struct {
     float u[4];             /* motor forces, N */
     float pwm[4];           /* normalized PWM in [0, 1] */
     uint32_t status;        /* NS2_CTRL_* flags of the last calls */
+    uint32_t recovery_left; /* good attitude ticks still to run after a fault */
+    int config_ok;          /* vehicle parameters usable */
 } ns2_ctrl_t;
 
 void ns2_ctrl_init(ns2_ctrl_t *c, const ns2_vehicle_t *veh, const ns2_gains_t *g);

@@ -20,9 +20,71 @@ static int finite_n(const float *x, int n)
     return 1;
 }
 
+/* x limited to [lo, hi]; NaN gives lo (a defined value, never NaN). */
 static float clampf(float x, float lo, float hi)
 {
-    return x < lo ? lo : (x > hi ? hi : x);
+    return x >= lo ? (x <= hi ? x : hi) : lo;
+}
+
+/* All n values finite with |x_i| <= lim (false for NaN and +-Inf). */
+static int within_n(const float *x, int n, float lim)
+{
+    for (int i = 0; i < n; ++i) {
+        if (!(fabsf(x[i]) <= lim)) {
+            return 0;
+        }
+    }
+    return 1;
+}
+
+static int positive_n(const float *x, int n)
+{
+    for (int i = 0; i < n; ++i) {
+        if (!(isfinite(x[i]) && x[i] > 0.0f)) {
+            return 0;
+        }
+    }
+    return 1;
+}
+
+static int dt_ok(float dt)
+{
+    return dt >= NS2_CTRL_DT_MIN_S && dt <= NS2_CTRL_DT_MAX_S;
+}
+
+/* Components within [-2, 2] and squared norm within [0.25, 4]. */
+static int quat_ok(const float q[4])
+{
+    if (!within_n(q, 4, 2.0f)) {
+        return 0;
+    }
+    const float n2 = q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3];
+    return n2 >= 0.25f && n2 <= 4.0f;
+}
+
+static int state_ok(const ns2_ctrl_state_t *s)
+{
+    return s != NULL && within_n(s->p, 3, NS2_CTRL_P_MAX_M) && within_n(s->v, 3, NS2_CTRL_V_MAX_MS) &&
+           quat_ok(s->q) && within_n(s->w, 3, NS2_CTRL_W_MAX_RADS);
+}
+
+static int setpoint_ok(const ns2_setpoint_t *sp)
+{
+    return sp != NULL && within_n(sp->p, 3, NS2_CTRL_P_MAX_M) && within_n(sp->v, 3, NS2_CTRL_V_MAX_MS) &&
+           within_n(sp->a, 3, NS2_CTRL_A_MAX_MS2) && within_n(&sp->yaw, 1, NS2_CTRL_YAW_MAX_RAD) &&
+           within_n(sp->w, 3, NS2_CTRL_W_MAX_RADS);
+}
+
+static int config_ok(const ns2_vehicle_t *veh, const ns2_gains_t *g)
+{
+    const float veh_pos[7] = {veh->mass_kg, veh->inertia[0], veh->inertia[1], veh->inertia[2],
+                              veh->arm_m, veh->kappa_m, veh->lambda};
+    const float g_fin[3 * 7 + 4] = {
+        g->Lp[0], g->Lp[1], g->Lp[2], g->Kv[0], g->Kv[1], g->Kv[2], g->Gv[0], g->Gv[1], g->Gv[2],
+        g->Lq[0], g->Lq[1], g->Lq[2], g->Kw[0], g->Kw[1], g->Kw[2], g->Gw[0], g->Gw[1], g->Gw[2],
+        g->Kwd[0], g->Kwd[1], g->Kwd[2], g->int_v_max, g->int_w_max, g->fa_max_N, g->min_thrust_N};
+    return positive_n(veh_pos, 7) && positive_n(&veh->f_max_N, 1) && finite_n(veh->psi2, 5) &&
+           finite_n(g_fin, 3 * 7 + 4) && g->d_filter > 0.0f && g->d_filter <= 1.0f;
 }
 
 /* sin and cos of x (rad) from fixed float polynomials, so that the host and the
@@ -114,13 +176,41 @@ static void motors_off(ns2_ctrl_t *c)
     }
 }
 
+/* The controller's memory as after ns2_ctrl_init (the setpoint is kept). */
+static void reset_memory(ns2_ctrl_t *c)
+{
+    for (int i = 0; i < 3; ++i) {
+        c->int_v[i] = c->int_w[i] = 0.0f;
+        c->w_r_prev[i] = c->w_r_dot[i] = c->we_prev[i] = c->we_dot[i] = 0.0f;
+    }
+    for (int i = 0; i < 9; ++i) {
+        c->R_d[i] = (i % 4 == 0) ? 1.0f : 0.0f;
+    }
+    c->T_d = c->veh.mass_kg * NS2_G;
+    c->T_d_dot = 0.0f;
+    c->has_prev_pos = c->has_prev_att = 0;
+}
+
+/* A bad input or non-finite memory: motors off, memory reset, recovery restarts. */
+static void fault(ns2_ctrl_t *c, uint32_t flag)
+{
+    reset_memory(c);
+    motors_off(c);
+    c->recovery_left = NS2_CTRL_RECOVERY_TICKS;
+    c->status |= flag | NS2_CTRL_RECOVERING;
+}
+
 void ns2_ctrl_init(ns2_ctrl_t *c, const ns2_vehicle_t *veh, const ns2_gains_t *g)
 {
     memset(c, 0, sizeof *c);
     c->veh = *veh;
     c->g = *g;
-    c->R_d[0] = c->R_d[4] = c->R_d[8] = 1.0f;
-    c->T_d = veh->mass_kg * NS2_G;
+    c->config_ok = config_ok(veh, g);
+    reset_memory(c);
+    if (!c->config_ok) {
+        c->T_d = 0.0f;
+        c->status = NS2_CTRL_BAD_CONFIG;
+    }
 }
 
 void ns2_ctrl_wrench(const ns2_vehicle_t *veh, const float u[4], float eta[4])
@@ -139,15 +229,18 @@ void ns2_ctrl_position(ns2_ctrl_t *c, const ns2_ctrl_state_t *s, const ns2_setpo
     const ns2_gains_t *g = &c->g;
     const float m = c->veh.mass_kg;
     c->status = 0;
-    if (!finite_n(s->p, 3) || !finite_n(s->v, 3) || !finite_n(s->q, 4) || !finite_n(s->w, 3) ||
-        !(dt > 0.0f)) {
-        c->status |= NS2_CTRL_BAD_STATE;
+    if (!c->config_ok) {
+        c->status = NS2_CTRL_BAD_CONFIG;
         motors_off(c);
         return;
     }
-    if (sp != NULL && finite_n(sp->p, 3) && finite_n(sp->v, 3) && finite_n(sp->a, 3) &&
-        isfinite(sp->yaw) && finite_n(sp->w, 3)) {
+    if (!state_ok(s) || !dt_ok(dt)) {
+        fault(c, NS2_CTRL_BAD_STATE);
+        return;
+    }
+    if (setpoint_ok(sp)) {
         c->sp = *sp;
+        c->sp.yaw = fmodf(sp->yaw, 6.28318548f); /* exact; |yaw| < 2 pi for sincos_det */
     } else {
         c->status |= NS2_CTRL_BAD_SETPOINT;
     }
@@ -202,6 +295,11 @@ void ns2_ctrl_position(ns2_ctrl_t *c, const ns2_ctrl_state_t *s, const ns2_setpo
         c->R_d[3 * i + 1] = y_d[i];
         c->R_d[3 * i + 2] = z_d[i];
     }
+    if (!finite_n(c->int_v, 3) || !isfinite(c->T_d) || !isfinite(c->T_d_dot) || !finite_n(c->R_d, 9)) {
+        fault(c, NS2_CTRL_RESET);
+    } else if (c->recovery_left > 0u) {
+        c->status |= NS2_CTRL_RECOVERING;
+    }
 }
 
 /* Motor forces from eta_c with thrust priority; returns 1 when torques were scaled. */
@@ -245,10 +343,13 @@ void ns2_ctrl_attitude(ns2_ctrl_t *c, const ns2_ctrl_state_t *s, float dt, float
 {
     const ns2_gains_t *g = &c->g;
     const float *J = c->veh.inertia;
-    if (!finite_n(s->q, 4) || !finite_n(s->w, 3) || !(dt > 0.0f) || !isfinite(battery_V) ||
-        (c->status & NS2_CTRL_BAD_STATE)) {
-        c->status |= NS2_CTRL_BAD_STATE;
-        motors_off(c);
+    if (c->status & (NS2_CTRL_BAD_STATE | NS2_CTRL_RESET | NS2_CTRL_BAD_CONFIG)) {
+        motors_off(c); /* until the next good position tick */
+        return;
+    }
+    if (s == NULL || !quat_ok(s->q) || !within_n(s->w, 3, NS2_CTRL_W_MAX_RADS) || !dt_ok(dt) ||
+        !(battery_V >= 0.0f && battery_V <= NS2_CTRL_BAT_MAX_V)) {
+        fault(c, NS2_CTRL_BAD_STATE);
         return;
     }
     float R[9], Re[9], qe[4];
@@ -288,5 +389,12 @@ void ns2_ctrl_attitude(ns2_ctrl_t *c, const ns2_ctrl_state_t *s, float dt, float
     }
     for (int i = 0; i < 4; ++i) {
         c->pwm[i] = pwm_of(&c->veh, c->u[i], battery_V);
+    }
+    if (!finite_n(c->int_w, 3) || !finite_n(c->w_r_dot, 3) || !finite_n(c->we_dot, 3) ||
+        !finite_n(c->w_r_prev, 3) || !finite_n(c->we_prev, 3) || !finite_n(c->u, 4)) {
+        fault(c, NS2_CTRL_RESET);
+    } else if (c->recovery_left > 0u) {
+        c->recovery_left--;
+        c->status |= NS2_CTRL_RECOVERING;
     }
 }

@@ -6,6 +6,9 @@
 
 void ns2_peers_init(ns2_peers_t *s, float alpha)
 {
+    if (s == NULL) {
+        return;
+    }
     s->count = 0;
     s->alpha = (alpha > 0.0f && alpha <= 1.0f) ? alpha : 1.0f;
     for (uint8_t i = 0; i < NS2_PEERS_MAX; ++i) {
@@ -13,10 +16,15 @@ void ns2_peers_init(ns2_peers_t *s, float alpha)
     }
 }
 
+static int within3(const float x[3], float lim)
+{
+    return fabsf(x[0]) <= lim && fabsf(x[1]) <= lim && fabsf(x[2]) <= lim; /* false for NaN/Inf */
+}
+
 int32_t ns2_peers_update(ns2_peers_t *s, uint8_t id, uint8_t type, uint32_t t_ms, const float p[3])
 {
-    if (p == NULL || !isfinite(p[0]) || !isfinite(p[1]) || !isfinite(p[2])) {
-        return -1;
+    if (s == NULL || p == NULL || !within3(p, NS2_PEERS_P_MAX_M)) {
+        return NS2_PEERS_REJECTED;
     }
     ns2_peer_t *e = NULL;
     for (uint8_t i = 0; i < s->count; ++i) {
@@ -27,30 +35,50 @@ int32_t ns2_peers_update(ns2_peers_t *s, uint8_t id, uint8_t type, uint32_t t_ms
     }
     if (e == NULL) {
         if (s->count >= NS2_PEERS_MAX) {
-            return -1;
+            return NS2_PEERS_REJECTED;
         }
         e = &s->peer[s->count++];
         e->id = id;
         e->samples = 0;
         e->v[0] = e->v[1] = e->v[2] = 0.0f;
     }
-    e->type = type;
+    int32_t ret = NS2_PEERS_OK;
     if (e->samples > 0u) {
-        if (t_ms <= e->t_ms) {
-            return t_ms == e->t_ms ? 0 : -1; /* duplicate or out of order */
+        const uint32_t ahead = t_ms - e->t_ms; /* modulo 2^32 */
+        if (ahead == 0u) {
+            return NS2_PEERS_OK; /* duplicate */
         }
-        const float dt = (float)(t_ms - e->t_ms) * 1e-3f;
-        for (int a = 0; a < 3; ++a) {
-            const float v_new = (p[a] - e->p[a]) / dt;
-            e->v[a] = e->samples > 1u ? e->v[a] + s->alpha * (v_new - e->v[a]) : v_new;
+        if ((uint32_t)(e->t_ms - t_ms) <= NS2_PEERS_REORDER_MS) {
+            return NS2_PEERS_REJECTED; /* late, out of order */
+        }
+        float v_new[3] = {0.0f, 0.0f, 0.0f};
+        int glitch = ahead > NS2_PEERS_GAP_MS;
+        if (!glitch) {
+            const float dt = (float)ahead * 1e-3f;
+            for (int a = 0; a < 3; ++a) {
+                v_new[a] = (p[a] - e->p[a]) / dt;
+            }
+            glitch = !within3(v_new, NS2_PEERS_V_MAX_MS);
+        }
+        if (glitch) {
+            /* a jump in time or space (clock reset, relocalization, corrupt sample):
+             * the track restarts from this sample, velocity unknown until the next */
+            e->samples = 0;
+            e->v[0] = e->v[1] = e->v[2] = 0.0f;
+            ret = NS2_PEERS_RESTARTED;
+        } else {
+            for (int a = 0; a < 3; ++a) {
+                e->v[a] = e->samples > 1u ? e->v[a] + s->alpha * (v_new[a] - e->v[a]) : v_new[a];
+            }
         }
     }
+    e->type = type;
     e->samples = (uint8_t)(e->samples < 2u ? e->samples + 1u : 2u);
     e->t_ms = t_ms;
     e->p[0] = p[0];
     e->p[1] = p[1];
     e->p[2] = p[2];
-    return 0;
+    return ret;
 }
 
 uint16_t ns2_peers_neighbors(const ns2_peers_t *s, uint8_t self_id, const float p[3], const float v[3],
@@ -58,7 +86,8 @@ uint16_t ns2_peers_neighbors(const ns2_peers_t *s, uint8_t self_id, const float 
 {
     float dist2[NS2_PEERS_MAX];
     uint16_t n = 0;
-    if (out == NULL || p == NULL || v == NULL) {
+    if (s == NULL || out == NULL || p == NULL || v == NULL || !within3(p, NS2_PEERS_P_MAX_M) ||
+        !within3(v, NS2_PEERS_V_MAX_MS)) {
         return 0;
     }
     if (max > NS2_PEERS_MAX) {

@@ -29,6 +29,11 @@ from ..fileio import file_mode
 from ..errors import Ns2Error
 
 FORMAT = "ns2codegen-dataset-v1"
+# physical bounds of the stored values; beyond them a file is corrupt (a label of
+# 3e38 g or a state of 1e30 m breaks the training's linear algebra)
+MAX_ABS_LABEL_G = 1.0e4
+MAX_ABS_STATE = 1.0e3   # m, m/s
+MAX_ABS_TIME_S = 1.0e9
 
 
 class DatasetError(Ns2Error, ValueError):
@@ -70,8 +75,14 @@ class Dataset:
             raise DatasetError("robot_type out of range")
         if n and (self.scenario.min() < 0 or self.scenario.max() >= len(self.scenario_names)):
             raise DatasetError("scenario out of range")
-        if not (np.all(np.isfinite(self.label_g)) and np.all(np.isfinite(self.nbr_state))):
-            raise DatasetError("labels and neighbour states must be finite")
+        for name, bound, unit in (("label_g", MAX_ABS_LABEL_G, "g"), ("nbr_state", MAX_ABS_STATE, "m, m/s"),
+                                  ("time_s", MAX_ABS_TIME_S, "s")):
+            a = getattr(self, name)
+            if not np.all(np.isfinite(a)):
+                raise DatasetError(f"{name}: must be finite (has NaN or Inf)")
+            if a.size and float(np.abs(a).max()) > bound:
+                raise DatasetError(f"{name}: |value| {float(np.abs(a).max()):.3g} beyond the physical bound "
+                                   f"{bound:g} {unit}")
         # every sample has exactly one environment row, and it is the last one
         env = nt - 1
         is_env = self.nbr_type == env
@@ -139,21 +150,44 @@ class Dataset:
             raise
 
     @staticmethod
-    def load(path: str | Path) -> "Dataset":
+    def load(path: str | Path, neighbor_types: list[str] | None = None) -> "Dataset":
+        """The data set of ``path``; it must have samples and, when given, exactly these
+        neighbour types (those of the config it is used with)."""
         try:
             with np.load(path, allow_pickle=False) as z:
-                meta = json.loads(str(z["meta"]))
-                if meta.get("format") != FORMAT:
-                    raise DatasetError(f"{path}: not an {FORMAT} file")
-                return Dataset(z["robot_type"].astype(np.int64), z["label_g"].astype(np.float32),
-                               z["scenario"].astype(np.int64), z["time_s"].astype(np.float64),
-                               z["nbr_offsets"].astype(np.int64), z["nbr_type"].astype(np.int64),
-                               z["nbr_state"].astype(np.float32), meta["neighbor_types"],
-                               meta["scenario_names"], meta.get("extra", {})).validated()
-        except DatasetError:
-            raise
+                try:
+                    meta = json.loads(str(z["meta"]))
+                except json.JSONDecodeError as e:
+                    raise DatasetError(f"meta: not JSON ({e})") from None
+                if not isinstance(meta, dict) or meta.get("format") != FORMAT:
+                    raise DatasetError(f"meta: not an {FORMAT} file")
+                names, scen = meta.get("neighbor_types"), meta.get("scenario_names")
+                if not (isinstance(names, list) and len(names) >= 2 and all(isinstance(n, str) for n in names)):
+                    raise DatasetError(f"meta.neighbor_types: must be a list of >= 2 names, got {names!r}")
+                if not (isinstance(scen, list) and all(isinstance(n, str) for n in scen)):
+                    raise DatasetError(f"meta.scenario_names: must be a list of names, got {scen!r}")
+                arrays = {}
+                for key, dtype in (("robot_type", np.int64), ("label_g", np.float32), ("scenario", np.int64),
+                                   ("time_s", np.float64), ("nbr_offsets", np.int64), ("nbr_type", np.int64),
+                                   ("nbr_state", np.float32)):
+                    a = z[key]
+                    if a.dtype.kind not in "iuf" or (dtype is np.int64 and a.dtype.kind == "f"):
+                        raise DatasetError(f"{key}: must be {'integer' if dtype is np.int64 else 'numeric'}, "
+                                           f"got {a.dtype}")
+                    with np.errstate(over="ignore", invalid="ignore"):
+                        arrays[key] = a.astype(dtype)
+                ds = Dataset(**arrays, neighbor_types=names, scenario_names=scen,
+                             extra=meta.get("extra", {})).validated()
+        except DatasetError as e:
+            raise DatasetError(f"data set {path}: {e}") from None
         except Exception as e:  # zip/npz/json/key errors: one clear message
-            raise DatasetError(f"cannot read data set {path}: {e}") from e
+            raise DatasetError(f"cannot read data set {path}: {type(e).__name__}: {e}") from None
+        if len(ds) == 0:
+            raise DatasetError(f"data set {path}: robot_type: no samples")
+        if neighbor_types is not None and ds.neighbor_types != list(neighbor_types):
+            raise DatasetError(f"data set {path}: meta.neighbor_types {ds.neighbor_types} differ from the "
+                               f"config's {list(neighbor_types)}")
+        return ds
 
 
 def scenario_name(robot_types: list[str], receiver: str, others: list[str]) -> str:

@@ -39,7 +39,7 @@ from pathlib import Path
 import numpy as np
 
 from ..config import Config, read_toml
-from ..data.dataset import Dataset
+from ..data.dataset import Dataset, DatasetError
 from ..data.from_logs import Flight, flights_to_dataset
 from .usdlog import FIXED_FREQUENCY_NAME, UsdLog, UsdLogError, read
 from ..errors import Ns2Error
@@ -55,6 +55,12 @@ PWM_FULL = 65535.0
 SYNC_EVENT = "ns2Sync"
 PWM_ON = 0.05          # normalized PWM: motors running
 MIN_PIECE = 20         # samples
+# physical range of every logged sample: beyond it the log is corrupt and refused
+# (a z of 3e38 m, an all-zero quaternion or a battery at 0 V give absurd labels)
+PLAUSIBLE = {"p": (-100.0, 100.0), "v": (-50.0, 50.0), "pwm": (0.0, 1.0), "battery_V": (2.0, 5.0)}
+QUAT_NORM = (0.9, 1.1)
+MAX_RATE_HZ = 1000.0
+MAX_UPSAMPLE = 20      # grid points per log sample at most (a corrupt timestamp would span ages)
 
 
 class LogError(Ns2Error, ValueError):
@@ -85,8 +91,21 @@ class RobotLog:
         if np.any(np.diff(t[order]) <= 0):
             raise LogError("repeated timestamps in the fixedFrequency event")
         cols = {k: np.stack([ev[n][order] for n in names], 1) for k, names in VARIABLES.items()}
+        cols["pwm"] = cols["pwm"] / PWM_FULL
+        for key, (lo, hi) in PLAUSIBLE.items():
+            bad = np.flatnonzero(~np.all((cols[key] >= lo) & (cols[key] <= hi), axis=1))
+            if len(bad):
+                k = bad[0]
+                raise LogError(f"{VARIABLES[key]} of sample {int(order[k])} is {cols[key][k].tolist()}, outside the "
+                               f"physical range [{lo:g}, {hi:g}] ({len(bad)} such samples): corrupt log")
+        qn = np.linalg.norm(cols["q"], axis=1)
+        bad = np.flatnonzero(~((qn >= QUAT_NORM[0]) & (qn <= QUAT_NORM[1])))
+        if len(bad):
+            k = bad[0]
+            raise LogError(f"{VARIABLES['q']} of sample {int(order[k])} has norm {qn[k]:.3g}, not a unit "
+                           f"quaternion ({len(bad)} such samples): corrupt log")
         sync = log.events.get(sync_event, {}).get("timestamp_us")
-        return RobotLog(t[order], cols["p"], cols["v"], cols["q"], cols["pwm"] / PWM_FULL, cols["battery_V"][:, 0],
+        return RobotLog(t[order], cols["p"], cols["v"], cols["q"], cols["pwm"], cols["battery_V"][:, 0],
                         float(sync[0]) * 1e-6 if sync is not None and len(sync) else None)
 
     def takeoff_s(self) -> float:
@@ -134,6 +153,10 @@ def align(types: list[str], robots: list[RobotLog], rate_hz: float = 100.0, max_
     end = min(r.t[-1] - o for r, o in zip(robots, offsets))
     if end <= start:
         raise LogError("the robots' logs do not overlap in time after synchronization")
+    n_grid = (end - start) * rate_hz
+    if n_grid > MAX_UPSAMPLE * max(len(r.t) for r in robots):
+        raise LogError(f"the logs span {end - start:.6g} s for at most {max(len(r.t) for r in robots)} samples "
+                       f"(a corrupt timestamp?): {n_grid:.3g} grid points at {rate_hz:g} Hz")
     grid = np.arange(np.ceil(start * rate_hz - 1e-6), np.floor(end * rate_hz + 1e-6) + 1) / rate_hz
     res, usable = [], np.ones(len(grid), bool)
     for r, o in zip(robots, offsets):
@@ -172,14 +195,18 @@ def logs_to_flights(cfg: Config, folder: str | Path, allow_truncated: bool = Fal
     """Every flight of ``folder/flights.toml`` -> its usable pieces; per-flight reports."""
     folder = Path(folder)
     man = load_manifest(folder)
-    rate = float(man.get("rate_hz", 100.0))
+    rate = man.get("rate_hz", 100.0)
+    if not (isinstance(rate, (int, float)) and not isinstance(rate, bool) and 0 < rate <= MAX_RATE_HZ):
+        raise LogError(f"{folder / 'flights.toml'}: rate_hz must be a number in (0, {MAX_RATE_HZ:g}] Hz, got {rate!r}")
+    rate = float(rate)
     flights, reports = [], []
     for k, fl in enumerate(man["flight"]):
         name = fl.get("name", f"flight {k}")
         types = [r["type"] for r in fl["robots"]]
         unknown = [t for t in types if t not in cfg.robot_types]
         if unknown:
-            raise LogError(f"flight {name!r}: robot types {unknown} are not in the config {cfg.robot_types}")
+            raise LogError(f"{folder / 'flights.toml'}: flight {name!r}: robot types {unknown} are not in the "
+                           f"config {cfg.robot_types}")
         robots, notes = [], []
         for r in fl["robots"]:
             log = read(folder / r["file"], allow_truncated=allow_truncated)
@@ -192,7 +219,7 @@ def logs_to_flights(cfg: Config, folder: str | Path, allow_truncated: bool = Fal
         try:
             pieces, rep = align(types, robots, rate, max_gap_s=max_gap_s, z_min=z_min)
         except LogError as e:
-            raise LogError(f"flight {name!r}: {e}") from e
+            raise LogError(f"{folder / 'flights.toml'}: flight {name!r}: {e}") from e
         reports.append(dict(rep, name=name, notes=notes))
         flights += pieces
     if not flights:
@@ -204,6 +231,11 @@ def logs_to_dataset(cfg: Config, folder: str | Path, **kw) -> tuple[Dataset, lis
     """Every flight of ``folder/flights.toml`` -> one data set (labels, neighbour sets);
     keyword arguments as ``logs_to_flights``."""
     flights, reports = logs_to_flights(cfg, folder, **kw)
-    ds = flights_to_dataset(cfg, flights)
+    try:
+        ds = flights_to_dataset(cfg, flights)
+    except DatasetError as e:
+        raise LogError(f"{folder}: the logs give an unusable data set: {e}") from None
+    if len(ds) == 0:
+        raise LogError(f"{folder}: no sample with a valid label in the logs")
     ds.extra = dict(ds.extra, generator="usd-logs", source=str(folder), flights=[r["name"] for r in reports])
     return ds, reports

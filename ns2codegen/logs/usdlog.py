@@ -27,7 +27,9 @@ The firmware writes the CRC only when logging stops; a file cut by a power loss
 has no CRC and may end inside an entry.  ``decode`` rejects such a file unless
 ``allow_truncated=True``, which keeps the complete entries before the first
 undecodable byte and says so in ``UsdLog.note`` (documented skipping, never
-silent).  Unknown event ids and malformed headers are errors.
+silent).  Corruption is not truncation and is refused even then: an undecodable
+entry followed by more than one SD sector (TRUNCATION_TAIL) of data, or entries
+that end exactly where a complete file keeps its CRC-32 when that CRC is wrong.  Unknown event ids and malformed headers are errors.
 
 This is our own implementation from the documented layout, not bitcraze's code.
 """
@@ -49,6 +51,7 @@ FIXED_FREQUENCY_ID = 0xFFFF
 FIXED_FREQUENCY_NAME = "fixedFrequency"
 TYPE_CHARS = "BbHhIife"
 _ENTRY_HEAD = struct.Struct("<HQ")  # event id, timestamp (us)
+TRUNCATION_TAIL = 512  # bytes: a power loss leaves at most one SD sector of garbage after the last entry
 
 
 class UsdLogError(Ns2Error, ValueError):
@@ -138,16 +141,18 @@ def decode(data: bytes, allow_truncated: bool = False) -> UsdLog:
     rows: dict[int, list] = {eid: [] for eid in types}
     stamps: dict[int, list] = {eid: [] for eid in types}
     packers = {eid: et.struct for eid, et in types.items()}
-    note, n = "", 0
+    max_entry = _ENTRY_HEAD.size + max(pk.size for pk in packers.values())
+    note, n, tail = "", 0, 0
     while i < end:
         if i + _ENTRY_HEAD.size > end:
             note = f"dropped {end - i} trailing bytes (an incomplete entry header) at byte {i}"
+            tail = end - i
             break
         eid, stamp = _ENTRY_HEAD.unpack_from(data, i)
         if eid not in types:
             msg = f"unknown event id {eid} at byte {i}: the data section is corrupt"
-            if not allow_truncated or crc_ok:
-                raise UsdLogError(msg)
+            if not allow_truncated or crc_ok or end - i > max(TRUNCATION_TAIL, max_entry):
+                raise UsdLogError(msg)  # (a truncation leaves at most a sector of garbage at the end)
             note = f"stopped at {msg}; dropped the last {end - i} bytes"
             break
         pk = packers[eid]
@@ -161,6 +166,11 @@ def decode(data: bytes, allow_truncated: bool = False) -> UsdLog:
         stamps[eid].append(stamp)
         i += _ENTRY_HEAD.size + pk.size
         n += 1
+    if not crc_ok and tail == 4:
+        # entries that end exactly where a complete log keeps its CRC-32: this is a
+        # complete file whose CRC does not match, i.e. corrupt data, not a truncation
+        raise UsdLogError("CRC-32 mismatch in a complete file (its entries end where the CRC is): the data are "
+                          "corrupt, not truncated, and allow_truncated does not apply")
     if not crc_ok:
         note = "no valid CRC (truncated file); " + (note or "all entries complete")
     events = {}

@@ -1,0 +1,664 @@
+/*
+ * ns2_fuzz.c - structured fuzzing of the firmware library under ASan + UBSan
+ * (built and run by host/fuzz.py; `make fuzz`, bounded run in the tests).
+ *
+ *   ns2_fuzz TARGET COUNT SEED     TARGET: infer sliced peers ctrl hil regress
+ *
+ * Every target draws structured inputs from a seeded generator: plausible values
+ * mixed with NaN (both signs, payloads), +-Inf, +-FLT_MAX, huge finite values,
+ * subnormals and -0, bad counts, types and pointers, glitches followed by good
+ * input.  Beyond the sanitizers (any report aborts: -fno-sanitize-recover) each
+ * target checks the documented contract and, after a glitch, recovery within
+ * the documented bound.  A failed check prints "FAIL <target> <input index>: why"
+ * and exits 1.  On success one line of JSON: target, inputs, checks.
+ */
+#include <float.h>
+#include <math.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "ns2_controller.h"
+#include "ns2_deepset.h"
+#include "ns2_hil.h"
+#include "ns2_peers.h"
+#include "ns2_vehicles.h"
+
+static uint64_t rng_state;
+static unsigned long long n_checks;
+static const char *target_name = "";
+static unsigned long long input_index;
+
+static uint64_t rnd(void) /* splitmix64 */
+{
+    uint64_t z = (rng_state += 0x9E3779B97F4A7C15ull);
+    z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ull;
+    z = (z ^ (z >> 27)) * 0x94D049BB133111EBull;
+    return z ^ (z >> 31);
+}
+
+static uint32_t below(uint32_t n) { return n ? (uint32_t)(rnd() % n) : 0u; }
+
+static float uniform(float lo, float hi)
+{
+    return lo + (hi - lo) * (float)((double)(rnd() >> 11) * (1.0 / 9007199254740992.0));
+}
+
+static float from_bits(uint32_t u)
+{
+    float f;
+    memcpy(&f, &u, sizeof f);
+    return f;
+}
+
+static uint32_t bits_of(float f)
+{
+    uint32_t u;
+    memcpy(&u, &f, sizeof u);
+    return u;
+}
+
+/* A hostile value. */
+static float special(void)
+{
+    switch (below(16)) {
+    case 0: return NAN;
+    case 1: return -NAN;
+    case 2: return from_bits(0x7FA00001u | (uint32_t)(rnd() & 0x1FFFFFu)); /* NaN payloads */
+    case 3: return INFINITY;
+    case 4: return -INFINITY;
+    case 5: return FLT_MAX;
+    case 6: return -FLT_MAX;
+    case 7: return 1e37f;
+    case 8: return -1e20f;
+    case 9: return 1e12f;
+    case 10: return from_bits(1u); /* smallest subnormal */
+    case 11: return -1e-40f;
+    case 12: return -0.0f;
+    case 13: return FLT_MIN;
+    case 14: return 3e38f;
+    default: return from_bits((uint32_t)rnd());
+    }
+}
+
+/* Mostly a plausible value in [lo, hi], a hostile one with probability 1/p_bad. */
+static float value(float lo, float hi, uint32_t p_bad)
+{
+    return (p_bad && below(p_bad) == 0u) ? special() : uniform(lo, hi);
+}
+
+static void fail(const char *why)
+{
+    printf("FAIL %s %llu: %s\n", target_name, input_index, why);
+    fflush(stdout);
+    exit(1);
+}
+
+static void check(int ok, const char *why)
+{
+    ++n_checks;
+    if (!ok) {
+        fail(why);
+    }
+}
+
+/* ------------------------------------------------------------------ inference */
+#define NB_CAP (2u * NS2_MAX_NEIGHBORS + 8u)
+
+static uint16_t random_query(uint8_t *rt, float p[3], float v[3], ns2_neighbor_t *nb, uint32_t p_bad)
+{
+    *rt = (uint8_t)(below(8) == 0 ? below(256) : below(NS2_NUM_ROBOT_TYPES));
+    for (int a = 0; a < 3; ++a) {
+        p[a] = value(-1.5f, 1.5f, p_bad);
+        v[a] = value(-2.0f, 2.0f, p_bad);
+    }
+    p[2] = fabsf(p[2]) + (below(2) ? 0.0f : 0.5f);
+    const uint16_t n = (uint16_t)(below(4) == 0 ? below(NB_CAP + 1u) : below(NS2_MAX_NEIGHBORS + 1u));
+    for (uint16_t j = 0; j < n; ++j) {
+        nb[j].type = (uint8_t)(below(10) == 0 ? below(256) : below(NS2_NUM_ROBOT_TYPES));
+        for (int a = 0; a < 3; ++a) {
+            nb[j].rel[a] = value(-0.6f, 0.6f, p_bad);
+            nb[j].rel[a + 3] = value(-2.0f, 2.0f, p_bad);
+        }
+    }
+    return n;
+}
+
+static int same_info(const ns2_info_t *a, const ns2_info_t *b)
+{
+    return a->status == b->status && a->n_used == b->n_used && a->n_invalid == b->n_invalid &&
+           a->n_outside == b->n_outside && a->n_truncated == b->n_truncated;
+}
+
+static void check_prediction(uint16_t n, float f, int16_t q, const ns2_info_t *fi, const ns2_info_t *qi)
+{
+    check(isfinite(f), "float prediction not finite");
+    check(same_info(fi, qi), "float and fixed path disagree on the neighbour selection");
+    if (fi->status != NS2_OK) {
+        check(bits_of(f) == 0u && q == 0, "error status but a non-zero result");
+    } else {
+        check((uint32_t)fi->n_used + fi->n_invalid + fi->n_outside + fi->n_truncated == n,
+              "neighbour counters do not add up to n");
+        check(fi->n_used <= NS2_MAX_NEIGHBORS, "more than NS2_MAX_NEIGHBORS used");
+    }
+}
+
+static void fuzz_infer(unsigned long long count)
+{
+    static ns2_neighbor_t nb[NB_CAP];
+    for (input_index = 0; input_index < count; ++input_index) {
+        uint8_t rt;
+        float p[3], v[3];
+        const uint16_t n = random_query(&rt, p, v, nb, 8u);
+        ns2_info_t fi, qi, gi;
+        const int null_nb = below(64) == 0;
+        const float f = ns2_predict_f32(rt, p, v, null_nb ? NULL : nb, n, &fi);
+        const int16_t q = ns2_predict_q15(rt, p, v, null_nb ? NULL : nb, n, &qi);
+        const float g = ns2_predict_q15_g(rt, p, v, null_nb ? NULL : nb, n, &gi);
+        check_prediction(n, f, q, &fi, &qi);
+        check(g == ldexpf((float)q, -NS2_Q_OUT_FRAC), "q15_g is not q * 2^-NS2_Q_OUT_FRAC");
+        if (null_nb && n > 0u) {
+            check(fi.status == NS2_ERR_NULL || fi.status == NS2_ERR_ROBOT_TYPE || fi.status == NS2_ERR_STATE,
+                  "NULL neighbours not refused");
+        }
+        if (below(16) == 0) { /* NULL own state and NULL info are refused / allowed */
+            ns2_info_t ni;
+            check(ns2_predict_f32(rt, NULL, v, nb, n, &ni) == 0.0f && ni.status < 0, "NULL p accepted");
+            (void)ns2_predict_q15(rt, p, v, nb, n, NULL);
+        }
+    }
+}
+
+/* ------------------------------------------------------------------ sliced API */
+static void fuzz_sliced(unsigned long long count)
+{
+    static ns2_neighbor_t nb[NB_CAP];
+    static ns2_job_t job;
+    for (input_index = 0; input_index < count; ++input_index) {
+        uint8_t rt;
+        float p[3], v[3];
+        const uint16_t n = random_query(&rt, p, v, nb, 16u);
+        const int fixed = (int)below(2);
+        ns2_info_t one, sl;
+        const float f1 = fixed ? 0.0f : ns2_predict_f32(rt, p, v, nb, n, &one);
+        const int16_t q1 = fixed ? ns2_predict_q15(rt, p, v, nb, n, &one) : 0;
+        if (below(32) == 0) { /* a job never begun (zeroed) or stepped by the other path */
+            memset(&job, 0, sizeof job);
+            check(ns2_job_step_f32(&job, 3) == 0u && ns2_job_finish_q15(&job, &sl) == 0 &&
+                      sl.status == NS2_ERR_JOB, "zeroed job not refused");
+        }
+        const int32_t st = ns2_job_begin(&job, rt, p, v, nb, n);
+        check(st == one.status, "ns2_job_begin status differs from the one-shot call");
+        uint16_t left = 1u;
+        for (int guard = 0; left > 0u && guard < 200; ++guard) {
+            const uint16_t k = (uint16_t)below(6); /* 0 steps allowed: no progress */
+            left = fixed ? ns2_job_step_q15(&job, k) : ns2_job_step_f32(&job, k);
+            if (below(8) == 0) {
+                break; /* finish early: finish does the rest */
+            }
+        }
+        if (below(16) == 0) { /* the other path must refuse a job of this path */
+            ns2_info_t other;
+            if (st != NS2_OK || job.next == 0u) {
+                /* not yet bound to a path */
+            } else if (fixed) {
+                check(ns2_job_finish_f32(&job, &other) == 0.0f && other.status == NS2_ERR_JOB, "f32 finished a q15 job");
+            } else {
+                check(ns2_job_finish_q15(&job, &other) == 0 && other.status == NS2_ERR_JOB, "q15 finished an f32 job");
+            }
+        }
+        if (fixed) {
+            const int16_t q2 = ns2_job_finish_q15(&job, &sl);
+            check(q2 == q1 && same_info(&sl, &one), "sliced fixed result differs from the one-shot call");
+        } else {
+            const float f2 = ns2_job_finish_f32(&job, &sl);
+            check(bits_of(f2) == bits_of(f1) && same_info(&sl, &one), "sliced float result differs from one-shot");
+        }
+        check(ns2_job_begin(NULL, rt, p, v, nb, n) == NS2_ERR_JOB, "NULL job not refused");
+    }
+}
+
+/* ------------------------------------------------------------------ peers */
+static void check_neighbors(const ns2_peers_t *s, uint32_t now, int require_all_valid, const float p_self[3])
+{
+    ns2_neighbor_t out[NS2_PEERS_MAX + 4u];
+    const float v0[3] = {0.0f, 0.0f, 0.0f};
+    const uint16_t max = (uint16_t)below(NS2_PEERS_MAX + 4u);
+    const uint16_t n = ns2_peers_neighbors(s, 255u, p_self, v0, now, 5000u, out, max);
+    check(n <= max && n <= NS2_PEERS_MAX, "more neighbours than asked for");
+    for (uint16_t k = 0; k < n; ++k) {
+        for (int a = 0; a < 6; ++a) {
+            check(isfinite(out[k].rel[a]), "non-finite neighbour state");
+        }
+        if (k > 0u) {
+            const float d0 = out[k - 1u].rel[0] * out[k - 1u].rel[0] + out[k - 1u].rel[1] * out[k - 1u].rel[1] +
+                             out[k - 1u].rel[2] * out[k - 1u].rel[2];
+            const float d1 = out[k].rel[0] * out[k].rel[0] + out[k].rel[1] * out[k].rel[1] +
+                             out[k].rel[2] * out[k].rel[2];
+            check(d0 <= d1, "neighbours not nearest first");
+        }
+    }
+    (void)require_all_valid;
+}
+
+static void fuzz_peers(unsigned long long count)
+{
+    static ns2_peers_t s;
+    unsigned long long done = 0;
+    for (input_index = 0; done < count; ++input_index) {
+        ns2_peers_init(&s, below(4) == 0 ? value(-1.0f, 2.0f, 4u) : uniform(0.1f, 1.0f));
+        const uint8_t n_ids = (uint8_t)(1u + below(NS2_PEERS_MAX + 4u));
+        uint32_t t = (uint32_t)rnd();
+        /* hostile phase: wild samples, timestamps and ids */
+        const uint32_t n_bad = 1u + below(60);
+        for (uint32_t k = 0; k < n_bad; ++k, ++done) {
+            float p[3];
+            for (int a = 0; a < 3; ++a) {
+                p[a] = value(-3.0f, 3.0f, 3u);
+            }
+            t += below(30); /* true time; some samples carry a glitched timestamp */
+            const uint32_t stamp = below(4) == 0 ? (uint32_t)rnd() : t;
+            const int32_t r = ns2_peers_update(&s, (uint8_t)below(n_ids), (uint8_t)below(256), stamp,
+                                               below(50) ? p : NULL);
+            check(r == NS2_PEERS_OK || r == NS2_PEERS_REJECTED || r == NS2_PEERS_RESTARTED, "unknown status");
+            float self[3] = {value(-3.0f, 3.0f, 8u), value(-3.0f, 3.0f, 8u), value(0.0f, 2.0f, 8u)};
+            check_neighbors(&s, t + below(100), 0, self);
+        }
+        /* good phase: every known peer flies at constant velocity, 10 ms samples;
+         * after at most 3 samples each its velocity must be the true one */
+        t += 20000u;
+        float vel[NS2_PEERS_MAX][3], p0[NS2_PEERS_MAX][3];
+        for (uint8_t i = 0; i < s.count; ++i) {
+            for (int a = 0; a < 3; ++a) {
+                vel[i][a] = uniform(-2.0f, 2.0f);
+                p0[i][a] = uniform(-3.0f, 3.0f);
+            }
+        }
+        for (uint32_t k = 0; k < 4u; ++k) {
+            for (uint8_t i = 0; i < s.count; ++i, ++done) {
+                float p[3];
+                for (int a = 0; a < 3; ++a) {
+                    p[a] = p0[i][a] + vel[i][a] * 0.01f * (float)k;
+                }
+                const int32_t r = ns2_peers_update(&s, s.peer[i].id, 0u, t + 10u * k, p);
+                check(r != NS2_PEERS_REJECTED, "good sample rejected after a glitch");
+                check(k < 2u || r == NS2_PEERS_OK, "track still restarting after two good samples");
+            }
+        }
+        for (uint8_t i = 0; i < s.count; ++i) {
+            check(s.peer[i].samples == 2u, "peer without velocity after good samples");
+            for (int a = 0; a < 3; ++a) {
+                check(fabsf(s.peer[i].v[a] - vel[i][a]) < 0.05f + 0.01f * fabsf(vel[i][a]),
+                      "velocity did not recover after good samples");
+            }
+        }
+        const float origin[3] = {0.0f, 0.0f, 0.0f};
+        check_neighbors(&s, t + 30u, 1, origin);
+        ns2_neighbor_t out[NS2_PEERS_MAX];
+        const float z[3] = {0.0f, 0.0f, 0.0f};
+        check(ns2_peers_neighbors(&s, 255u, z, z, t + 30u, 100u, out, NS2_PEERS_MAX) == s.count,
+              "a recovered peer is missing from the neighbour list");
+    }
+    input_index = done;
+}
+
+/* ------------------------------------------------------------------ controller */
+#if NS2_HAVE_VEHICLES
+static const ns2_vehicle_t fz_veh[NS2_NUM_ROBOT_TYPES] = NS2_VEHICLES_INIT;
+static const ns2_gains_t fz_gains[NS2_NUM_ROBOT_TYPES] = NS2_DEFAULT_GAINS_INIT;
+#endif
+
+static void good_tick(ns2_ctrl_state_t *s, ns2_setpoint_t *sp, float fa[3], uint32_t k)
+{
+    const float t = 0.002f * (float)k;
+    for (int a = 0; a < 3; ++a) {
+        sp->p[a] = 0.1f * sinf(t + (float)a);
+        sp->v[a] = 0.1f * cosf(t + (float)a);
+        sp->a[a] = -0.1f * sinf(t + (float)a);
+        sp->w[a] = 0.0f;
+        s->p[a] = sp->p[a] + 0.02f * sinf(3.0f * t + (float)a);
+        s->v[a] = sp->v[a] + 0.05f * cosf(5.0f * t);
+        s->w[a] = 0.3f * sinf(7.0f * t + (float)a);
+        fa[a] = a == 2 ? -0.05f : 0.0f;
+    }
+    sp->p[2] += 1.0f;
+    s->p[2] += 1.0f;
+    sp->yaw = 0.2f * sinf(t);
+    const float h = 0.05f * sinf(2.0f * t);
+    s->q[0] = cosf(h);
+    s->q[1] = sinf(h);
+    s->q[2] = 0.5f * sinf(h);
+    s->q[3] = 0.0f;
+}
+
+static void hostile(float *x, int n)
+{
+    for (int i = 0; i < n; ++i) {
+        if (below(3) == 0) {
+            x[i] = special();
+        }
+    }
+}
+
+static void check_outputs(const ns2_ctrl_t *c, float f_max)
+{
+    for (int i = 0; i < 4; ++i) {
+        check(c->pwm[i] >= 0.0f && c->pwm[i] <= 1.0f, "PWM outside [0, 1] or NaN");
+        check(c->u[i] >= 0.0f && c->u[i] <= f_max, "motor force outside [0, f_max] or NaN");
+    }
+}
+
+static void fuzz_ctrl(unsigned long long count)
+{
+#if NS2_HAVE_VEHICLES
+    static ns2_ctrl_t c, fresh;
+    unsigned long long done = 0;
+    for (input_index = 0; done < count; ++input_index) {
+        const uint8_t rt = (uint8_t)below(NS2_NUM_ROBOT_TYPES);
+        const ns2_vehicle_t *veh = &fz_veh[rt];
+        ns2_ctrl_init(&c, veh, &fz_gains[rt]);
+        uint32_t k = 0;
+        ns2_ctrl_state_t s;
+        ns2_setpoint_t sp;
+        float fa[3];
+        /* good flight, then a burst of hostile ticks; in half the runs the last one
+         * is surely a bad state (non-finite body rate), so the controller resets */
+        const uint32_t n_good = below(300);
+        const uint32_t n_bad = 1u + below(20);
+        const int force_fault = (int)below(2);
+        for (uint32_t j = 0; j < n_good + n_bad; ++j, ++k, ++done) {
+            good_tick(&s, &sp, fa, k);
+            float dt_pos = 0.01f, dt_att = 0.002f, bat = 3.9f;
+            const int bad = j >= n_good;
+            if (bad) {
+                switch (below(8)) {
+                case 0: hostile(s.p, 3); hostile(s.v, 3); break;
+                case 1: hostile(s.q, 4); hostile(s.w, 3); break;
+                case 2: hostile(sp.p, 3); hostile(sp.v, 3); hostile(sp.a, 3); break;
+                case 3: hostile(&sp.yaw, 1); hostile(sp.w, 3); break;
+                case 4: hostile(fa, 3); break;
+                case 5: hostile(&dt_pos, 1); hostile(&dt_att, 1); break;
+                case 6: hostile(&bat, 1); break;
+                default: /* everything at once */
+                    hostile(s.p, 3); hostile(s.q, 4); hostile(s.w, 3); hostile(sp.p, 3); hostile(&sp.yaw, 1);
+                    hostile(fa, 3); hostile(&dt_att, 1);
+                    break;
+                }
+                if (force_fault && j + 1u == n_good + n_bad) {
+                    s.w[below(3)] = NAN;
+                }
+            }
+            if (k % 5u == 0u) {
+                ns2_ctrl_position(&c, &s, below(64) ? &sp : NULL, below(64) ? fa : NULL, dt_pos);
+            }
+            ns2_ctrl_attitude(&c, &s, dt_att, bat);
+            check_outputs(&c, veh->f_max_N);
+        }
+        /* good input again: continue to the next position tick, then compare with a
+         * fresh controller fed the same good ticks (bit for bit once c has reset) */
+        while (k % 5u != 0u) {
+            good_tick(&s, &sp, fa, k);
+            ns2_ctrl_attitude(&c, &s, 0.002f, 3.9f);
+            check_outputs(&c, veh->f_max_N);
+            ++k;
+            ++done;
+        }
+        ns2_ctrl_init(&fresh, veh, &fz_gains[rt]);
+        const int was_reset = force_fault;
+        uint32_t recovering_ticks = 0;
+        for (uint32_t j = 0; j < NS2_CTRL_RECOVERY_TICKS + 25u; ++j, ++k, ++done) {
+            good_tick(&s, &sp, fa, k);
+            if (k % 5u == 0u) {
+                ns2_ctrl_position(&c, &s, &sp, fa, 0.01f);
+                ns2_ctrl_position(&fresh, &s, &sp, fa, 0.01f);
+            }
+            ns2_ctrl_attitude(&c, &s, 0.002f, 3.9f);
+            ns2_ctrl_attitude(&fresh, &s, 0.002f, 3.9f);
+            check_outputs(&c, veh->f_max_N);
+            check((c.status & (NS2_CTRL_BAD_STATE | NS2_CTRL_RESET | NS2_CTRL_BAD_SETPOINT)) == 0u,
+                  "fault reported on good input");
+            if (c.status & NS2_CTRL_RECOVERING) {
+                ++recovering_ticks;
+            }
+            if (was_reset) {
+                check(memcmp(c.u, fresh.u, sizeof c.u) == 0 && memcmp(c.pwm, fresh.pwm, sizeof c.pwm) == 0,
+                      "after a fault the controller differs from a fresh one on the same good input");
+            }
+            for (int i = 0; i < 4 && was_reset; ++i) { /* (without a reset, wound-up integrators may saturate) */
+                check(c.pwm[i] > 0.0f, "no thrust on good input after recovery");
+            }
+        }
+        check(recovering_ticks <= NS2_CTRL_RECOVERY_TICKS, "recovery not within NS2_CTRL_RECOVERY_TICKS");
+        check((c.status & NS2_CTRL_RECOVERING) == 0u, "still recovering after the bound");
+        check(!was_reset || recovering_ticks > 0u, "a fault without NS2_CTRL_RECOVERING");
+    }
+    input_index = done;
+#else
+    (void)count;
+    fail("the export has no vehicle parameters (NS2_HAVE_VEHICLES 0)");
+#endif
+}
+
+/* ------------------------------------------------------------------ HIL parser */
+static uint16_t last_pong_seq;
+static int got_pong;
+static unsigned long long frames_out;
+
+static uint16_t le16(const uint8_t *p) { return (uint16_t)(p[0] | (uint16_t)(p[1] << 8)); }
+
+static void hil_write(const uint8_t *d, uint16_t n)
+{
+    ++frames_out;
+    check(n >= 9u && d[0] == NS2_HIL_SYNC0 && d[1] == NS2_HIL_SYNC1, "reply frame too short or unsynced");
+    const uint16_t len = le16(&d[2]);
+    check((uint32_t)len + 6u == n, "reply length field differs from the bytes sent");
+    check(le16(&d[4u + len]) == ns2_hil_crc16(&d[2], (uint16_t)(len + 2u), 0xFFFFu), "reply CRC wrong");
+    const uint8_t type = d[4];
+    check(type == NS2_HIL_RESULT || type == NS2_HIL_PONG || type == NS2_HIL_ERROR, "unknown reply type");
+    if (type == NS2_HIL_RESULT) {
+        check(len == 3u + 18u, "RESULT body not 18 bytes");
+    }
+    if (type == NS2_HIL_PONG) {
+        got_pong = 1;
+        last_pong_seq = le16(&d[5]);
+    }
+}
+
+static uint16_t make_frame(uint8_t *out, uint8_t type, uint16_t seq, const uint8_t *body, uint16_t n)
+{
+    const uint16_t len = (uint16_t)(3u + n);
+    out[0] = NS2_HIL_SYNC0;
+    out[1] = NS2_HIL_SYNC1;
+    out[2] = (uint8_t)(len & 0xFFu);
+    out[3] = (uint8_t)(len >> 8);
+    out[4] = type;
+    out[5] = (uint8_t)(seq & 0xFFu);
+    out[6] = (uint8_t)(seq >> 8);
+    memcpy(&out[7], body, n);
+    const uint16_t crc = ns2_hil_crc16(&out[2], (uint16_t)(2u + len), 0xFFFFu);
+    out[7u + n] = (uint8_t)(crc & 0xFFu);
+    out[8u + n] = (uint8_t)(crc >> 8);
+    return (uint16_t)(9u + n);
+}
+
+static uint16_t predict_body(uint8_t *b)
+{
+    static ns2_neighbor_t nb[NB_CAP];
+    uint8_t rt;
+    float p[3], v[3];
+    uint16_t n = random_query(&rt, p, v, nb, 8u);
+    if (n > NS2_HIL_MAX_NEIGHBORS) {
+        n = NS2_HIL_MAX_NEIGHBORS;
+    }
+    b[0] = rt;
+    b[1] = (uint8_t)(below(16) == 0 ? below(256) : n); /* sometimes a lying count */
+    memcpy(&b[2], p, 12);
+    memcpy(&b[14], v, 12);
+    for (uint16_t j = 0; j < n; ++j) {
+        b[26u + 25u * j] = nb[j].type;
+        memcpy(&b[27u + 25u * j], nb[j].rel, 24);
+    }
+    uint16_t len = (uint16_t)(26u + 25u * n);
+    if (below(16) == 0) {
+        len = (uint16_t)below(len + 8u); /* truncated or padded body */
+    }
+    return len;
+}
+
+static void fuzz_hil(unsigned long long count)
+{
+    static ns2_hil_t h;
+    static uint8_t stream[4096], body[NS2_HIL_MAX_PAYLOAD];
+    ns2_hil_init(&h, hil_write);
+    for (input_index = 0; input_index < count; ++input_index) {
+        uint16_t n = 0;
+        const uint32_t pieces = 1u + below(4);
+        for (uint32_t k = 0; k < pieces && n < sizeof stream - 1100u; ++k) {
+            const uint32_t kind = below(8);
+            if (kind <= 2u) { /* PING, any length the frame allows */
+                const uint16_t m = (uint16_t)(below(4) == 0 ? below(NS2_HIL_MAX_PAYLOAD - 2u) : below(64));
+                for (uint16_t i = 0; i < m; ++i) {
+                    body[i] = (uint8_t)rnd();
+                }
+                n = (uint16_t)(n + make_frame(&stream[n], NS2_HIL_PING, (uint16_t)rnd(), body, m));
+            } else if (kind <= 4u) {
+                const uint16_t m = predict_body(body);
+                n = (uint16_t)(n + make_frame(&stream[n], below(8) ? NS2_HIL_PREDICT : (uint8_t)rnd(),
+                                              (uint16_t)rnd(), body, m));
+            } else if (kind == 5u) { /* garbage, with sync bytes sprinkled in */
+                const uint16_t m = (uint16_t)below(200);
+                for (uint16_t i = 0; i < m; ++i) {
+                    stream[n++] = below(8) == 0 ? (below(2) ? NS2_HIL_SYNC0 : NS2_HIL_SYNC1) : (uint8_t)rnd();
+                }
+            } else { /* a valid frame with flipped bits or a lying length */
+                const uint16_t m = (uint16_t)below(40);
+                for (uint16_t i = 0; i < m; ++i) {
+                    body[i] = (uint8_t)rnd();
+                }
+                const uint16_t fl = make_frame(&stream[n], NS2_HIL_PING, (uint16_t)rnd(), body, m);
+                if (below(2)) {
+                    stream[n + below(fl)] ^= (uint8_t)(1u << below(8));
+                } else {
+                    stream[n + 2u + below(2)] = (uint8_t)rnd();
+                }
+                n = (uint16_t)(n + fl);
+            }
+        }
+        for (uint16_t i = 0; i < n; ++i) {
+            ns2_hil_feed(&h, stream[i]);
+        }
+        if (input_index % 16u == 0u) { /* recovery: a good PING is answered within a bounded stream */
+            uint8_t ping[16];
+            const uint16_t seq = (uint16_t)(0x4000u + (input_index & 0x3FFFu));
+            const uint16_t fl = make_frame(ping, NS2_HIL_PING, seq, (const uint8_t *)"recover", 7u);
+            got_pong = 0;
+            int answered = 0;
+            /* a pending frame waits for at most 6 + MAX_PAYLOAD bytes, then resynchronizes */
+            for (uint32_t rep = 0; rep < (6u + NS2_HIL_MAX_PAYLOAD) / fl + 3u && !answered; ++rep) {
+                for (uint16_t i = 0; i < fl; ++i) {
+                    ns2_hil_feed(&h, ping[i]);
+                }
+                answered = got_pong && last_pong_seq == seq;
+            }
+            check(answered, "parser did not recover: no PONG to a good PING");
+        }
+    }
+    check(frames_out > 0u, "no reply at all");
+}
+
+/* ------------------------------------------------------------------ regressions */
+/* The smallest triggers of issue 17 (D1-D3), run once each. */
+static void regress(void)
+{
+    static ns2_hil_t h;
+    uint8_t body[40], fr[64];
+    target_name = "regress-D1";
+    for (uint16_t m = 30; m <= 40; ++m) { /* PING bodies of 33-34 and >= 35 bytes */
+        memset(body, 0x5A, sizeof body);
+        ns2_hil_init(&h, hil_write);
+        got_pong = 0;
+        const uint16_t fl = make_frame(fr, NS2_HIL_PING, 77u, body, m);
+        for (uint16_t i = 0; i < fl; ++i) {
+            ns2_hil_feed(&h, fr[i]);
+        }
+        check(got_pong && last_pong_seq == 77u, "no PONG to a long PING");
+    }
+#if NS2_HAVE_VEHICLES
+    static ns2_ctrl_t c;
+    ns2_ctrl_state_t s;
+    ns2_setpoint_t sp;
+    float fa[3];
+    for (int trig = 0; trig < 4; ++trig) {
+        target_name = "regress-D2";
+        ns2_ctrl_init(&c, &fz_veh[0], &fz_gains[0]);
+        for (uint32_t k = 0; k < 5u * 200u; ++k) {
+            good_tick(&s, &sp, fa, k);
+            float dt_att = 0.002f;
+            if (k == 500u) {
+                if (trig == 0) sp.yaw = 1e12f;
+                if (trig == 1) dt_att = INFINITY;
+                if (trig == 2) s.w[0] = 1e38f;
+                if (trig == 3) sp.p[0] = 1e20f;
+            }
+            if (k % 5u == 0u) {
+                ns2_ctrl_position(&c, &s, &sp, fa, 0.01f);
+            }
+            ns2_ctrl_attitude(&c, &s, dt_att, 3.9f);
+            check_outputs(&c, fz_veh[0].f_max_N);
+            if (k > 600u) {
+                check((c.status & ~(uint32_t)NS2_CTRL_SATURATED) == 0u && c.pwm[0] > 0.0f,
+                      "controller did not recover within 0.2 s");
+            }
+        }
+    }
+#endif
+    target_name = "regress-D3";
+    static ns2_peers_t ps;
+    ns2_peers_init(&ps, 0.5f);
+    float p[3] = {0.0f, 0.0f, 1.0f};
+    check(ns2_peers_update(&ps, 3u, 0u, 1000u, p) == NS2_PEERS_OK, "first sample");
+    p[0] = 1e37f;
+    check(ns2_peers_update(&ps, 3u, 0u, 1010u, p) == NS2_PEERS_REJECTED, "x = 1e37 m accepted");
+    for (uint32_t k = 0; k < 1000u; ++k) { /* 10 s of good samples, 0.5 m/s in x */
+        p[0] = 0.005f * (float)(k + 1u);
+        (void)ns2_peers_update(&ps, 3u, 0u, 1010u + 10u * k, p);
+    }
+    check(isfinite(ps.peer[0].v[0]) && fabsf(ps.peer[0].v[0] - 0.5f) < 1e-3f, "velocity not recovered");
+    ns2_neighbor_t out[4];
+    const float z[3] = {0.0f, 0.0f, 0.0f};
+    check(ns2_peers_neighbors(&ps, 9u, z, z, 11000u, 100u, out, 4u) == 1u, "peer missing");
+    ns2_info_t info;
+    (void)ns2_predict_f32(0u, z, z, out, 1u, &info);
+    check(info.n_invalid == 0u, "peer counted invalid by the prediction");
+    input_index = 1;
+}
+
+int main(int argc, char **argv)
+{
+    if (argc != 4) {
+        fprintf(stderr, "usage: %s infer|sliced|peers|ctrl|hil|regress COUNT SEED\n", argv[0]);
+        return 2;
+    }
+    target_name = argv[1];
+    const unsigned long long count = strtoull(argv[2], NULL, 10);
+    rng_state = strtoull(argv[3], NULL, 10) * 0x2545F4914F6CDD1Dull + 1u;
+    if (strcmp(argv[1], "infer") == 0) {
+        fuzz_infer(count);
+    } else if (strcmp(argv[1], "sliced") == 0) {
+        fuzz_sliced(count);
+    } else if (strcmp(argv[1], "peers") == 0) {
+        fuzz_peers(count);
+    } else if (strcmp(argv[1], "ctrl") == 0) {
+        fuzz_ctrl(count);
+    } else if (strcmp(argv[1], "hil") == 0) {
+        fuzz_hil(count);
+    } else if (strcmp(argv[1], "regress") == 0) {
+        regress();
+    } else {
+        fprintf(stderr, "unknown target %s\n", argv[1]);
+        return 2;
+    }
+    printf("{\"target\": \"%s\", \"inputs\": %llu, \"checks\": %llu}\n", argv[1], input_index, n_checks);
+    return 0;
+}

@@ -1,0 +1,406 @@
+"""Hostile input files to every loader and every `ns2` command (issue 17: D4, D6, D7,
+D8 and the property that any bad input gives ONE line naming the file and the field,
+a non-zero exit, and leaves what was there before intact).
+
+Property tests use hypothesis with derandomize=True (a fixed seed: they cannot
+flake) and a bounded number of examples; each mutates one field of a valid file
+into a hostile value and runs the command in-process."""
+import copy
+import json
+import math
+import struct
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from click.testing import CliRunner
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from ns2codegen.cli import main
+from ns2codegen.config import Config, dump_toml
+from ns2codegen.data.analytic import downwash_dataset
+from ns2codegen.logs.align import PWM_FULL, VARIABLES
+from ns2codegen.logs.usdlog import UsdLogWriter
+
+FAST = settings(derandomize=True, max_examples=25, deadline=None, database=None,
+                suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
+
+# values that are never a valid number of the physical kind asked for
+HOSTILE = st.sampled_from([math.nan, math.inf, -math.inf, 1e308, -1e308, 3e38, -1.0, 0.0, True, False,
+                           "fast", "", None, [], {}, [1.0], {"x": 1}])
+SENTINEL = b"what was there before\n"
+
+
+def run(args):
+    return CliRunner().invoke(main, [str(a) for a in args])
+
+
+def assert_refused(r, path, field=None, out=None):
+    """Exit 1, exactly one line `Error: ...` naming the file (and the field), no
+    traceback, and the output left as it was."""
+    assert r.exit_code == 1, (r.exit_code, r.output, r.exception)
+    assert isinstance(r.exception, SystemExit), repr(r.exception)
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("Error: "), r.stderr
+    assert str(path) in lines[0] or Path(path).name in lines[0], lines[0]
+    if field is not None:
+        assert field in lines[0], (field, lines[0])
+    if out is not None:
+        assert out.read_bytes() == SENTINEL
+        assert sorted(p.name for p in out.parent.iterdir()) == sorted(
+            p.name for p in out.parent.iterdir() if not p.name.startswith("."))  # no temporary files
+
+
+def _toml(raw) -> str:
+    """TOML of plain data including the non-finite numbers dump_toml refuses."""
+    def fix(v):
+        if isinstance(v, float) and not math.isfinite(v):
+            return f"__{v}__"
+        if isinstance(v, list):
+            return [fix(x) for x in v]
+        if isinstance(v, dict):
+            return {k: fix(x) for k, x in v.items() if x is not None}
+        return v
+    text = dump_toml(fix(raw))
+    return text.replace('"__nan__"', "nan").replace('"__inf__"', "inf").replace('"__-inf__"', "-inf")
+
+
+# ------------------------------------------------------------------ config files
+CONFIG_FIELDS = [("robot_types", 0, "mass_g"), ("robot_types", 0, "arm_length_m"), ("robot_types", 1, "inertia_kgm2"),
+                 ("robot_types", 0, "psi2"), ("robot_types", 1, "lambda"), ("robot_types", 0, "thrust_to_torque_m"),
+                 ("robot_types", 1, "max_thrust_g"), ("model", "hidden"), ("model", "layers"), ("model", "gamma"),
+                 ("model", "max_neighbors"), ("robot_types", 0, "diameter_m")]
+
+
+def _set(raw, path, value):
+    d = raw
+    for k in path[:-1]:
+        d = d[k]
+    d[path[-1]] = value
+
+
+@FAST
+@given(field=st.sampled_from(CONFIG_FIELDS), value=HOSTILE)
+def test_config_file_property(cfg, field, value):
+    """gen-data --config with one hostile field."""
+    if value is None:
+        value = "fast"
+    raw = copy.deepcopy(cfg.raw)
+    _set(raw, field, value)
+    with tempfile.TemporaryDirectory() as d:
+        f, out = Path(d) / "c.toml", Path(d) / "data.npz"
+        f.write_text(_toml(raw))
+        out.write_bytes(SENTINEL)
+        r = run(["gen-data", "--config", f, "--samples-per-scenario", "1", "--out", out])
+        assert_refused(r, f, field[-1], out)
+
+
+def test_d4_vehicle_parameters_that_break_the_controller_are_refused(exported, tmp_path):
+    """D4: arm_length_m = 0, inertia = 0 and psi2 = NaN in a checkpoint's config."""
+    out = tmp_path / "gen"
+    out.mkdir()
+    (out / "ns2_model_config.h").write_bytes(SENTINEL)
+    for key, value in (("arm_length_m", 0), ("inertia_kgm2", [0, 0, 0]), ("psi2", [math.nan] * 5)):
+        obj = torch.load(exported.checkpoint, weights_only=True)
+        meta = json.loads(obj["meta_json"])
+        meta["config"]["robot_types"][0][key] = value
+        obj["meta_json"] = json.dumps(meta)
+        ck = tmp_path / f"{key}.pt"
+        torch.save(obj, ck)
+        r = run(["export", ck, "--out", out])
+        assert_refused(r, ck, key)
+        assert (out / "ns2_model_config.h").read_bytes() == SENTINEL
+    vf = tmp_path / "v.toml"   # and through a vehicle file
+    vf.write_text('[vehicle]\nname = "small"\narm_length_m = 0.0\n')
+    r = run(["logs-to-data", tmp_path, "--vehicle", vf, "--out", tmp_path / "d.npz"])
+    assert_refused(r, vf, "arm_length_m")
+
+
+@FAST
+@given(value=HOSTILE, key=st.sampled_from(["lambda", "mass_g", "psi1", "inertia_kgm2", "arm_length_m"]))
+def test_vehicle_file_property(value, key):
+    with tempfile.TemporaryDirectory() as d:
+        vf, out = Path(d) / "v.toml", Path(d) / "d.npz"
+        vf.write_text(_toml({"vehicle": {"name": "small", key: value}}) if value is not None else
+                      "[vehicle]\nname = 'small'\n" + f"{key} = 'x'\n")
+        out.write_bytes(SENTINEL)
+        r = run(["train", "--data", out, "--vehicle", vf, "--out", Path(d) / "m.pt"])
+        assert_refused(r, vf, key)
+        assert out.read_bytes() == SENTINEL and not (Path(d) / "m.pt").exists()
+
+
+# ------------------------------------------------------------------ data sets (train)
+@pytest.fixture(scope="module")
+def small_data(cfg, tmp_path_factory):
+    p = tmp_path_factory.mktemp("data") / "d.npz"
+    downwash_dataset(cfg, 40, seed=0).save(p)
+    return p
+
+
+def _npz_with(src: Path, dst: Path, key: str, fn) -> None:
+    with np.load(src, allow_pickle=False) as z:
+        arrays = {k: z[k] for k in z.files}
+    arrays[key] = fn(arrays[key])
+    np.savez(dst, **arrays)
+
+
+def _meta(fn):
+    def f(a):
+        m = json.loads(str(a))
+        fn(m)
+        return np.array(json.dumps(m))
+    return f
+
+
+DATA_MUTATIONS = {
+    "label_g": [lambda a: np.full_like(a, 3e38), lambda a: np.where(np.arange(a.size) == 3, np.nan, a),
+                lambda a: a[:-1], lambda a: a.astype("U8")],
+    "nbr_state": [lambda a: np.full_like(a, 1e30), lambda a: np.where(a == a, np.inf, a), lambda a: a[:, :5]],
+    "time_s": [lambda a: np.where(np.arange(a.size) == 0, np.nan, a), lambda a: a[:0]],
+    "robot_type": [lambda a: a + 7, lambda a: a.astype(float) + 0.5],
+    "nbr_offsets": [lambda a: a[::-1], lambda a: a + 1],
+    "meta": [_meta(lambda m: m.update(neighbor_types=["small", "giant", "env"])),
+             _meta(lambda m: m.update(format="v0")), _meta(lambda m: m.update(neighbor_types=3)),
+             lambda a: np.array("not json")],
+}
+
+
+@FAST
+@given(key=st.sampled_from(sorted(DATA_MUTATIONS)), k=st.integers(0, 3))
+def test_data_set_property(small_data, key, k):
+    """D7: train on a data set with one hostile array (labels 3e38, states 1e30, NaN
+    time, mismatched neighbour types, 0 samples ...)."""
+    fn = DATA_MUTATIONS[key][k % len(DATA_MUTATIONS[key])]
+    with tempfile.TemporaryDirectory() as d:
+        bad, out = Path(d) / "bad.npz", Path(d) / "m.pt"
+        _npz_with(small_data, bad, key, fn)
+        out.write_bytes(SENTINEL)
+        r = run(["train", "--data", bad, "--out", out, "--epochs", "1", "--quiet"])
+        assert_refused(r, bad, key, out)
+
+
+def test_d7_zero_samples_and_types(cfg, small_data, tmp_path):
+    for key, fn, field in (("robot_type", lambda a: a[:0], "no samples"),
+                           ("meta", _meta(lambda m: m.update(neighbor_types=["a", "b", "c"])), "neighbor_types"),
+                           ("label_g", lambda a: np.full_like(a, 3e38), "label_g"),
+                           ("nbr_state", lambda a: np.full_like(a, 1e30), "nbr_state"),
+                           ("time_s", lambda a: np.full_like(a, np.nan), "time_s")):
+        bad = tmp_path / f"{key}.npz"
+        if key == "robot_type":   # a consistent 0-sample set
+            with np.load(small_data) as z:
+                arrays = {k: z[k] for k in z.files}
+            for k in ("robot_type", "label_g", "scenario", "time_s", "nbr_type"):
+                arrays[k] = arrays[k][:0]
+            arrays["nbr_offsets"], arrays["nbr_state"] = arrays["nbr_offsets"][:1], arrays["nbr_state"][:0]
+            np.savez(bad, **arrays)
+        else:
+            _npz_with(small_data, bad, key, fn)
+        r = run(["train", "--data", bad, "--out", tmp_path / "m.pt", "--epochs", "1", "--quiet"])
+        assert_refused(r, bad, field)
+        assert not (tmp_path / "m.pt").exists()
+
+
+# ------------------------------------------------------------------ checkpoints (export)
+@FAST
+@given(what=st.sampled_from(["weight", "config", "bytes"]), value=HOSTILE, k=st.integers(0, 10 ** 6))
+def test_checkpoint_property(exported, what, value, k):
+    obj = torch.load(exported.checkpoint, weights_only=True)
+    with tempfile.TemporaryDirectory() as d:
+        ck, out = Path(d) / "bad.pt", Path(d) / "gen"
+        out.mkdir()
+        (out / "ns2_model_float.h").write_bytes(SENTINEL)
+        if what == "weight":
+            name = sorted(obj["state_dict"])[k % len(obj["state_dict"])]
+            t = obj["state_dict"][name]
+            v = value if isinstance(value, float) and (not math.isfinite(value) or abs(value) > 1e30) else math.nan
+            v = math.copysign(math.inf, v) if math.isfinite(v) and abs(v) > 3.4e38 else v   # float32
+            t.view(-1)[k % t.numel()] = v
+            torch.save(obj, ck)
+        elif what == "config":
+            meta = json.loads(obj["meta_json"])
+            key = ["mass_g", "lambda", "arm_length_m", "psi1", "thrust_to_torque_m"][k % 5]
+            meta["config"]["robot_types"][k % 2][key] = value
+            obj["meta_json"] = json.dumps(meta)
+            torch.save(obj, ck)
+        else:
+            data = bytearray(exported.checkpoint.read_bytes())
+            data[k % len(data)] ^= 0xFF
+            ck.write_bytes(bytes(data[: len(data) - 1 - k % 500]))   # the zip directory is damaged
+        r = run(["export", ck, "--out", out])
+        if r.exit_code == 0:   # a flipped byte that torch's zip reader never reads
+            assert what == "bytes"
+            return
+        assert_refused(r, ck)
+        assert (out / "ns2_model_float.h").read_bytes() == SENTINEL and len(list(out.iterdir())) == 1
+
+
+# ------------------------------------------------------------------ problem files (plan)
+PROBLEM = {"robots": [{"type": "small", "start": [0, -0.4, 1.0], "goal": [0, 0.4, 1.0]}], "axes": "yz",
+           "limits": {"v_max": 1.0}}
+PROBLEM_FIELDS = {"type": ("robots", 0, "type"), "start": ("robots", 0, "start"), "axes": ("axes",),
+                  "v_max": ("limits", "v_max"), "u_max": ("limits", "u_max"), "pos_lo": ("limits", "pos_lo"),
+                  "fa_substeps": ("limits", "fa_substeps"), "fa_max_g": ("limits", "fa_max_g"),
+                  "robots": ("robots",), "qq": ("limits", "qq")}
+
+
+@FAST
+@given(field=st.sampled_from(sorted(PROBLEM_FIELDS)), value=HOSTILE)
+def test_problem_file_property(field, value):
+    """D8: plan --problem with one hostile field (robot type "giant" or 3, v_max
+    "fast", 1e308 or true, a bad axes ...): refused before any planning."""
+    if field in ("type", "axes") and value in ("fast",):
+        value = "giant"
+    prob = copy.deepcopy(PROBLEM)
+    _set(prob, PROBLEM_FIELDS[field], value)
+    with tempfile.TemporaryDirectory() as d:
+        f, out = Path(d) / "p.json", Path(d) / "out"
+        f.write_text(json.dumps(prob))
+        out.mkdir()
+        (out / "plan.json").write_bytes(SENTINEL)
+        r = run(["plan", "--problem", f, "--baseline", "--out", out])
+        assert_refused(r, f, field, out / "plan.json")
+
+
+@pytest.mark.parametrize("field,value", [("type", "giant"), ("type", 3), ("v_max", "fast"), ("v_max", 1e308),
+                                         ("v_max", True), ("axes", "qq")])
+def test_d8_smallest_triggers(tmp_path, field, value):
+    prob = copy.deepcopy(PROBLEM)
+    _set(prob, PROBLEM_FIELDS[field], value)
+    f = tmp_path / "p.json"
+    f.write_text(json.dumps(prob))
+    r = run(["plan", "--problem", f, "--baseline", "--out", tmp_path / "out"])
+    assert_refused(r, f, field)
+
+
+# ------------------------------------------------------------------ uSD logs (logs-to-data)
+def _robot_log(t, z, q=(1.0, 0, 0, 0), vbat=3.9, sync_us=None) -> bytes:
+    w = UsdLogWriter()
+    names = [n for k in VARIABLES for n in VARIABLES[k]]
+    ff = w.declare(0xFFFF, "fixedFrequency", [(n, "I" if n.startswith("motor") else "f") for n in names])
+    n = len(t)
+    p = np.stack([np.zeros(n), np.zeros(n), z], 1)
+    cols = np.concatenate([p, np.zeros((n, 3)), np.tile(q, (n, 1)), np.full((n, 4), 0.6 * PWM_FULL),
+                           np.full((n, 1), vbat)], 1)
+    w.add_many(ff, np.round(t * 1e6), cols)
+    w.add(w.declare(5, "ns2Sync", [("seq", "I")]), sync_us if sync_us is not None else int(t[0] * 1e6), [0])
+    return w.encode()
+
+
+@pytest.fixture(scope="module")
+def log_folder(tmp_path_factory):
+    root = tmp_path_factory.mktemp("logs")
+    t = np.arange(0.0, 3.0, 0.01)
+    (root / "a.usd").write_bytes(_robot_log(t, 1.0 + 0.1 * np.sin(t)))
+    (root / "flights.toml").write_text('rate_hz = 100\n[[flight]]\nname = "hover"\n'
+                                       'robots = [{file = "a.usd", type = "small"}]\n')
+    r = run(["logs-to-data", root, "--out", root / "ok.npz"])
+    assert r.exit_code == 0, r.output   # the unmutated folder is valid
+    return root
+
+
+def _copy_folder(src: Path, dst: Path) -> None:
+    for p in src.iterdir():
+        if p.suffix in (".usd", ".toml"):
+            (dst / p.name).write_bytes(p.read_bytes())
+
+
+@FAST
+@given(value=HOSTILE)
+def test_flights_toml_rate_property(log_folder, value):
+    """D6: rate_hz = 1e9, nan, "fast", <= 0 ... in flights.toml."""
+    with tempfile.TemporaryDirectory() as d:
+        d = Path(d)
+        _copy_folder(log_folder, d)
+        text = (d / "flights.toml").read_text().replace("rate_hz = 100", _toml({"rate_hz": value}).strip()
+                                                         if value is not None else "rate_hz = 1e9")
+        (d / "flights.toml").write_text(text)
+        out = d / "out.npz"
+        out.write_bytes(SENTINEL)
+        r = run(["logs-to-data", d, "--out", out])
+        assert_refused(r, "flights.toml", "rate_hz", out)
+
+
+@FAST
+@given(k=st.integers(0, 10 ** 6), bit=st.integers(0, 7), truncated=st.booleans())
+def test_bit_flipped_log_property(log_folder, k, bit, truncated):
+    """D6: a complete log with one flipped bit is refused, with or without
+    --allow-truncated (a truncated log stays usable with it)."""
+    data = bytearray((log_folder / "a.usd").read_bytes())
+    with tempfile.TemporaryDirectory() as d:
+        d = Path(d)
+        _copy_folder(log_folder, d)
+        i = 200 + k % (len(data) - 200)   # in the entries or the CRC
+        data[i] ^= 1 << bit
+        (d / "a.usd").write_bytes(bytes(data))
+        out = d / "out.npz"
+        out.write_bytes(SENTINEL)
+        r = run(["logs-to-data", d, "--out", out, *(["--allow-truncated"] if truncated else [])])
+        assert_refused(r, "a.usd", None, out)
+
+
+@pytest.mark.parametrize("case", ["z", "quaternion", "vbat", "timestamp"])
+def test_d6_absurd_values_in_a_valid_log_are_refused(tmp_path, case):
+    t = np.arange(0.0, 3.0, 0.01)
+    z = 1.0 + 0.1 * np.sin(t)
+    kw = {}
+    if case == "z":
+        z = np.where(np.arange(len(t)) == 100, 3e38, z)
+    elif case == "quaternion":
+        kw["q"] = (0.0, 0.0, 0.0, 0.0)
+    elif case == "vbat":
+        kw["vbat"] = 0.0
+    else:
+        t = t.copy()
+        t[-1] = 2.0 ** 62 * 1e-6   # a valid CRC over an absurd timestamp (2^62 us)
+    (tmp_path / "a.usd").write_bytes(_robot_log(t, z, **kw))
+    (tmp_path / "flights.toml").write_text('[[flight]]\nrobots = [{file = "a.usd", type = "small"}]\n')
+    r = run(["logs-to-data", tmp_path, "--out", tmp_path / "d.npz"])
+    assert_refused(r, "a.usd" if case != "timestamp" else "flights.toml", None)
+    assert not (tmp_path / "d.npz").exists()
+
+
+def test_truncated_log_is_still_usable(log_folder, tmp_path):
+    _copy_folder(log_folder, tmp_path)
+    data = (tmp_path / "a.usd").read_bytes()
+    (tmp_path / "a.usd").write_bytes(data[:-37])   # power loss: no CRC, the last entry cut
+    r = run(["logs-to-data", tmp_path, "--out", tmp_path / "d.npz", "--allow-truncated"])
+    assert r.exit_code == 0, r.output
+
+
+# ------------------------------------------------------------------ load-cell CSV (sysid)
+@FAST
+@given(col=st.sampled_from(["pwm", "vbat_V", "force_g"]), value=st.sampled_from(
+    ["nan", "inf", "-inf", "1e308", "abc", "", "1e30", "0x10", "1,2"]), row=st.integers(0, 39))
+def test_sysid_csv_property(col, value, row):
+    rng = np.random.default_rng(0)
+    p = rng.uniform(0.1, 1.0, 40)
+    V = rng.uniform(3.5, 4.1, 40)
+    f = 4 * (10 + 30 * p)
+    rows = [{"pwm": f"{a:.4f}", "vbat_V": f"{b:.3f}", "force_g": f"{c:.3f}"} for a, b, c in zip(p, V, f)]
+    rows[row][col] = value
+    with tempfile.TemporaryDirectory() as d:
+        csv_, out = Path(d) / "static.csv", Path(d) / "small.toml"
+        csv_.write_text("pwm,vbat_V,force_g\n" + "".join(f"{r['pwm']},{r['vbat_V']},{r['force_g']}\n" for r in rows))
+        out.write_bytes(SENTINEL)
+        r = run(["sysid", "--type", "small", "--static", csv_, "--out", out])
+        assert_refused(r, csv_, col, out)
+
+
+# ------------------------------------------------------------------ export folders (hil, sim)
+@pytest.mark.parametrize("cmd", [["sim", "swaps", "--out", "{d}/o"], ["sim", "rings", "--out", "{d}/o"],
+                                 ["sim", "collect", "--seconds-per-team", "1", "--out", "{d}/o.npz"],
+                                 ["hil", "--port", "/dev/null"]])
+def test_missing_or_mixed_export_folder(exported, onboard, tmp_path, cmd):
+    gen = tmp_path / "gen"
+    gen.mkdir()
+    for name in ("ns2_model_config.h", "ns2_model_fixed.h", "ns2_vehicles.h", "ns2_model_manifest.json"):
+        (gen / name).write_bytes((exported.gen_dir / name).read_bytes())
+    (gen / "ns2_model_float.h").write_bytes((onboard.gen_dir / "ns2_model_float.h").read_bytes())
+    args = [a.format(d=tmp_path) for a in cmd] + ["--gen", gen]
+    r = run(args)
+    assert_refused(r, gen)
+    r = run([a.format(d=tmp_path) for a in cmd] + ["--gen", tmp_path / "nothing"])
+    assert_refused(r, tmp_path / "nothing")
