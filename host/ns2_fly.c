@@ -36,7 +36,7 @@
 #define DEG_PER_LSB ((2.0f * 2000.0f) / 65536.0f) /* SENSORS_BMI088_DEG_PER_LSB_CFG */
 #define G_PER_LSB ((2.0f * 24.0f) / 65536.0f)     /* SENSORS_BMI088_G_PER_LSB_CFG */
 #define PREDICT_MS 10u      /* estimator_kalman.c PREDICT_RATE = RATE_100_HZ */
-#define G_SIM 9.81
+#define G_SIM NS2_G_MPS2 /* m/s^2, ns2_controller.h */
 
 void ns2_sim_rk4(uint32_t n, double *x, const double *par, const double *u_c, const double *f_a,
                  const double *tau_a, double dt);

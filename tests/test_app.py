@@ -110,7 +110,7 @@ def test_final_config_has_the_oot_controller_and_no_battery_compensation(app):
 def test_flash_budget_and_ram_of_the_default_app(app, stock, exported):
     """The default app (fixed point) with the paper-sized network costs at most 72 KB
     of flash over stock cf2 and fits the RAM and CCM the stock firmware leaves free."""
-    assert exported.cfg.model["max_neighbors"] == 16  # the paper's network (config/default.toml)
+    assert exported.cfg.model["max_neighbors"] == 16  # the paper's network (ns2codegen/default.toml)
     s, a = cfapp.sizes(stock / "cf2.elf"), cfapp.sizes(app / "cf2.elf")
     assert s["flash"] > 250_000  # a real cf2, not an empty image
     assert 0 < a["flash"] - s["flash"] <= cfapp.FLASH_BUDGET

@@ -90,7 +90,7 @@ def test_a_kill_at_any_step_leaves_one_whole_set(exported, onboard, tmp_path, st
     if out.exists():
         assert _compile(tmp_path, [out], HEADERS).returncode == 0
     # the next export repairs and cleans up: the new set, the README, nothing left over
-    r = subprocess.run([sys.executable, "-m", "ns2codegen.cli", "export", str(onboard.checkpoint), "--out", str(out)],
+    r = subprocess.run([sys.executable, "-m", "ns2cli", "export", str(onboard.checkpoint), "--out", str(out)],
                        capture_output=True, text=True)
     assert r.returncode == 0, r.stderr
     assert _same(onboard.gen_dir, out) and (out / "README.md").read_text() == "kept\n"

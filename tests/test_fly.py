@@ -6,6 +6,7 @@ import os
 import numpy as np
 import pytest
 
+from ns2codegen.vehicle import G
 from ns2host.crazyflie import have_firmware
 from ns2host.sim.cloop import CLoopSwarm, hover_setpoints
 from ns2host.sim.scenarios import swap
@@ -44,7 +45,7 @@ def replay(sw: CLoopSwarm, trace, n: int, i: int = 0):
             m = lib.ns2_peers_neighbors(peers, i + 1, t.s.p, t.s.v, t.now_ms, cfg.max_age_ms, nbrs, lib.NS2_PEERS_MAX)
             lib.ns2_job_begin(job, cfg.self_type, t.s.p, t.s.v, nbrs, m)
             begun = True
-            fz = f32(f32(f32(fa_hat) * f32(1e-3)) * f32(9.81)) if cfg.enable else 0.0
+            fz = f32(f32(f32(fa_hat) * f32(1e-3)) * f32(G)) if cfg.enable else 0.0
             lib.ns2_ctrl_position(ctrl, ffi.addressof(t, "s"), ffi.addressof(t, "sp"), [0.0, 0.0, fz],
                                   f32(np.float32(1) / np.float32(100)))
         if cfg.fixed:

@@ -19,7 +19,7 @@ from click.testing import CliRunner
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from ns2codegen.cli import main
+from ns2cli import main
 from ns2codegen.config import Config, dump_toml
 from ns2codegen.data.analytic import downwash_dataset
 from ns2codegen.logs.align import PWM_FULL, VARIABLES
