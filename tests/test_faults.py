@@ -6,12 +6,20 @@ import math
 import numpy as np
 import pytest
 
-from ns2host.sim.cloop import CLoopSwarm
+from ns2codegen.vehicle import vehicle
+
+
+class _Ctl:
+    """The host build and one controller initialised for the small robot, as the app does."""
+
+    def __init__(self, cfg, exported):
+        self.c = exported.cmodel()
+        self.ctrl = self.c.controller([vehicle(cfg, "small")])
 
 
 @pytest.fixture(scope="module")
 def ctl(cfg, exported):
-    return CLoopSwarm(cfg, ["small"], exported.gen_dir, [[0, 0, 1.0]])
+    return _Ctl(cfg, exported)
 
 
 def _hover(ffi):
