@@ -103,3 +103,17 @@ def test_ground_effect_and_drag(S):
     pair = calibrated([S, S], S)
     assert abs(grams(pair, [[0, 0, 1.0], [0, 0, 1.3]])[1, 2]) < 0.1
     assert np.abs(grams(pair, [[0, 0, 1.0], [0, 0, 1.3]])[0, :2]).max() < 1e-9
+
+
+def test_interaction_volumes_follow_the_policy(cfg):
+    """config/default.toml's volumes end where the truth falls below the threshold
+    (sides, bottom) or reach the flight space's top; one policy for all pairs."""
+    from ns2host.sim.volumes import FLIGHT_SPACE_Z, THRESHOLD_G, edge_check
+
+    for r in range(cfg.num_robot_types):
+        for n in range(cfg.num_robot_types):
+            edge = edge_check(cfg, r, n)
+            assert edge["side"] < THRESHOLD_G and edge["bottom"] < THRESHOLD_G, (r, n, edge)
+            assert cfg.volume(r, n)[1][2] >= FLIGHT_SPACE_Z and edge["top"] >= THRESHOLD_G
+            # and not needlessly wide: half a step inside a side the truth still reaches the threshold
+            assert edge_check(cfg, r, n, margin=-0.2)["side"] >= THRESHOLD_G
