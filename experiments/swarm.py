@@ -14,7 +14,7 @@ import numpy as np
 from ns2codegen.config import Config
 
 from ns2host.sim.cloop import CLoopSwarm
-from ns2host.sim.scenarios import rings, swap
+from ns2host.sim.scenarios import intertwined_rings, swap
 from ns2host.sim.vehicle import G
 
 # case -> (robots from the bottom up); the bottom robot is the one measured
@@ -129,12 +129,10 @@ def swap_experiments(cfg: Config, gen_dir, out_dir, swaps: int = 6, cases=None, 
     return results
 
 
-# name -> (robot types per ring, ring heights)
-RING_CASES = {
-    "5-robot rings": ([("small", "small", "small"), ("large", "large")], (0.5, 0.8)),
-    "16-robot three rings": ([("small",) * 6, ("large", "small", "large", "small", "small"),
-                              ("small",) * 5], (0.45, 0.75, 1.05)),
-}
+# name -> robots of the paper's intertwined rings (host/sim/scenarios.py): vertical
+# rings of S* robots linked with a horizontal ring; the paper reports the "small*"
+# robots' maximum z error (5 robots: 10 -> 5 cm, 16 robots: 15 -> 10 cm)
+RING_CASES = {"5-robot rings": 5, "16-robot three rings": 16}
 
 
 def ring_experiments(cfg: Config, gen_dir, out_dir, duration: float = 16.0, learned: str = "fixed") -> dict:
@@ -142,11 +140,10 @@ def ring_experiments(cfg: Config, gen_dir, out_dir, duration: float = 16.0, lear
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     results = {}
-    for name, (groups, heights) in RING_CASES.items():
-        team = [t for g in groups for t in g]
+    for name, robots in RING_CASES.items():
+        team, sp, start, _ = intertwined_rings(robots)
         res = {}
         for mode in (None, learned):
-            sp, start = rings([len(g) for g in groups], heights, radius=0.5, period=8.0)
             log = CLoopSwarm(cfg, team, gen_dir, start, aero=True, learned=mode).run(duration, sp)
             late = log["t"] > 2.0
             worst = np.abs(log["p"][late, :, 2] - log["p_d"][late, :, 2]).max(axis=0)
