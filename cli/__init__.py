@@ -83,10 +83,12 @@ def _parent_ok(path) -> None:
               help="width of phi's first hidden layer (overrides config; paper 25)")
 @click.option("--onboard", is_flag=True,
               help="the one-tick on-board variant: intermediate widths 24, phi's first layer 16")
+@click.option("--device", default="cpu", show_default=True,
+              help="torch device to train on: cpu, cuda, cuda:1 ... (the checkpoint is the same format)")
 @_vehicle_option
 @click.option("--quiet", is_flag=True)
 def train(data_paths, config_path, out, epochs, seed, batch_size, lr, hidden, layers, width, phi_first, onboard,
-          vehicle_files, quiet):
+          device, vehicle_files, quiet):
     """Train the heterogeneous deep set; writes a checkpoint and prints the report."""
     from tqdm import tqdm
 
@@ -94,6 +96,13 @@ def train(data_paths, config_path, out, epochs, seed, batch_size, lr, hidden, la
     from ns2codegen.data.dataset import Dataset
     from ns2codegen.train import train as run
 
+    import torch
+
+    try:
+        torch.empty(0, device=device)
+    except (RuntimeError, ValueError, AssertionError) as e:   # AssertionError: torch built without CUDA
+        raise click.BadParameter(f"{device!r} is not usable here ({str(e).splitlines()[0]})",
+                                 param_hint="--device") from None
     cfg = _config(config_path, vehicle_files)
     overrides = dict(ONBOARD_WIDTHS) if onboard else {}
     overrides.update({k: v for k, v in (("hidden", hidden), ("layers", layers), ("width", width),
@@ -106,7 +115,7 @@ def train(data_paths, config_path, out, epochs, seed, batch_size, lr, hidden, la
     with tqdm(total=int(len(ds) * (1 - cfg.train["validation_fraction"])) * n_epochs, unit="sample",
               disable=quiet, file=sys.stderr, unit_scale=True) as bar:
         model, report = run(cfg, ds, epochs=epochs, seed=seed, batch_size=batch_size, lr=lr,
-                            progress=bar.update)
+                            progress=bar.update, device=device)
     save_checkpoint(out, model, cfg, {"seed": report["seed"], "data_hash": ds.content_hash(),
                                       "data_files": [Path(p).name for p in data_paths], "report": report})
     v = report["validation"]
