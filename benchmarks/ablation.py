@@ -44,10 +44,11 @@ SAME_AS_PAPER = (("L", "4"), ("W", "40/25"), ("V", "with"), ("P", "deep set"), (
 
 def runs(axes: str) -> list:
     """The runs of the axes named (a comma list of H, L, W, V, P, T); the paper's network once."""
-    wanted = set(axes.split(","))
-    sel = [r for r in RUNS if r[0] in wanted]
-    if wanted - {"H"} and not any(r[2] == PAPER and r[3] == "hetero" and not r[4] for r in sel):
-        sel.insert(0, ("H", 20, PAPER, "hetero", False))
+    order = axes.split(",")
+    sel = sorted((r for r in RUNS if r[0] in order), key=lambda r: order.index(r[0]))
+    paper = ("H", 20, PAPER, "hetero", False)     # the reference runs first
+    if set(order) - {"H"} or paper in sel:
+        sel = [paper] + [r for r in sel if r != paper]
     return sel
 
 
