@@ -22,7 +22,7 @@ DEFAULT := build/default
 ONBOARD := build/onboard
 CHECKPOINT ?= $(DEFAULT)/model.pt
 
-.PHONY: all deps export export-onboard test bench firmware app fuzz sim paper-data clean
+.PHONY: all deps export export-onboard test bench firmware app fuzz sim paper-data ablation clean
 
 all: export
 
@@ -114,6 +114,19 @@ paper-data: deps
 	@mkdir -p build
 	$(PYTHON) benchmarks/paper_data.py > build/paper_data.json.tmp && mv build/paper_data.json.tmp build/paper_data.json
 	@cat build/paper_data.json
+
+# The paper's ablations (benchmarks/ablation.py: H, L, without relative velocity,
+# sum of pairwise models, type-agnostic deep set; 3 seeds, trained to convergence)
+# on the paper-sized simulated data set.  Hours on 2 CPU cores (docs/ground-truth.md);
+# ABLATION_DEVICE=cuda trains on a GPU.
+ABLATION_DEVICE ?= cpu
+build/paper_data.npz: | deps
+	@mkdir -p build
+	$(PYTHON) benchmarks/paper_data.py --data-only --out $@
+ablation: build/paper_data.npz
+	$(PYTHON) benchmarks/ablation.py --data build/paper_data.npz --seeds 3 --device $(ABLATION_DEVICE) \
+		> build/ablation.json.tmp && mv build/ablation.json.tmp build/ablation.json
+	@cat build/ablation.json
 
 clean:
 	rm -rf build

@@ -1,18 +1,28 @@
-"""Ablation of the paper's Table "ablation" on simulated flights (JSON on stdout):
-validation MSE (g^2) for H in {10, 20, 40} at L = 4 and L in {3, 4, 5} at H = 20,
-plus the intermediate widths W (phi 6-25-40-40-H / rho H-40-40-40-1 of the paper,
-"40/25", against the one-tick on-board variant 6-16-24-24-H / H-24-24-24-1,
-"24/16"; the paper: "the learning performance is not sensitive to ... the number
-of weights in intermediate layers"), with --repeats seeds each, on the data sets
-given (default: build/sim/round*.npz from `make sim`).
+"""The paper's ablations on simulated flights (JSON on stdout), each trained with
+--seeds seeds (the paper: 3) to convergence by one stopping rule: at most
+--max-epochs epochs, stop when the validation MSE has not improved by --min-delta
+(relative) for --patience epochs, keep the best epoch (ns2codegen.train).
+Validation MSE (g^2), mean +- std over the seeds, with the epochs and wall time:
 
-    python benchmarks/ablation.py [--data A.npz --data B.npz] [--epochs 20] [--repeats 1] [--axes H,L,W]
+  H   H in {10, 20, 40} at L = 4 (Table ablation, top)
+  L   L in {3, 4, 5} at H = 20 (Table ablation, bottom)
+  W   intermediate widths 40/25 (paper) against the on-board 24/16
+  V   without relative velocity: x_ij = [p_j - p_i; 0] (paper: 6.42 -> 7.60, +18 %)
+  P   a sum of pairwise models, sum_j rho(phi(x_ij)), instead of the deep set
+  T   a deep set that ignores robot types (one phi for all robots, one rho)
+
+on the data sets given (make ablation: the paper-sized set of make paper-data).
+
+    python benchmarks/ablation.py --data A.npz [--data B.npz] [--axes H,L,V,P,T] [--seeds 3]
+        [--max-epochs 60] [--patience 3] [--min-delta 0.01] [--device cpu]
 """
 from __future__ import annotations
 
 import argparse
 import glob
 import json
+import sys
+import time
 
 import numpy as np
 
@@ -21,19 +31,24 @@ from ns2codegen.data.dataset import Dataset
 from ns2codegen.train import train
 
 PAPER = {"hidden": 20, "layers": 4}
-# (axis, value, model overrides); H = 20 at L = 4 is also L = 4 and W = 40/25
-RUNS = [("H", h, {"hidden": h, "layers": 4}) for h in (10, 20, 40)] + \
-       [("L", n, {"hidden": 20, "layers": n}) for n in (3, 5)] + \
-       [("W", "24/16", dict(PAPER, **ONBOARD_WIDTHS))]
-SAME_AS_PAPER = (("L", "4"), ("W", "40/25"))
+# (axis, value, model overrides, variant, drop relative velocity); H = 20 at L = 4 is
+# also L = 4, W = 40/25 and the full model of V, P, T
+RUNS = [("H", h, {"hidden": h, "layers": 4}, "hetero", False) for h in (10, 20, 40)] + \
+       [("L", n, {"hidden": 20, "layers": n}, "hetero", False) for n in (3, 5)] + \
+       [("W", "24/16", dict(PAPER, **ONBOARD_WIDTHS), "hetero", False),
+        ("V", "without", PAPER, "hetero", True),
+        ("P", "pairwise sum", PAPER, "pairwise", False),
+        ("T", "type-agnostic", PAPER, "agnostic", False)]
+SAME_AS_PAPER = (("L", "4"), ("W", "40/25"), ("V", "with"), ("P", "deep set"), ("T", "heterogeneous"))
 
 
 def runs(axes: str) -> list:
-    """The runs of the axes named (a comma list of H, L, W); the paper's network once."""
-    wanted = set(axes.split(","))
-    sel = [r for r in RUNS if r[0] in wanted]
-    if wanted - {"H"} and not any(r[2] == PAPER for r in sel):
-        sel.insert(0, ("H", 20, PAPER))
+    """The runs of the axes named (a comma list of H, L, W, V, P, T); the paper's network once."""
+    order = axes.split(",")
+    sel = sorted((r for r in RUNS if r[0] in order), key=lambda r: order.index(r[0]))
+    paper = ("H", 20, PAPER, "hetero", False)     # the reference runs first
+    if set(order) - {"H"} or paper in sel:
+        sel = [paper] + [r for r in sel if r != paper]
     return sel
 
 
@@ -48,26 +63,46 @@ def table(results: dict, axes: str) -> dict:
     return out
 
 
+def without_velocity(ds: Dataset) -> Dataset:
+    """The data set with the relative velocities (and the environment's -v_i) zeroed."""
+    state = ds.nbr_state.copy()
+    state[:, 3:] = 0.0
+    return Dataset(**{**ds.__dict__, "nbr_state": state})
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--data", action="append", default=None)
-    ap.add_argument("--epochs", type=int, default=20)
-    ap.add_argument("--repeats", type=int, default=1)
-    ap.add_argument("--axes", default="H,L,W", help="comma list of H, L, W")
+    ap.add_argument("--axes", default="H,L,V,P,T", help="comma list of H, L, W, V, P, T")
+    ap.add_argument("--seeds", type=int, default=3)
+    ap.add_argument("--max-epochs", type=int, default=60)
+    ap.add_argument("--patience", type=int, default=3)
+    ap.add_argument("--min-delta", type=float, default=0.01)
+    ap.add_argument("--device", default="cpu")
     args = ap.parse_args()
     paths = args.data or sorted(glob.glob("build/sim/round*.npz"))
     if not paths:
-        raise SystemExit("no data: run `make sim` or pass --data")
+        raise SystemExit("no data: run `make paper-data` or pass --data")
     ds = Dataset.concat([Dataset.load(p) for p in paths])
     cfg = Config.load()
-    results = {}
-    for axis, value, over in runs(args.axes):
-        mses = []
-        for seed in range(args.repeats):
-            _, rep = train(cfg.with_overrides(**over), ds, epochs=args.epochs, seed=seed)
+    results, t_all = {}, time.perf_counter()
+    for axis, value, over, variant, drop_v in runs(args.axes):
+        data = without_velocity(ds) if drop_v else ds
+        mses, epochs, wall = [], [], []
+        for seed in range(args.seeds):
+            t0 = time.perf_counter()
+            _, rep = train(cfg.with_overrides(**over), data, epochs=args.max_epochs, seed=seed, device=args.device,
+                           variant=variant, patience=args.patience, min_delta=args.min_delta)
             mses.append(rep["validation"]["mse"])
-        results[(axis, value)] = {"mean": float(np.mean(mses)), "std": float(np.std(mses)), "runs": mses}
-    out = {"data": paths, "samples": len(ds), "epochs": args.epochs, "repeats": args.repeats,
+            epochs.append(rep["epochs"])
+            wall.append(time.perf_counter() - t0)
+            print(f"  {axis}={value} seed {seed}: {mses[-1]:.3f} g^2 after {epochs[-1]} epochs "
+                  f"({wall[-1]:.0f} s)", file=sys.stderr, flush=True)
+        results[(axis, value)] = {"mean": float(np.mean(mses)), "std": float(np.std(mses)), "runs": mses,
+                                  "epochs": epochs, "wall_s": [round(w, 1) for w in wall]}
+    out = {"data": paths, "samples": len(ds), "device": args.device, "seeds": args.seeds,
+           "stopping_rule": {"max_epochs": args.max_epochs, "patience": args.patience, "min_delta": args.min_delta},
+           "label_variance_g2": float(np.var(ds.label_g)), "wall_s": round(time.perf_counter() - t_all, 1),
            **table(results, args.axes)}
     print(json.dumps(out, indent=2))
 

@@ -35,6 +35,7 @@ def main() -> None:
     ap.add_argument("--epochs", type=int, default=20)
     ap.add_argument("--ablation-epochs", type=int, default=5)
     ap.add_argument("--out", default=None, help="also save the data set (.npz) here")
+    ap.add_argument("--data-only", action="store_true", help="only generate (and --out) the data set")
     args = ap.parse_args()
     cfg = Config.load()
     robots = sum(len(t) for t in teams(cfg))
@@ -52,6 +53,9 @@ def main() -> None:
     print(f"  {len(ds):,} samples in {gen_s:.0f} s", file=sys.stderr)
     if args.out:
         ds.save(args.out)
+    if args.data_only:
+        print(json.dumps({"samples": len(ds), "generation_s": round(gen_s, 1)}))
+        return
     _, rep = train(cfg, ds, epochs=args.epochs, seed=0)
     val = rep["validation"]
     out = {"data": {"samples": len(ds), "teams": len(teams(cfg)), "flight_seconds_per_team": round(seconds, 1),
@@ -64,8 +68,9 @@ def main() -> None:
            "ablation": {"epochs": args.ablation_epochs}}
     print(f"  trained: validation MSE {val['mse']:.3f} g^2", file=sys.stderr)
     results = {}
-    for axis, value, over in ablation.runs("H,L,W"):
-        _, r = train(cfg.with_overrides(**over), ds, epochs=args.ablation_epochs, seed=0)
+    for axis, value, over, variant, drop_v in ablation.runs("H,L,W"):
+        _, r = train(cfg.with_overrides(**over), ablation.without_velocity(ds) if drop_v else ds,
+                     epochs=args.ablation_epochs, seed=0, variant=variant)
         results[(axis, value)] = round(r["validation"]["mse"], 3)
         print(f"  ablation {axis}={value}: {r['validation']['mse']:.3f}", file=sys.stderr)
     out["ablation"].update(ablation.table(results, "H,L,W"))

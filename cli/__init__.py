@@ -175,16 +175,25 @@ def gen_data(kind, samples_per_scenario, seed, noise, config_path, out, as_json)
               help="width of phi's first hidden layer (overrides config; paper 25)")
 @click.option("--onboard", is_flag=True,
               help="the one-tick on-board variant: intermediate widths 24, phi's first layer 16")
+@click.option("--device", default="cpu", show_default=True,
+              help="torch device to train on: cpu, cuda, cuda:1 ... (the checkpoint is the same format)")
 @_vehicle_option
 @_quiet_option
 @_json_option
 def train(data_paths, config_path, out, epochs, seed, batch_size, lr, hidden, layers, width, phi_first, onboard,
-          vehicle_files, quiet, as_json):
+          device, vehicle_files, quiet, as_json):
     """Train the heterogeneous deep set; writes a checkpoint and reports the validation error."""
     from ns2codegen.checkpoint import save_checkpoint
     from ns2codegen.data.dataset import Dataset
     from ns2codegen.train import train as run
 
+    import torch
+
+    try:
+        torch.empty(0, device=device)
+    except (RuntimeError, ValueError, AssertionError) as e:   # AssertionError: torch built without CUDA
+        raise click.BadParameter(f"{device!r} is not usable here ({str(e).splitlines()[0]})",
+                                 param_hint="--device") from None
     cfg = _config(config_path, vehicle_files)
     overrides = dict(ONBOARD_WIDTHS) if onboard else {}
     overrides.update({k: v for k, v in (("hidden", hidden), ("layers", layers), ("width", width),
@@ -196,7 +205,8 @@ def train(data_paths, config_path, out, epochs, seed, batch_size, lr, hidden, la
     n_epochs = epochs or cfg.train["epochs"]
     total = int(len(ds) * (1 - cfg.train["validation_fraction"])) * n_epochs
     with _progress(quiet, total, "sample", "train") as update:
-        model, report = run(cfg, ds, epochs=epochs, seed=seed, batch_size=batch_size, lr=lr, progress=update)
+        model, report = run(cfg, ds, epochs=epochs, seed=seed, batch_size=batch_size, lr=lr, progress=update,
+                            device=device)
     save_checkpoint(out, model, cfg, {"seed": report["seed"], "data_hash": ds.content_hash(),
                                       "data_files": [Path(p).name for p in data_paths], "report": report})
     v = report["validation"]

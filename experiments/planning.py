@@ -7,7 +7,6 @@ tracking error (eq. metric) and worst true interaction force against the limits
 (5 g small, 10 g large), planning times; figures like the paper's."""
 from __future__ import annotations
 
-import copy
 import json
 import math
 import time
@@ -43,7 +42,7 @@ LIMITS_3D = Limits(pos_lo=(-0.6, -0.9, 0.3), pos_hi=(0.6, 0.9, 2.0), clearance_m
 SPACING, HEIGHT = 0.8, 1.0
 CHECK_GAPS = (0.15, 0.3, 0.5, 1.0, 1.4)      # m, vertical gaps of downwash_check
 NEAR_FIELD_SECONDS = 600.0              # close-range passes per pair of types in default_checkpoint
-PLAN_VOLUME_TOP = 1.5                   # m, top of the planning model's interaction volumes (planning_config)
+NEAR_GAP_MAX = 1.5                      # m, largest vertical gap of the close-range passes in default_checkpoint
 
 
 def scenario_problem(cfg: Config, name: str, dims: int) -> Problem:
@@ -92,32 +91,20 @@ def downwash_table(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
-def planning_config(cfg: Config) -> Config:
-    """The config of the planning model: every interaction volume reaches PLAN_VOLUME_TOP
-    above the robot (the neighbour input box's top).  The simulator's downwash still
-    pushes a large robot 1.2 m under another down by 8-9 g (host/sim/aero.py), beyond
-    the default volume's 1.2 m top: a model blind there lets the planner stack the
-    large robots just out of its sight, and the flights go over the limit."""
-    raw = copy.deepcopy(cfg.raw)
-    for vol in raw["interaction_volume"].values():
-        vol["hi"] = [*vol["hi"][:2], max(float(vol["hi"][2]), PLAN_VOLUME_TOP)]
-    return Config.from_dict(raw)
-
-
 def default_checkpoint(cfg: Config, folder: Path, seconds_per_team: float = 60.0, log=print,
                        near_field_seconds: float = NEAR_FIELD_SECONDS) -> Path:
     """A model of the simulator's interactions when none is given (or when the one in
     ``folder`` has another config): baseline flights of every team in the simulator
     (ns2 sim collect) plus close-range passes of every pair of types (the near-field
-    downwash that the planner's plans fly through), then training (ns2 train), all
-    with ``planning_config(cfg)``."""
+    downwash that the planner's plans fly through), then training (ns2 train), with the
+    config's interaction volumes (the one policy for control and planning,
+    host/sim/volumes.py)."""
     from ns2codegen.checkpoint import load_checkpoint, save_checkpoint
     from ns2codegen.data.analytic import downwash_dataset
     from ns2codegen.export import export
     from ns2codegen.train import train
     from ns2host.sim.collect import collect
 
-    cfg = planning_config(cfg)
     folder.mkdir(parents=True, exist_ok=True)
     ck = folder / "model.pt"
     if ck.is_file() and load_checkpoint(ck).cfg.to_json() == cfg.to_json():
@@ -130,11 +117,11 @@ def default_checkpoint(cfg: Config, folder: Path, seconds_per_team: float = 60.0
     save_checkpoint(folder / "boot.pt", m0, cfg, {"seed": 0, "data_hash": boot.content_hash(), "report": rep0})
     export(folder / "boot.pt", folder / "boot_gen")
     ds = collect(cfg, folder / "boot_gen", seconds_per_team, seed=1, near_field_seconds=near_field_seconds,
-                 near_gap_max=PLAN_VOLUME_TOP)
+                 near_gap_max=NEAR_GAP_MAX)
     model, rep = train(cfg, ds)
     save_checkpoint(ck, model, cfg, {"seed": rep["seed"], "data_hash": ds.content_hash(), "report": rep,
                                      "data_files": [f"sim collect {seconds_per_team} s per team + near field "
-                                                    f"{near_field_seconds} s per pair (gaps up to {PLAN_VOLUME_TOP} m), "
+                                                    f"{near_field_seconds} s per pair (gaps up to {NEAR_GAP_MAX} m), "
                                                     f"seed 1"]})
     return ck
 

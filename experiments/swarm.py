@@ -26,8 +26,8 @@ import numpy as np
 from ns2codegen.config import Config
 
 from ns2host.sim.cloop import CLoopSwarm
-from ns2host.sim.scenarios import rings, swap
-from ns2host.sim.vehicle import G
+from ns2host.sim.scenarios import intertwined_rings, swap
+from ns2host.sim.vehicle import G, base_type
 
 # case -> (robots from the bottom up); the bottom robot is the one measured
 SWAP_CASES = {
@@ -286,12 +286,10 @@ def swap_table(res: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-# name -> (robot types per ring, ring heights)
-RING_CASES = {
-    "5-robot rings": ([("small", "small", "small"), ("large", "large")], (0.5, 0.8)),
-    "16-robot three rings": ([("small",) * 6, ("large", "small", "large", "small", "small"),
-                              ("small",) * 5], (0.45, 0.75, 1.05)),
-}
+# name -> robots of the paper's intertwined rings (host/sim/scenarios.py): vertical
+# rings of S* robots linked with a horizontal ring; the paper reports the "small*"
+# robots' maximum z error (5 robots: 10 -> 5 cm, 16 robots: 15 -> 10 cm)
+RING_CASES = {"5-robot rings": 5, "16-robot three rings": 16}
 
 
 def ring_experiments(cfg: Config, gen_dir, out_dir, duration: float = 16.0, controllers=CONTROLLERS,
@@ -303,11 +301,10 @@ def ring_experiments(cfg: Config, gen_dir, out_dir, duration: float = 16.0, cont
     out.mkdir(parents=True, exist_ok=True)
     tuning = load_or_tune(cfg, gen_dir, out)
     rows = []
-    for name, (groups, heights) in RING_CASES.items():
-        team = [t for g in groups for t in g]
-        small = [i for i, t in enumerate(team) if t == "small"]
+    for name, robots in RING_CASES.items():
+        team, sp, start, _ = intertwined_rings(robots)
+        small = [i for i, t in enumerate(team) if base_type(t) == "small"]
         for ctrl in controllers:
-            sp, start = rings([len(g) for g in groups], heights, radius=0.5, period=8.0)
             log = _fly(cfg, team, gen_dir, start, sp, duration, ctrl, tuning, measured=small, learned=learned)
             if progress is not None:
                 progress(1)
@@ -315,7 +312,7 @@ def ring_experiments(cfg: Config, gen_dir, out_dir, duration: float = 16.0, cont
             z_err = np.abs(log["truth_p"][late, :, 2] - log["p_d"][late, :, 2])
             worst = z_err.max(axis=0)
             for kind in sorted(set(team)):
-                if ctrl == "Mellinger" and kind != "small":
+                if ctrl == "Mellinger" and base_type(kind) != "small":
                     continue  # flown by BL
                 sel = [t == kind for t in team]
                 rows.append({"case": name, "robot_type": kind, "controller": ctrl,

@@ -70,6 +70,38 @@ class HeteroDeepSet(nn.Module):
             net.spectral_normalize_(self.gamma)
 
 
+class PairwiseSum(HeteroDeepSet):
+    """Ablation: the sum of pairwise models, f = sum_j rho_I(i)(phi_I(j)(x_ij)) (the
+    superposition the paper compares its deep set with, Fig. vis (g) vs (a) + 3 (b))."""
+
+    def forward(self, robot_type, sample_of, nbr_type, nbr_state):
+        z = nbr_state.new_zeros((nbr_state.shape[0], self.hidden))
+        for k in range(self.num_neighbor_types):
+            rows = torch.nonzero(nbr_type == k).squeeze(1)
+            if rows.numel():
+                z = z.index_put((rows,), self.phi[k](nbr_state[rows]))
+        per, owner = nbr_state.new_zeros(nbr_state.shape[0]), robot_type[sample_of]
+        for r in range(self.num_robot_types):
+            rows = torch.nonzero(owner == r).squeeze(1)
+            if rows.numel():
+                per = per.index_put((rows,), self.rho[r](z[rows]).squeeze(1))
+        return nbr_state.new_zeros(robot_type.shape[0]).index_add(0, sample_of, per)
+
+
+class TypeAgnostic(HeteroDeepSet):
+    """Ablation: a deep set that ignores robot types, one phi for every robot
+    neighbour and one rho for every robot (the environment keeps its own phi: it is
+    not a robot).  The other types' nets stay unused."""
+
+    def forward(self, robot_type, sample_of, nbr_type, nbr_state):
+        env = self.num_neighbor_types - 1
+        return super().forward(torch.zeros_like(robot_type), sample_of,
+                               torch.where(nbr_type == env, nbr_type, torch.zeros_like(nbr_type)), nbr_state)
+
+
+VARIANTS = {"hetero": HeteroDeepSet, "pairwise": PairwiseSum, "agnostic": TypeAgnostic}
+
+
 def lipschitz_bound(weights: list, margin: float = 1e-9) -> float:
     """Proven Lipschitz bound of a ReLU MLP from its (exported) weights: the product of
     exact spectral norms, computed in float64 and rounded up by a relative ``margin``."""

@@ -104,3 +104,30 @@ def test_hover_holds(cfg, exported):
     log = sw.run(4.0, hover_setpoints([[0, 0, 1.0], [1.0, 0, 1.0]]))
     late = log["t"] > 2.0
     assert np.abs(log["truth_p"][late] - log["p_d"][late]).max() < 0.03
+
+
+@pytest.mark.parametrize("robots", [5, 16])
+def test_paper_ring_geometry(robots):
+    """Vertical rings of S* robots linked with a horizontal ring (paper, Fig. plot5 and
+    fig1): the horizontal robots pass under and over the S* robots, 0.25 m apart."""
+    from ns2host.sim.scenarios import intertwined_rings
+
+    types, sp, start, vertical = intertwined_rings(robots)
+    assert len(types) == robots and {types[k] for k in vertical} == {"small*"}
+    assert types.count("large") == 2 and len(vertical) == (3 if robots == 5 else 10)
+    ts = np.arange(0.0, 8.0, 0.02)
+    P = np.stack([sp(t).p for t in ts])                          # [T, N, 3]
+    assert np.allclose(P[0], start)
+    horizontal = [k for k in range(robots) if k not in vertical]
+    assert np.ptp(P[:, horizontal, 2]) < 1e-9                    # one horizontal plane
+    assert all(np.ptp(P[:, k, 2]) > 0.45 for k in vertical)       # vertical circles
+    d = np.linalg.norm(P[:, :, None] - P[:, None], axis=3) + 9 * np.eye(robots)
+    assert d.min() > 0.24
+    # a large robot right above an S* (within 5 cm sideways, 0.2-0.3 m above) at some time
+    L = [k for k in range(robots) if types[k] == "large"]
+    PL, PV = P[:, L][:, :, None], P[:, vertical][:, None]
+    dxy = np.linalg.norm(PL[..., :2] - PV[..., :2], axis=3)
+    dz = PL[..., 2] - PV[..., 2]
+    assert ((dxy < 0.05) & (dz > 0.2) & (dz < 0.3)).any()
+    with pytest.raises(ValueError, match="5 or 16"):
+        intertwined_rings(7)

@@ -28,12 +28,14 @@ def test_labels_from_logs_match_the_ground_truth(cfg, exported):
         rms = np.sqrt((err_g ** 2).mean(axis=0))
         print(f"{kind}: label error rms {rms} g, max {np.abs(err_g).max(axis=0)} g")
         assert rms[2] < 0.5 and np.abs(err_g[:, 2]).max() < 6.0
-    assert log["truth_fa"][:, 0, 2].min() * 1000 / G < -12.0  # the swap did produce strong downwash
+    assert log["truth_fa"][:, 0, 2].min() * 1000 / G < -9.0  # the swap did produce strong downwash (-11 g)
 
 
 @pytest.fixture(scope="module")
 def sim_trained(cfg, exported, tmp_path_factory):
-    ds = collect(cfg, exported.gen_dir, 40.0, seed=3, team_list=[("small",), ("large",), ("small", "large")])
+    # every team of the paper's 12 scenarios, 20 s each: with the flow-based truth a
+    # model of one pair's 40 s (S, L, SL) did not carry over to the swap below
+    ds = collect(cfg, exported.gen_dir, 20.0, seed=3)
     model, report = train(cfg, ds, epochs=20, seed=0)
     root = tmp_path_factory.mktemp("sim_model")
     save_checkpoint(root / "m.pt", model, cfg, {"seed": 0, "data_hash": ds.content_hash(), "report": report})
@@ -43,7 +45,7 @@ def sim_trained(cfg, exported, tmp_path_factory):
 
 def test_collected_data_set(sim_trained):
     ds, report, _ = sim_trained
-    assert set(ds.scenario_names) == {"S", "L", "L->S", "S->L"}
+    assert len(set(ds.scenario_names)) == 12 and {"S", "L", "L->S", "{L,L}->S"} <= set(ds.scenario_names)
     # labels carry differentiation noise (from the EKF's velocity estimate, as on the
     # drone), and most samples have no neighbour: the
     # validation error stays well below the label variance, not near zero

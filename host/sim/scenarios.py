@@ -6,6 +6,8 @@
 * ``random_walk``: every robot is attracted by a goal drawn uniformly in a cube at
   a fixed rate and repelled by its neighbours (artificial potentials), speed
   limited; the cube reaches down to the ground (ground-effect data).
+* ``intertwined_rings``: the paper's 5- and 16-robot ring experiments (vertical
+  rings of S* robots linked with a horizontal ring).
 Setpoint functions take (t, state) and return cloop.Setpoints.
 """
 from __future__ import annotations
@@ -75,27 +77,67 @@ def random_walk(n: int, cube=((-1.0, 1.0), (-1.0, 1.0), (0.05, 1.2)), goal_perio
     return sp, start
 
 
-def rings(counts, heights, radius: float = 0.5, period: float = 8.0, seed: int = 0):
-    """Robots on horizontal circles (one per height), neighbouring rings turning in
-    opposite directions, so robots of different rings pass over each other
-    (the paper's intertwined rings: 5 robots on 2 rings, 16 robots on 3 rings)."""
-    rng = np.random.default_rng(seed)
-    ring = np.concatenate([np.full(c, k) for k, c in enumerate(counts)])
-    phase0 = np.concatenate([rng.uniform(0, 2 * np.pi) + 2 * np.pi * np.arange(c) / c for c in counts])
-    direction = np.where(ring % 2 == 0, 1.0, -1.0)
-    h = np.asarray(heights, float)[ring]
-    w = 2 * np.pi / period
-    n = len(ring)
+RING_RADIUS_V = 0.25   # m: vertical rings; a robot at its top or bottom is 0.25 m from the
+                       # horizontal ring's robot in its centre (paper: minimum vertical distance 24 cm)
+RING_Z = 1.0           # m, height of the horizontal ring
+RING_PERIOD = 8.0      # s per lap, every ring
+
+
+def _ring(center, e1, e2, a, b, n, phase0=0.0):
+    """(center, in-plane axes, semi-axes, n robots evenly spaced in phase)."""
+    return (np.asarray(center, float), np.asarray(e1, float), np.asarray(e2, float), a, b,
+            phase0 + 2 * np.pi * np.arange(n) / n)
+
+
+def intertwined_rings(robots: int):
+    """The paper's ring experiments ("Control Performance in Flight Tests", Fig. plot5
+    and fig1): robots move on a horizontal ring and on vertical rings that pass
+    through it like chain links, each vertical ring centred on the horizontal one,
+    so the horizontal ring's robots fly through the vertical rings and pass under and
+    over their robots.  The vertical rings carry the small robots with stronger motors
+    ("S*", the robots whose z error the paper reports).
+
+    * 5 robots: two large on a circle (radius 0.5 m) in the horizontal plane, three
+      S* on a circle in the vertical xz plane centred on it.
+    * 16 robots: two large and four small on an ellipse (0.8 x 0.5 m) in the
+      horizontal plane, five S* on each of two circles in the vertical xz and yz
+      planes, centred on the ellipse's vertices.
+
+    Radii and speeds are not given in the paper: vertical rings of RING_RADIUS_V,
+    one lap per RING_PERIOD on every ring (timed so that a horizontal robot is at a
+    vertical ring's centre when one of that ring's robots is at its top).  Returns
+    (robot types, setpoints, start positions, vertical-ring robot indices)."""
+    ex, ey, ez = np.eye(3)
+    r, z = RING_RADIUS_V, RING_Z
+    if robots == 5:
+        rings = [(("large", "large"), _ring([0, 0, z], ex, ey, 0.5, 0.5, 2)),
+                 (("small*",) * 3, _ring([0.5, 0, z], ex, ez, r, r, 3, np.pi / 2))]
+    elif robots == 16:
+        rings = [(("large", "small", "small", "large", "small", "small"), _ring([0, 0, z], ex, ey, 0.8, 0.5, 6)),
+                 (("small*",) * 5, _ring([0.8, 0, z], ex, ez, r, r, 5, np.pi / 2)),
+                 (("small*",) * 5, _ring([0, 0.5, z], ey, ez, r, r, 5, np.pi / 2))]
+    else:
+        raise ValueError(f"intertwined_rings: the paper flies 5 or 16 robots, not {robots}")
+    types = [t for ts, _ in rings for t in ts]
+    c = np.concatenate([np.repeat(g[0][None], len(g[5]), 0) for _, g in rings])
+    e1 = np.concatenate([np.repeat(g[1][None], len(g[5]), 0) for _, g in rings])
+    e2 = np.concatenate([np.repeat(g[2][None], len(g[5]), 0) for _, g in rings])
+    a = np.concatenate([np.full(len(g[5]), g[3]) for _, g in rings])[:, None]
+    b = np.concatenate([np.full(len(g[5]), g[4]) for _, g in rings])[:, None]
+    phase = np.concatenate([g[5] for _, g in rings])[:, None]
+    vertical = [k for k, (ts, g) in enumerate((ts, g) for ts, g in rings for _ in ts) if g[2][2] == 1.0]
+    w = 2 * np.pi / RING_PERIOD
+    n = len(types)
 
     def sp(t, state=None):
-        ang = phase0 + direction * w * t
-        p = np.column_stack([radius * np.cos(ang), radius * np.sin(ang), h])
-        v = np.column_stack([-radius * w * direction * np.sin(ang), radius * w * direction * np.cos(ang),
-                             np.zeros(n)])
-        a = np.column_stack([-radius * w * w * np.cos(ang), -radius * w * w * np.sin(ang), np.zeros(n)])
-        return Setpoints(p, v, a, np.zeros(n))
+        ang = phase + w * t
+        cs, sn = np.cos(ang), np.sin(ang)
+        p = c + a * cs * e1 + b * sn * e2
+        v = w * (-a * sn * e1 + b * cs * e2)
+        acc = -w * w * (a * cs * e1 + b * sn * e2)
+        return Setpoints(p, v, acc, np.zeros(n))
 
-    return sp, sp(0.0).p
+    return types, sp, sp(0.0).p, vertical
 
 
 def near_field(types, diameters, duration: float, z_low=(0.5, 1.0), gap_max: float = 1.2, reach: float = 0.35,

@@ -20,6 +20,7 @@ from .dataset import Dataset, scenario_name
 
 G_SMALL_UNDER_SMALL = 9.0  # g, downwash 0.3 m under a small robot (paper, Fig. "vis")
 GROUND_AT_5CM = 5.0        # g, ground effect on a small robot at z = 0.05 m
+NEAR_LO, NEAR_HI = np.array([-0.4, -0.4, -0.4]), np.array([0.4, 0.4, 1.2])  # m, neighbours drawn here
 
 
 def scenario_mixes(cfg: Config, max_neighbors: int = 2) -> list[tuple[int, tuple[int, ...], str]]:
@@ -93,7 +94,9 @@ def downwash_dataset(cfg: Config, samples_per_scenario: int = 2000, seed: int = 
         rows = offsets[s_idx * n_s:(s_idx + 1) * n_s]
         for k, t in enumerate(sorted(mix)):
             lo, hi = cfg.volume(r, t)
-            rel_p = rng.uniform(lo, hi, (n_s, 3))
+            # where the analytic downwash lives (its plume is within 0.4 m sideways
+            # and 1.2 m up: the earlier default volume), however wide the volume
+            rel_p = rng.uniform(np.maximum(lo, NEAR_LO), np.minimum(hi, NEAR_HI), (n_s, 3))
             rel_v = np.clip(rng.normal(0.0, 0.3, (n_s, 3)), -2.0, 2.0)
             nbr_type[rows + k] = t
             nbr_state[rows + k] = np.column_stack([rel_p, rel_v])
