@@ -108,6 +108,15 @@ class BuildError(Ns2Error, RuntimeError):
         self.details = details
 
 
+def require_export(gen_dir: str | Path) -> Path:
+    """The export folder, resolved, after checking that its generated headers are there."""
+    gen_dir = Path(gen_dir).resolve()
+    for g in GENERATED:
+        if not (gen_dir / g).is_file():
+            raise BuildError(f"{gen_dir / g} missing: run `ns2 export` first")
+    return gen_dir
+
+
 def compile_error(what: str, cmd: list[str], r) -> BuildError:
     out = r.stdout + r.stderr
     first = next((l for l in out.splitlines() if "error" in l), out.strip().splitlines()[0] if out.strip() else "")
@@ -198,10 +207,7 @@ def load(gen_dir: str | Path):
     """Build (or reuse) the host library for the headers in ``gen_dir``; returns (ffi, lib)."""
     from cffi import FFI
 
-    gen_dir = Path(gen_dir).resolve()
-    for g in GENERATED:
-        if not (gen_dir / g).is_file():
-            raise BuildError(f"{gen_dir / g} missing: run `ns2 export` first")
+    gen_dir = require_export(gen_dir)
     f = flags()
 
     def build(tmp: Path, name: str) -> None:

@@ -29,7 +29,7 @@ from pathlib import Path
 from elftools.elf.elffile import ELFFile
 
 from . import crazyflie
-from .cbuild import REPO, GENERATED, BuildError
+from .cbuild import REPO, GENERATED, BuildError, compile_error
 
 APP_DIR = REPO / "firmware" / "app"
 CF_BUILD = crazyflie.BUILD / "cf"
@@ -347,7 +347,7 @@ def build_harness(gen_dir: Path, out: Path) -> Path:
                  "-o", str(exe)]):
         r = subprocess.run(cmd, capture_output=True, text=True)
         if r.returncode != 0:
-            raise BuildError(f"{' '.join(cmd)}\n{r.stdout}{r.stderr}")
+            raise compile_error(" ".join(cmd[-3:]), cmd, r)
     return exe
 
 

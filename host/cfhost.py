@@ -23,7 +23,8 @@ import subprocess
 from functools import lru_cache
 from pathlib import Path
 
-from .cbuild import CDEF, GENERATED, REPO, BuildError, _key, _module, compile_objects, flags, host_cc
+from .cbuild import (CDEF, REPO, _key, _module, compile_error, compile_objects, flags,
+                     host_cc, require_export)
 from .crazyflie import autoconf_dir, extract_function, firmware_dir
 
 FW_INCLUDES = [  # bindings/setup.py
@@ -88,7 +89,7 @@ void ns2_fly_estimate(const ns2_fly_robot_t *r, float out[13]);
 def _run(cmd: list[str]) -> None:
     r = subprocess.run(cmd, capture_output=True, text=True)
     if r.returncode != 0:
-        raise BuildError(f"{' '.join(cmd)}\n{r.stdout}{r.stderr}")
+        raise compile_error(" ".join(cmd[-3:]), cmd, r)
 
 
 @lru_cache(maxsize=None)
@@ -96,10 +97,7 @@ def load_fly(gen_dir: str | Path):
     """Build (or reuse) the flight kernel for the export in ``gen_dir``; returns (ffi, lib)."""
     from cffi import FFI
 
-    gen_dir = Path(gen_dir).resolve()
-    for g in GENERATED:
-        if not (gen_dir / g).is_file():
-            raise BuildError(f"{gen_dir / g} missing: run `ns2 export` first")
+    gen_dir = require_export(gen_dir)
     fw, auto = firmware_dir(), autoconf_dir()
     f = flags()
     fw_inc = [f"-I{fw / i}" for i in FW_INCLUDES] + [f"-I{auto}"]

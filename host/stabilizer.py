@@ -20,7 +20,7 @@ import tempfile
 from pathlib import Path
 
 from . import cfapp, cm4_count, crazyflie
-from .cbuild import BUILD_ROOT, GENERATED, REPO, BuildError, flags
+from .cbuild import BUILD_ROOT, REPO, compile_error, flags
 from .target import ARM_CC, TARGET_DIR
 
 FIRMWARE_SOURCES = (
@@ -72,13 +72,13 @@ def build_image(gen_dir: Path, infer: str = "fixed") -> Path:
             cmd = [ARM_CC, *ARCH_CFLAGS, *KBUILD_CFLAGS, *extra, *inc, "-g", "-c", str(src), "-o", str(obj)]
             r = subprocess.run(cmd, capture_output=True, text=True)
             if r.returncode != 0:
-                raise BuildError(f"{' '.join(cmd)}\n{r.stdout}{r.stderr}")
+                raise compile_error(" ".join(cmd[-3:]), cmd, r)
             objs.append(str(obj))
         cmd = [ARM_CC, *ARCH_CFLAGS, "--specs=nosys.specs", "-nostartfiles", f"-T{TARGET_DIR / 'stm32f405.ld'}",
                "-Wl,--gc-sections", *[f"-Wl,--undefined={e}" for e in ENTRY_POINTS], *objs, "-lm", "-o", str(Path(tmp) / out.name)]
         r = subprocess.run(cmd, capture_output=True, text=True)
         if r.returncode != 0:
-            raise BuildError(f"{' '.join(cmd)}\n{r.stdout}{r.stderr}")
+            raise compile_error(" ".join(cmd[-3:]), cmd, r)
         os.replace(Path(tmp) / out.name, out)
     return out
 
