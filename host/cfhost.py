@@ -63,6 +63,7 @@ typedef struct { ns2_pilot_cfg_t cfg; ns2_gains_t gains; ns2_ctrl_t ctrl; ns2_pe
                  uint8_t job_begun; float fa_hat_g; int32_t status; uint16_t n_used; float e[3]; ...; } ns2_pilot_t;
 void ns2_pilot_default_cfg(ns2_pilot_cfg_t *cfg, uint8_t self_type);
 void ns2_pilot_init(ns2_pilot_t *pl, const ns2_pilot_cfg_t *cfg, const ns2_vehicle_t *veh, const ns2_gains_t *g);
+void ns2_pilot_reset(ns2_pilot_t *pl, const ns2_vehicle_t *veh);
 int32_t ns2_pilot_peer(ns2_pilot_t *pl, uint8_t id, uint8_t type, uint32_t t_ms, const float p[3]);
 void ns2_pilot_tick(ns2_pilot_t *pl, const ns2_ctrl_state_t *s, const ns2_setpoint_t *sp, int do_pos,
                     uint8_t self_id, uint32_t now_ms, float battery_V);

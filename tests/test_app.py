@@ -255,6 +255,111 @@ def test_sixteen_robot_swarm_through_the_firmware_peer_table(harness, robots, pe
     assert res["firmware_table_max"] == min(per_ms, 10)
 
 
+DEG2RAD = np.float32(0.017453292519943295)  # the app's NS2_DEG2RAD
+# one 1 kHz tick of the harness's trace mode (app_harness.c, trace_tick)
+TRACE = np.dtype([("disable", "<u4"), ("bat", "<f4"), ("p", "<f4", 3), ("v", "<f4", 3), ("q", "<f4", 4),
+                  ("gyro", "<f4", 3), ("sp_p", "<f4", 3), ("sp_v", "<f4", 3), ("sp_a", "<f4", 3), ("yaw", "<f4"),
+                  ("n", "<u4"), ("peers", [("id", "<u4"), ("x", "<f4", 3)], 3)])
+LARGE_IDS = (2, 4)  # ns2type.mask1: radio ids 2 and 4 are large robots, 3 is small
+
+
+def _trace_inputs(n=1500, seed=7):
+    """A small robot (radio id 1) around a moving setpoint with a perturbation, gyro and
+    tilt; three peers (ids 2, 3, 4) circling 0.2-0.4 m above, their mocap frames at
+    100 Hz with a fifth lost; no position setpoint (on the ground) for ticks 700-759."""
+    rng = np.random.default_rng(seed)
+    x = np.zeros(n, TRACE)
+    t = np.arange(n) / 1000.0
+    x["disable"] = (t >= 0.7) & (t < 0.76)
+    x["bat"] = 4.0 - 0.1 * t
+    x["sp_p"] = np.stack([0.1 * np.sin(2 * t), 0.05 * t, 1.0 + 0.0 * t], 1)
+    x["sp_v"] = np.stack([0.2 * np.cos(2 * t), 0.05 + 0.0 * t, 0.0 * t], 1)
+    x["sp_a"] = np.stack([-0.4 * np.sin(2 * t), 0.0 * t, 0.0 * t], 1)
+    x["yaw"] = 10.0 * np.sin(t)
+    kick = 0.03 * np.exp(-((t - 0.3) / 0.05) ** 2)  # the perturbation
+    x["p"] = x["sp_p"] + np.stack([0.02 * np.sin(7 * t), -0.01 * np.cos(5 * t), 0.01 * np.sin(3 * t) - kick], 1)
+    x["v"] = x["sp_v"] + rng.normal(0, 0.02, (n, 3))
+    q = np.stack([np.ones(n), 0.02 * np.sin(9 * t), -0.03 * np.sin(4 * t), 0.05 * np.sin(t)], 1)
+    x["q"] = q / np.linalg.norm(q, axis=1, keepdims=True)
+    x["gyro"] = rng.normal(0, 20.0, (n, 3))  # deg/s
+    for k in range(n):
+        if k % 10 not in (1, 4) or rng.random() < 0.2:
+            continue
+        ids = (2,) if k % 10 == 1 else (3, 4)  # two positions in one millisecond
+        for j, i in enumerate(ids):
+            a = t[k] * (1.0 + i) + i
+            x["peers"][k, j] = (i, (0.15 * np.cos(a), 0.15 * np.sin(a), 1.0 + 0.1 * i))
+        x["n"][k] = len(ids)
+    return x
+
+
+def _pilot_direct(ffi, lib, x, veh, gains, pcfg, large_ids):
+    """ns2_pilot driven as ns2_app.c drives it: the firmware's peer table stamps each
+    position with xTaskGetTickCount() (= the tick) and is drained every 1 kHz tick, the
+    500 Hz ticks run ns2_pilot_tick (period + position at 100 Hz), self radio id 1,
+    gyro and yaw deg -> rad in float32, quaternion [w x y z], reset with no setpoint."""
+    pl = ffi.new("ns2_pilot_t *")
+    lib.ns2_pilot_init(pl, pcfg, veh, gains)
+    lib.ns2_pilot_reset(pl, veh)
+    s, sp = ffi.new("ns2_ctrl_state_t *"), ffi.new("ns2_setpoint_t *")
+    pwm, fa, n_used = np.zeros((len(x), 4), np.float32), np.zeros(len(x), np.float32), np.zeros(len(x), int)
+    u = np.zeros(4, np.float32)
+    for k, r in enumerate(x):
+        for j in range(r["n"]):
+            i, p = int(r["peers"][j]["id"]), r["peers"][j]["x"]
+            lib.ns2_pilot_peer(pl, i, int(i in large_ids), k, [float(c) for c in p])
+        if r["disable"]:
+            lib.ns2_pilot_reset(pl, veh)
+            u = np.zeros(4, np.float32)
+        elif k % 2 == 0:
+            s.p, s.v, s.q = r["p"].tolist(), r["v"].tolist(), r["q"].tolist()
+            s.w = (r["gyro"] * DEG2RAD).tolist()
+            sp.p, sp.v, sp.a, sp.w = r["sp_p"].tolist(), r["sp_v"].tolist(), r["sp_a"].tolist(), [0.0] * 3
+            sp.yaw = float(r["yaw"] * DEG2RAD)
+            lib.ns2_pilot_tick(pl, s, sp, int(k % 10 == 0), 1, k, float(r["bat"]))
+            u = np.array(list(pl.ctrl.pwm), np.float32)
+        pwm[k], fa[k], n_used[k] = u, pl.fa_hat_g, pl.n_used
+    return pwm, fa, n_used
+
+
+@pytest.mark.parametrize("fixed,self_type", [(1, 0), (0, 0), (1, 1)])
+def test_app_motor_commands_equal_ns2_pilot_bit_for_bit(harness, exported, tmp_path, fixed, self_type):
+    """The app (the real ns2_app.c on the firmware's headers and peer_localization.c)
+    and ns2_pilot called directly on the same 1.5 s of 1 kHz inputs (moving setpoint,
+    perturbation, three peers of both types with lost frames, a stretch on the ground)
+    give the same motor PWM on every tick, bit for bit; the app's vehicle, default
+    gains (generated ns2_vehicles.h) and PARAM defaults equal ns2codegen.vehicle's and
+    ns2_pilot_default_cfg's; the learned force was in use and the PWM varied."""
+    from ns2host.cbuild import fill_gains, fill_vehicle
+    from ns2host.cfhost import load_fly
+    from ns2host.sim.vehicle import default_gains, vehicle
+
+    ffi, lib = load_fly(exported.gen_dir)
+    veh, gains, pcfg = ffi.new("ns2_vehicle_t *"), ffi.new("ns2_gains_t *"), ffi.new("ns2_pilot_cfg_t *")
+    v = vehicle(exported.cfg, exported.cfg.robot_types[self_type])
+    fill_vehicle(veh[0], v)
+    fill_gains(gains[0], default_gains(v))
+    lib.ns2_pilot_default_cfg(pcfg, self_type)
+    pcfg.enable, pcfg.fixed = 1, fixed
+    x = _trace_inputs()
+    (tmp_path / "in.bin").write_bytes(x.tobytes())
+    mask = sum(1 << i for i in LARGE_IDS)
+    subprocess.run([str(harness), "trace", str(fixed), "1", str(self_type), hex(mask), str(tmp_path / "in.bin"),
+                    str(tmp_path / "out.bin")], check=True)
+    out = (tmp_path / "out.bin").read_bytes()
+    head = [bytes(ffi.buffer(c)) for c in (veh, gains, pcfg)]
+    assert out[:len(b"".join(head))] == b"".join(head)  # ns2_vehicles.h == ns2codegen.vehicle, PARAM == default cfg
+    app = np.frombuffer(out[len(b"".join(head)):], np.float32).reshape(-1, 4)
+    direct, fa, n_used = _pilot_direct(ffi, lib, x, veh, gains, pcfg, LARGE_IDS)
+    assert app.shape == direct.shape == (len(x), 4)
+    assert np.array_equal(app.view(np.uint32), direct.view(np.uint32))
+    on = x["disable"] == 0
+    assert (app[~on] == 0).all() and (app[on].max(axis=1) > 0).all()  # off on the ground, flying otherwise
+    assert np.ptp(app[on], axis=0).min() > 0.01  # the PWM varied on every motor
+    assert n_used.max() == 3 and (n_used[on] > 0).mean() > 0.8
+    assert np.abs(fa).max() > 0.5 and (fa != 0).mean() > 0.5  # the learned term was in use
+
+
 # ------------------------------------------------------------------ 1 ms stabilizer iteration
 
 

@@ -19,6 +19,12 @@
  *       packets of K positions, one packet per millisecond, for one second: how
  *       many peers the app keeps and its network uses, and the most the firmware's
  *       table ever held.
+ *   harness trace FIXED ENABLE SELF_TYPE MASK1 IN OUT
+ *       the app's inputs of N 1 kHz stabilizer ticks from IN (N records of
+ *       TRACE_WORDS little-endian 32-bit words: see trace_tick), given to the app as
+ *       the stabilizer does (peers through peerLocalizationTellPosition, the clock,
+ *       controllerOutOfTree); OUT: the app's vehicle, default gains and ns2 PARAM
+ *       values (raw structs), then per tick control.normalizedForces[4] (float32).
  */
 #include <stdio.h>
 #include <stdlib.h>
@@ -50,7 +56,8 @@ void eventTrigger(const eventtrigger *event)
 }
 uint64_t usecTimestamp(void) { return (uint64_t)now_ms * 1000u; }
 uint64_t configblockGetRadioAddress(void) { return 0xE7E7E7E701ull; }
-float pmGetBatteryVoltage(void) { return 3.9f; }
+static float battery_V = 3.9f;
+float pmGetBatteryVoltage(void) { return battery_V; }
 TickType_t xTaskGetTickCount(void) { return now_ms; }
 void vTaskDelay(const TickType_t ticks) { (void)ticks; }
 
@@ -103,8 +110,116 @@ static int swarm(int n_robots, int per_ms)
     return 0;
 }
 
+/* one tick of a trace: disable (1: mode.z = modeDisable), battery_V, state
+ * position[3] velocity[3] quaternion[w x y z], gyro[3] (deg/s), setpoint position[3]
+ * velocity[3] acceleration[3] yaw (deg), n_peers (<= TRACE_PEERS), then per peer
+ * id, x, y, z; all float32 but disable, n_peers and the ids (uint32) */
+#define TRACE_PEERS 3
+#define TRACE_WORDS (26 + 4 * TRACE_PEERS)
+
+static float word_f(const uint32_t *w)
+{
+    float f;
+    memcpy(&f, w, sizeof f);
+    return f;
+}
+
+static int trace_tick(const uint32_t w[TRACE_WORDS], uint32_t tick, control_t *control)
+{
+    state_t state = {0};
+    sensorData_t sensors = {0};
+    setpoint_t sp = {0};
+    state.position.x = word_f(&w[2]);
+    state.position.y = word_f(&w[3]);
+    state.position.z = word_f(&w[4]);
+    state.velocity.x = word_f(&w[5]);
+    state.velocity.y = word_f(&w[6]);
+    state.velocity.z = word_f(&w[7]);
+    state.attitudeQuaternion.w = word_f(&w[8]);
+    state.attitudeQuaternion.x = word_f(&w[9]);
+    state.attitudeQuaternion.y = word_f(&w[10]);
+    state.attitudeQuaternion.z = word_f(&w[11]);
+    sensors.gyro.x = word_f(&w[12]);
+    sensors.gyro.y = word_f(&w[13]);
+    sensors.gyro.z = word_f(&w[14]);
+    sp.position.x = word_f(&w[15]);
+    sp.position.y = word_f(&w[16]);
+    sp.position.z = word_f(&w[17]);
+    sp.velocity.x = word_f(&w[18]);
+    sp.velocity.y = word_f(&w[19]);
+    sp.velocity.z = word_f(&w[20]);
+    sp.acceleration.x = word_f(&w[21]);
+    sp.acceleration.y = word_f(&w[22]);
+    sp.acceleration.z = word_f(&w[23]);
+    sp.attitude.yaw = word_f(&w[24]);
+    sp.mode.x = sp.mode.y = w[0] ? modeDisable : modeAbs;
+    sp.mode.z = w[0] ? modeDisable : modeAbs;
+    battery_V = word_f(&w[1]);
+    if (w[25] > TRACE_PEERS) {
+        return -1;
+    }
+    now_ms = tick;
+    for (uint32_t j = 0; j < w[25]; ++j) {
+        const uint32_t *pw = &w[26 + 4 * j];
+        if (pw[0] == 0u || pw[0] > 255u) {
+            return -1;
+        }
+        tell((int)pw[0], word_f(&pw[1]), word_f(&pw[2]), word_f(&pw[3]));
+    }
+    controllerOutOfTree(control, &sp, &sensors, &state, tick);
+    return 0;
+}
+
+static int trace(char **argv)
+{
+    cfg.fixed = (uint8_t)atoi(argv[2]);
+    cfg.enable = (uint8_t)atoi(argv[3]);
+    cfg.self_type = (uint8_t)atoi(argv[4]);
+    typeMask1 = (uint32_t)strtoul(argv[5], NULL, 0);
+    controllerOutOfTreeInit();
+    FILE *in = fopen(argv[6], "rb");
+    if (in == NULL) {
+        fprintf(stderr, "%s: cannot open\n", argv[6]);
+        return 1;
+    }
+    FILE *out = fopen(argv[7], "wb");
+    if (out == NULL) {
+        fprintf(stderr, "%s: cannot open\n", argv[7]);
+        fclose(in);
+        return 1;
+    }
+    int rc = 0;
+    if (fwrite(&vehicles[ctrlType], sizeof vehicles[0], 1, out) != 1 ||
+        fwrite(&default_gains[ctrlType], sizeof default_gains[0], 1, out) != 1 ||
+        fwrite(&cfg, sizeof cfg, 1, out) != 1) {
+        rc = 1;
+    }
+    control_t control = {0};
+    uint32_t w[TRACE_WORDS];
+    for (uint32_t tick = 0; rc == 0 && fread(w, sizeof w, 1, in) == 1; ++tick) {
+        if (trace_tick(w, tick, &control) != 0) {
+            fprintf(stderr, "%s: tick %u: bad peer count or radio id\n", argv[6], (unsigned)tick);
+            rc = 1;
+        } else if (fwrite(control.normalizedForces, sizeof(float), 4, out) != 4) {
+            rc = 1;
+        }
+    }
+    if (rc == 0 && ferror(in)) {
+        fprintf(stderr, "%s: read error\n", argv[6]);
+        rc = 1;
+    }
+    fclose(in);
+    if (fclose(out) != 0) {
+        rc = 1;
+    }
+    return rc;
+}
+
 int main(int argc, char **argv)
 {
+    if (argc > 7 && strcmp(argv[1], "trace") == 0) {
+        return trace(argv);
+    }
     if (argc > 3 && strcmp(argv[1], "swarm") == 0) {
         return swarm(atoi(argv[2]), atoi(argv[3]));
     }
