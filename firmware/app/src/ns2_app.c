@@ -191,8 +191,8 @@ void controllerOutOfTreeInit(void)
 {
     ctrlType = self_type();
     gains = default_gains[ctrlType];
-    ns2_pilot_init(&pilot, &cfg, &vehicles[ctrlType], &gains);
-    reset_controller();
+    ns2_pilot_init(&pilot, &cfg, &vehicles[ctrlType], &gains); /* peers emptied, controller reset */
+    faHat = 0.0f;
 }
 
 bool controllerOutOfTreeTest(void)
