@@ -123,8 +123,13 @@ ABLATION_DEVICE ?= cpu
 build/paper_data.npz: | deps
 	@mkdir -p build
 	$(PYTHON) benchmarks/paper_data.py --data-only --out $@
-ablation: build/paper_data.npz
-	$(PYTHON) benchmarks/ablation.py --data build/paper_data.npz --seeds 3 --device $(ABLATION_DEVICE) \
+# the larger-team test set: teams of 4 and 5 robots, never seen in training
+build/larger_teams.npz: | deps
+	@mkdir -p build
+	$(PYTHON) benchmarks/paper_data.py --data-only --team-sizes 4,5 --samples 200000 --seed 8 --out $@
+ablation: build/paper_data.npz build/larger_teams.npz
+	$(PYTHON) benchmarks/ablation.py --data build/paper_data.npz --test-data build/larger_teams.npz \
+		--seeds 3 --device $(ABLATION_DEVICE) \
 		> build/ablation.json.tmp && mv build/ablation.json.tmp build/ablation.json
 	@cat build/ablation.json
 

@@ -12,9 +12,12 @@ Validation MSE (g^2), mean +- std over the seeds, with the epochs and wall time:
   T   a deep set that ignores robot types (one phi for all robots, one rho)
 
 on the data sets given (make ablation: the paper-sized set of make paper-data).
+With --test-data every trained model is also scored on flights of larger teams
+than any in training (make ablation: teams of 4 and 5 robots, 3-4 neighbours plus
+the ground): the generalization the paper's deep set is for (Fig. vis (g)).
 
     python benchmarks/ablation.py --data A.npz [--data B.npz] [--axes H,L,V,P,T] [--seeds 3]
-        [--max-epochs 60] [--patience 3] [--min-delta 0.01] [--device cpu]
+        [--max-epochs 60] [--patience 3] [--min-delta 0.01] [--device cpu] [--test-data C.npz]
 """
 from __future__ import annotations
 
@@ -28,7 +31,7 @@ import numpy as np
 
 from ns2codegen.config import ONBOARD_WIDTHS, Config
 from ns2codegen.data.dataset import Dataset
-from ns2codegen.train import train
+from ns2codegen.train import evaluate, train
 
 PAPER = {"hidden": 20, "layers": 4}
 # (axis, value, model overrides, variant, drop relative velocity); H = 20 at L = 4 is
@@ -79,30 +82,42 @@ def main() -> None:
     ap.add_argument("--patience", type=int, default=3)
     ap.add_argument("--min-delta", type=float, default=0.01)
     ap.add_argument("--device", default="cpu")
+    ap.add_argument("--test-data", action="append", default=[],
+                    help="also score every model on this set (larger teams than in training)")
     args = ap.parse_args()
     paths = args.data or sorted(glob.glob("build/sim/round*.npz"))
     if not paths:
         raise SystemExit("no data: run `make paper-data` or pass --data")
     ds = Dataset.concat([Dataset.load(p) for p in paths])
+    test = Dataset.concat([Dataset.load(p) for p in args.test_data]) if args.test_data else None
     cfg = Config.load()
     results, t_all = {}, time.perf_counter()
     for axis, value, over, variant, drop_v in runs(args.axes):
         data = without_velocity(ds) if drop_v else ds
-        mses, epochs, wall = [], [], []
+        mses, epochs, wall, tests = [], [], [], []
         for seed in range(args.seeds):
             t0 = time.perf_counter()
-            _, rep = train(cfg.with_overrides(**over), data, epochs=args.max_epochs, seed=seed, device=args.device,
-                           variant=variant, patience=args.patience, min_delta=args.min_delta)
+            model, rep = train(cfg.with_overrides(**over), data, epochs=args.max_epochs, seed=seed,
+                               device=args.device, variant=variant, patience=args.patience,
+                               min_delta=args.min_delta)
             mses.append(rep["validation"]["mse"])
             epochs.append(rep["epochs"])
             wall.append(time.perf_counter() - t0)
+            if test is not None:
+                tests.append(evaluate(model, without_velocity(test) if drop_v else test, device=args.device)["mse"])
             print(f"  {axis}={value} seed {seed}: {mses[-1]:.3f} g^2 after {epochs[-1]} epochs "
-                  f"({wall[-1]:.0f} s)", file=sys.stderr, flush=True)
+                  f"({wall[-1]:.0f} s)" + (f", larger teams {tests[-1]:.3f} g^2" if tests else ""),
+                  file=sys.stderr, flush=True)
         results[(axis, value)] = {"mean": float(np.mean(mses)), "std": float(np.std(mses)), "runs": mses,
                                   "epochs": epochs, "wall_s": [round(w, 1) for w in wall]}
+        if tests:
+            results[(axis, value)]["larger_teams"] = {"mean": float(np.mean(tests)), "std": float(np.std(tests)),
+                                                      "runs": tests}
     out = {"data": paths, "samples": len(ds), "device": args.device, "seeds": args.seeds,
            "stopping_rule": {"max_epochs": args.max_epochs, "patience": args.patience, "min_delta": args.min_delta},
-           "label_variance_g2": float(np.var(ds.label_g)), "wall_s": round(time.perf_counter() - t_all, 1),
+           "label_variance_g2": float(np.var(ds.label_g)),
+           "test_data": args.test_data, "test_samples": len(test) if test is not None else 0,
+           "wall_s": round(time.perf_counter() - t_all, 1),
            **table(results, args.axes)}
     print(json.dumps(out, indent=2))
 

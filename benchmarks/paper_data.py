@@ -7,6 +7,7 @@ ablation over H in {10, 20, 40}, L in {3, 4, 5} (Table "ablation") and the
 intermediate widths (benchmarks/ablation.py) on the same set with --ablation-epochs each.
 
     python benchmarks/paper_data.py [--samples 1400000] [--epochs 20] [--ablation-epochs 5]
+        [--team-sizes 1,2,3] [--seed 7] [--data-only --out FILE.npz]
 
 Long (about half an hour on 2 cores); not part of `make bench`: `make paper-data`.
 """
@@ -36,9 +37,15 @@ def main() -> None:
     ap.add_argument("--ablation-epochs", type=int, default=5)
     ap.add_argument("--out", default=None, help="also save the data set (.npz) here")
     ap.add_argument("--data-only", action="store_true", help="only generate (and --out) the data set")
+    ap.add_argument("--team-sizes", default="1,2,3",
+                    help="comma list of team sizes to fly (default: the paper's 12 scenarios, teams of 1-3; "
+                         "4,5 gives the larger-team test set of the ablation)")
+    ap.add_argument("--seed", type=int, default=7)
     args = ap.parse_args()
     cfg = Config.load()
-    robots = sum(len(t) for t in teams(cfg))
+    sizes = sorted({int(n) for n in args.team_sizes.split(",")})
+    team_list = [t for t in teams(cfg, max(sizes)) if len(t) in sizes]
+    robots = sum(len(t) for t in team_list)
     seconds = args.samples / (LOG_HZ * robots)  # per team: every robot logs at LOG_HZ
     with tempfile.TemporaryDirectory() as tmp:
         # the first round flies the baseline controller: no learned term needed,
@@ -48,17 +55,18 @@ def main() -> None:
         save_checkpoint(Path(tmp) / "m.pt", m0, cfg, {"seed": 0, "data_hash": ds0.content_hash(), "report": r0})
         export(Path(tmp) / "m.pt", Path(tmp) / "gen")
         t0 = time.perf_counter()
-        ds = collect(cfg, Path(tmp) / "gen", seconds, seed=7)
+        ds = collect(cfg, Path(tmp) / "gen", seconds, seed=args.seed, team_list=team_list)
         gen_s = time.perf_counter() - t0
     print(f"  {len(ds):,} samples in {gen_s:.0f} s", file=sys.stderr)
     if args.out:
         ds.save(args.out)
     if args.data_only:
-        print(json.dumps({"samples": len(ds), "generation_s": round(gen_s, 1)}))
+        print(json.dumps({"samples": len(ds), "teams": ["+".join(t) for t in team_list],
+                          "generation_s": round(gen_s, 1)}))
         return
     _, rep = train(cfg, ds, epochs=args.epochs, seed=0)
     val = rep["validation"]
-    out = {"data": {"samples": len(ds), "teams": len(teams(cfg)), "flight_seconds_per_team": round(seconds, 1),
+    out = {"data": {"samples": len(ds), "teams": len(team_list), "flight_seconds_per_team": round(seconds, 1),
                     "scenarios": len(set(ds.scenario.tolist())), "generation_s": round(gen_s, 1),
                     "samples_per_second": round(len(ds) / gen_s)},
            "training": {"epochs": args.epochs, "train_samples": rep["train_samples"],
