@@ -99,6 +99,32 @@ def test_controller_safety(cfg, exported):
         assert 0.0 <= c.pwm[i] <= 1.0
 
 
+def test_mixing_capped_as_the_firmware(cfg, exported):
+    """Thrust and torque demand beyond the motors: as the firmware's
+    powerDistributionCap, every motor is lowered by the excess of the highest one,
+    so the differences between motors (the torques) are those of the uncapped
+    command and the top motor sits at f_max (thrust priority would scale them)."""
+    cm = exported.cmodel()
+    ffi, lib = cm.ffi, cm.lib
+    veh = vehicle(cfg, "small")
+    us, status = [], []
+    for f_max in (veh.f_max, 1e3):  # the real motors, and motors that never cap
+        ctrl = cm.controller([veh])
+        c = ffi.addressof(ctrl, 0)
+        c.veh.f_max_N = f_max
+        st, sp = ffi.new("ns2_ctrl_state_t *"), ffi.new("ns2_setpoint_t *")
+        st.q, st.p, st.w = [1, 0, 0, 0], [0, 0, 1], [1.5, -1.0, 0.3]  # rotating
+        sp.p = [0, 0, 3.0]  # 2 m below the setpoint: full thrust asked
+        lib.ns2_ctrl_position(c, st, sp, ffi.NULL, 0.01)
+        lib.ns2_ctrl_attitude(c, st, 0.002, 4.0)
+        us.append(np.array(list(c.u)))
+        status.append(c.status)
+    capped, free = us
+    assert status == [lib.NS2_CTRL_SATURATED, 0] and free.max() > veh.f_max  # beyond the motors
+    assert capped.max() == pytest.approx(veh.f_max, rel=1e-6) and capped.min() > 0
+    np.testing.assert_allclose(capped - capped.mean(), free - free.mean(), rtol=0, atol=1e-6)
+
+
 def test_hover_holds(cfg, exported):
     sw = CLoopSwarm(cfg, ["small", "large"], exported.gen_dir, [[0, 0, 1.0], [1.0, 0, 1.0]])
     log = sw.run(4.0, hover_setpoints([[0, 0, 1.0], [1.0, 0, 1.0]]))

@@ -13,8 +13,9 @@
  *   (the Kwd term approximates tau_d_dot / lambda, experiments section).
  * Delay compensation and mixing, eq. (delay_ctrl):
  *   eta_c = [T_d + T_d_dot / lambda; tau_d],  u = B0^-1 eta_c  (motor forces, N)
- *   with thrust priority: the collective thrust is kept (clamped to what four
- *   motors can give) and the torque part scaled down until 0 <= u_i <= f_max.
+ *   capped as the firmware's powerDistributionCap: a motor over f_max lowers
+ *   every motor by the excess (torques kept, collective thrust gives way), then
+ *   each u_i is clamped to [0, f_max].
  *   PWM = psi_2(u_i in grams, V / 4.2) (Table cfprops), clamped to [0, 1].
  *
  * Units: SI (m, m/s, rad, N, N m, kg); fa_hat in newtons, world frame.

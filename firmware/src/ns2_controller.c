@@ -302,7 +302,11 @@ void ns2_ctrl_position(ns2_ctrl_t *c, const ns2_ctrl_state_t *s, const ns2_setpo
     }
 }
 
-/* Motor forces from eta_c with thrust priority; returns 1 when torques were scaled. */
+/* Motor forces from eta_c, capped as the Crazyflie firmware caps them
+ * (power_distribution_quadrotor.c, powerDistributionCap): when a motor would
+ * exceed f_max every motor is lowered by the excess, so the torques are kept and
+ * the collective thrust gives way; then each force is clamped to [0, f_max].
+ * Returns 1 when the command was capped or clamped. */
 static int mix(const ns2_vehicle_t *veh, const float eta[4], float u[4])
 {
     static const float sx[4] = {-1.0f, -1.0f, 1.0f, 1.0f};
@@ -311,20 +315,19 @@ static int mix(const ns2_vehicle_t *veh, const float eta[4], float u[4])
     const float a = veh->arm_m * 0.70710678f;
     const float f_max = veh->f_max_N;
     const float uT = clampf(eta[0], 0.0f, 4.0f * f_max) * 0.25f;
-    float alpha = 1.0f;
-    float ut[4];
+    float highest = 0.0f;
+    int clamped = eta[0] > 4.0f * f_max || eta[0] < 0.0f;
     for (int i = 0; i < 4; ++i) {
-        ut[i] = 0.25f * (sx[i] * eta[1] / a + sy[i] * eta[2] / a + sz[i] * eta[3] / veh->kappa_m);
-        if (ut[i] > 0.0f && uT + ut[i] > f_max) {
-            alpha = fminf(alpha, (f_max - uT) / ut[i]);
-        } else if (ut[i] < 0.0f && uT + ut[i] < 0.0f) {
-            alpha = fminf(alpha, uT / -ut[i]);
-        }
+        u[i] = uT + 0.25f * (sx[i] * eta[1] / a + sy[i] * eta[2] / a + sz[i] * eta[3] / veh->kappa_m);
+        highest = fmaxf(highest, u[i]);
     }
+    const float reduction = highest > f_max ? highest - f_max : 0.0f;
     for (int i = 0; i < 4; ++i) {
-        u[i] = clampf(uT + alpha * ut[i], 0.0f, f_max);
+        const float f = u[i] - reduction;
+        clamped |= !(f >= 0.0f && f <= f_max);
+        u[i] = clampf(f, 0.0f, f_max);
     }
-    return alpha < 1.0f || eta[0] > 4.0f * f_max || eta[0] < 0.0f;
+    return reduction > 0.0f || clamped;
 }
 
 static float pwm_of(const ns2_vehicle_t *veh, float u_N, float battery_V)

@@ -8,6 +8,7 @@ real logs (ns2codegen.data.from_logs), never through the ground truth."""
 from __future__ import annotations
 
 import itertools
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -47,8 +48,26 @@ def fly(cfg: Config, team, gen_dir, kind: str, duration: float, seed: int, learn
         raise ValueError(f"unknown flight kind {kind!r}: random, swap or near")
     sw = CLoopSwarm(cfg, list(team), gen_dir, start, aero=True, learned=learned, seed=seed)
     log = sw.run(duration, sp)
+    n_keep = crash_cut(log["t"], log["truth_p"])
+    if n_keep < len(log["t"]):
+        warnings.warn(f"{kind} flight of {'+'.join(team)} (seed {seed}): a robot crashed at "
+                      f"t = {log['t'][n_keep]:.2f} s; its log is cut {CRASH_MARGIN_S:.0f} s before")
     # what the drones log: the EKF's estimate (labels from estimated states, as on the real drone)
-    return Flight(list(team), log["t"], log["p"], log["v"], log["q"], log["pwm"], log["battery_V"])
+    return Flight(list(team), *(np.asarray(log[k])[:n_keep] for k in ("t", "p", "v", "q", "pwm", "battery_V")))
+
+
+CRASH_MARGIN_S = 1.0  # s of log dropped before a crash (the loss of control before it)
+
+
+def crash_cut(t, truth_p) -> int:
+    """How many log rows to keep: all, or those up to CRASH_MARGIN_S before the first
+    row at which a robot's true position is below the floor (a crash; as after a real
+    crash, the rest of the flight's log is useless for learning)."""
+    t = np.asarray(t)
+    down = np.nonzero((np.asarray(truth_p)[..., 2] < 0.0).any(axis=1))[0]
+    if down.size == 0:
+        return len(t)
+    return int(np.searchsorted(t, t[down[0]] - CRASH_MARGIN_S))
 
 
 def collect(cfg: Config, gen_dir, seconds_per_team: float, seed: int = 0, learned=None,

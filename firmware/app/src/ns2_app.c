@@ -17,7 +17,7 @@
  *    fixed point or float (ns2.fixed), limited to +-ns2.faLimit grams;
  *  - control: ns2_ctrl_position at 100 Hz with f_a = [0, 0, f_a,z] (zero when
  *    ns2.enable = 0: the paper's baseline), ns2_ctrl_attitude at 500 Hz (delay
- *    compensation, thrust-priority mixing, PWM from psi_2 and the battery
+ *    compensation, mixing capped as the firmware caps it, PWM from psi_2 and the battery
  *    voltage), motor PWM ratios through controlModeForce.  Build the firmware
  *    without battery compensation of the motor commands
  *    (CONFIG_ENABLE_THRUST_BAT_COMPENSATED unset): psi_2 already uses the voltage.
