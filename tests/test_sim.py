@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from ns2host.sim.cloop import CLoopSwarm, figure_eight, hover_setpoints
+from ns2host.sim.collect import CRASH_MARGIN_S, crash_cut
 from ns2host.sim.dynamics import Dynamics, SwarmState
 from ns2host.sim.vehicle import G, vehicle
 
@@ -123,6 +124,16 @@ def test_mixing_capped_as_the_firmware(cfg, exported):
     assert status == [lib.NS2_CTRL_SATURATED, 0] and free.max() > veh.f_max  # beyond the motors
     assert capped.max() == pytest.approx(veh.f_max, rel=1e-6) and capped.min() > 0
     np.testing.assert_allclose(capped - capped.mean(), free - free.mean(), rtol=0, atol=1e-6)
+
+
+def test_crash_cuts_the_log():
+    """A robot below the floor (a crash: the simulator has no floor contact) ends the
+    usable log CRASH_MARGIN_S before it; a flight without one is kept whole."""
+    t = np.arange(0.0, 10.0, 0.01)
+    p = np.ones((t.size, 2, 3))
+    assert crash_cut(t, p) == t.size
+    p[700:, 1, 2] = -0.01  # robot 1 through the floor at t = 7 s
+    assert crash_cut(t, p) == np.searchsorted(t, 7.0 - CRASH_MARGIN_S)
 
 
 def test_hover_holds(cfg, exported):

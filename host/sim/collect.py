@@ -50,8 +50,8 @@ def fly(cfg: Config, team, gen_dir, kind: str, duration: float, seed: int, learn
     log = sw.run(duration, sp)
     n_keep = crash_cut(log["t"], log["truth_p"])
     if n_keep < len(log["t"]):
-        warnings.warn(f"{kind} flight of {'+'.join(team)} (seed {seed}): a robot crashed at "
-                      f"t = {log['t'][n_keep]:.2f} s; its log is cut {CRASH_MARGIN_S:.0f} s before")
+        warnings.warn(f"{kind} flight of {'+'.join(team)} (seed {seed}): a robot crashed "
+                      f"{CRASH_MARGIN_S:.0f} s after t = {log['t'][n_keep]:.2f} s; the log is cut there")
     # what the drones log: the EKF's estimate (labels from estimated states, as on the real drone)
     return Flight(list(team), *(np.asarray(log[k])[:n_keep] for k in ("t", "p", "v", "q", "pwm", "battery_V")))
 
