@@ -91,6 +91,8 @@ fuzz: deps $(GEN)/ns2_model_config.h
 # SIM_SECONDS per team.
 SIM := build/sim
 SIM_SECONDS ?= 120
+# one torch thread: the default count thrashes on a loaded 2-core machine (20-60x slower)
+sim paper-data ablation: export OMP_NUM_THREADS ?= 1
 $(SIM)/round1.npz: | deps $(GEN)/ns2_model_config.h
 	@mkdir -p $(SIM)
 	$(NS2) sim collect --seconds-per-team $(SIM_SECONDS) --seed 1 --out $@
