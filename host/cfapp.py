@@ -26,8 +26,6 @@ import sys
 import tempfile
 from pathlib import Path
 
-from elftools.elf.elffile import ELFFile
-
 from . import crazyflie
 from .cbuild import REPO, GENERATED, BuildError, compile_error
 
@@ -108,8 +106,10 @@ def build_stock() -> Path:
 
 def app_config() -> Path:
     """The app's firmware configuration only (cf2_defconfig + app-config, as the app
-    build makes it: .config and include/generated/autoconf.h), for host and
-    emulator builds of firmware code; cached, seconds to make."""
+    build makes it: .config and include/generated/autoconf.h), for every host and
+    emulator build of firmware code (the simulator's estimator and controllers, the
+    harness, the Cortex-M4 counts): the configuration the drone flies with; cached,
+    seconds to make."""
     fw = crazyflie.firmware_dir()
     app_cfg = APP_DIR / "app-config"
 
@@ -171,6 +171,8 @@ def kconfig(build_dir: Path) -> dict[str, str]:
 
 
 def section_sizes(elf: Path) -> dict[str, int]:
+    from elftools.elf.elffile import ELFFile  # [target] extra; the simulator needs only app_config
+
     with open(elf, "rb") as f:
         return {s.name: s["sh_size"] for s in ELFFile(f).iter_sections() if s.name}
 
@@ -189,6 +191,8 @@ class Image:
     """An ELF's symbols and memory for reading the firmware's tables."""
 
     def __init__(self, elf: Path):
+        from elftools.elf.elffile import ELFFile
+
         self.f = open(elf, "rb")
         self.elf = ELFFile(self.f)
         self.symbols = {s.name: s for s in self.elf.get_section_by_name(".symtab").iter_symbols() if s.name}

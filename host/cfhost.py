@@ -3,8 +3,8 @@ library: the simulator's flight kernel (host/ns2_fly.c).
 
 From crazyflie-firmware (``ns2host.crazyflie.firmware_dir()``), compiled as its Python
 bindings do (``bindings/setup.py``: the same include folders, ``-fno-strict-aliasing
--DUNIT_TEST_MODE``) plus ``-include autoconf.h`` of the stock cf2 configuration, as its
-Kbuild does:
+-DUNIT_TEST_MODE``) plus ``-include autoconf.h`` of the configuration the app flies with
+(``ns2host.cfapp.app_config()``), as its Kbuild does:
   the extended Kalman filter  src/modules/src/kalman_core/{kalman_core,mm_position}.c,
                               axis3fSubSampler.c and the CMSIS-DSP matrix functions;
   the IMU low-pass filters    src/utils/src/filter.c (lpf2p);
@@ -25,7 +25,8 @@ from pathlib import Path
 
 from .cbuild import (CDEF, REPO, _key, _module, compile_error, compile_objects, flags,
                      host_cc, require_export)
-from .crazyflie import autoconf_dir, extract_function, firmware_dir
+from .cfapp import app_config
+from .crazyflie import extract_function, firmware_dir
 
 FW_INCLUDES = [  # bindings/setup.py
     "src/modules/interface", "src/modules/interface/controller", "src/modules/interface/kalman_core",
@@ -99,7 +100,7 @@ def load_fly(gen_dir: str | Path):
     from cffi import FFI
 
     gen_dir = require_export(gen_dir)
-    fw, auto = firmware_dir(), autoconf_dir()
+    fw, auto = firmware_dir(), app_config() / "include" / "generated"
     f = flags()
     fw_inc = [f"-I{fw / i}" for i in FW_INCLUDES] + [f"-I{auto}"]
     ns2_inc = [f"-I{REPO / i}" for i in f["NS2_INCLUDES"]] + [f"-I{gen_dir}", f"-I{REPO / 'host'}"]

@@ -81,20 +81,6 @@ def firmware_dir() -> Path:
     return dest
 
 
-def autoconf_dir() -> Path:
-    """The folder of the firmware's generated ``autoconf.h`` (the stock ``cf2_defconfig``),
-    made once with the firmware's own Kconfig (``make cf2_defconfig && make prepare``):
-    every firmware source is compiled with ``-include autoconf.h``, as its Kbuild does."""
-    root = firmware_dir()
-    gen = root / "build" / "include" / "generated"
-    if not (gen / "autoconf.h").is_file():
-        for target in ("cf2_defconfig", "prepare"):
-            r = subprocess.run(["make", target], cwd=root, capture_output=True, text=True)
-            if r.returncode != 0:
-                raise FirmwareMissing(f"{root}: `make {target}` failed:\n{r.stdout[-2000:]}{r.stderr[-2000:]}")
-    return gen
-
-
 def extract_function(path: Path, name: str) -> str:
     """The C source text of the function ``name`` (its definition) in ``path``."""
     text = path.read_text()
