@@ -131,7 +131,7 @@ build/larger_teams.npz: | deps
 	$(PYTHON) benchmarks/paper_data.py --data-only --team-sizes 4,5 --samples 200000 --seed 8 --out $@
 ablation: build/paper_data.npz build/larger_teams.npz
 	$(PYTHON) benchmarks/ablation.py --data build/paper_data.npz --test-data build/larger_teams.npz \
-		--seeds 3 --device $(ABLATION_DEVICE) \
+		--seeds 3 --lr-drops 2 --device $(ABLATION_DEVICE) \
 		> build/ablation.json.tmp && mv build/ablation.json.tmp build/ablation.json
 	@cat build/ablation.json
 

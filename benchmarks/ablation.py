@@ -1,7 +1,8 @@
 """The paper's ablations on simulated flights (JSON on stdout), each trained with
 --seeds seeds (the paper: 3) to convergence by one stopping rule: at most
 --max-epochs epochs, stop when the validation MSE has not improved by --min-delta
-(relative) for --patience epochs, keep the best epoch (ns2codegen.train).
+(relative) for --patience epochs, keep the best epoch (ns2codegen.train); with
+--lr-drops k the first k such plateaus halve the learning rate instead.
 Validation MSE (g^2), mean +- std over the seeds, with the epochs and wall time:
 
   H   H in {10, 20, 40} at L = 4 (Table ablation, top)
@@ -17,7 +18,8 @@ than any in training (make ablation: teams of 4 and 5 robots, 3-4 neighbours plu
 the ground): the generalization the paper's deep set is for (Fig. vis (g)).
 
     python benchmarks/ablation.py --data A.npz [--data B.npz] [--axes H,L,V,P,T] [--seeds 3]
-        [--max-epochs 60] [--patience 3] [--min-delta 0.01] [--device cpu] [--test-data C.npz]
+        [--max-epochs 60] [--patience 3] [--min-delta 0.01] [--lr-drops 0] [--device cpu]
+        [--test-data C.npz]
 """
 from __future__ import annotations
 
@@ -81,6 +83,8 @@ def main() -> None:
     ap.add_argument("--max-epochs", type=int, default=60)
     ap.add_argument("--patience", type=int, default=3)
     ap.add_argument("--min-delta", type=float, default=0.01)
+    ap.add_argument("--lr-drops", type=int, default=0,
+                    help="halve the learning rate this many times at a plateau before stopping")
     ap.add_argument("--device", default="cpu")
     ap.add_argument("--test-data", action="append", default=[],
                     help="also score every model on this set (larger teams than in training)")
@@ -99,7 +103,7 @@ def main() -> None:
             t0 = time.perf_counter()
             model, rep = train(cfg.with_overrides(**over), data, epochs=args.max_epochs, seed=seed,
                                device=args.device, variant=variant, patience=args.patience,
-                               min_delta=args.min_delta)
+                               min_delta=args.min_delta, lr_drops=args.lr_drops)
             mses.append(rep["validation"]["mse"])
             epochs.append(rep["epochs"])
             wall.append(time.perf_counter() - t0)
@@ -114,7 +118,8 @@ def main() -> None:
             results[(axis, value)]["larger_teams"] = {"mean": float(np.mean(tests)), "std": float(np.std(tests)),
                                                       "runs": tests}
     out = {"data": paths, "samples": len(ds), "device": args.device, "seeds": args.seeds,
-           "stopping_rule": {"max_epochs": args.max_epochs, "patience": args.patience, "min_delta": args.min_delta},
+           "stopping_rule": {"max_epochs": args.max_epochs, "patience": args.patience, "min_delta": args.min_delta,
+                             "lr_drops": args.lr_drops},
            "label_variance_g2": float(np.var(ds.label_g)),
            "test_data": args.test_data, "test_samples": len(test) if test is not None else 0,
            "wall_s": round(time.perf_counter() - t_all, 1),

@@ -80,13 +80,15 @@ def evaluate(model: HeteroDeepSet, ds: Dataset, device: str = "cpu") -> dict:
 def train(cfg: Config, ds: Dataset, epochs: int | None = None, seed: int | None = None,
           batch_size: int | None = None, lr: float | None = None, progress=None, device: str = "cpu",
           variant: str = "hetero", patience: int | None = None,
-          min_delta: float = 0.01) -> tuple[HeteroDeepSet, dict]:
+          min_delta: float = 0.01, lr_drops: int = 0) -> tuple[HeteroDeepSet, dict]:
     """Train on ``ds``; returns the model (on the CPU) and a report (train/validation
     MSE, timing).  ``device``: torch device of the training ("cpu", "cuda").
     ``variant``: the heterogeneous deep set or an ablation (model.VARIANTS).
     ``patience``: stopping rule, ``epochs`` is then the most: stop when the
     validation MSE has not improved by ``min_delta`` (relative) for ``patience``
-    epochs, and keep the best epoch's weights."""
+    epochs, and keep the best epoch's weights; with ``lr_drops`` = k, the first k
+    times that happens the learning rate is halved instead and training goes on
+    from the best weights (a plateau schedule), and only the (k+1)-th stops."""
     tr = cfg.train
     epochs = tr["epochs"] if epochs is None else epochs
     seed = tr["seed"] if seed is None else seed
@@ -112,6 +114,7 @@ def train(cfg: Config, ds: Dataset, epochs: int | None = None, seed: int | None 
     steps = (n + batch_size - 1) // batch_size
     t0 = time.perf_counter()
     history, val_history, best, best_state, best_epoch, since = [], [], float("inf"), None, 0, 0
+    drops_done = 0
     for epoch in range(epochs):
         model.train()
         perm = torch.randperm(n, generator=gen).to(device)
@@ -138,7 +141,12 @@ def train(cfg: Config, ds: Dataset, epochs: int | None = None, seed: int | None 
             else:
                 since += 1
                 if since >= patience:
-                    break
+                    if drops_done >= lr_drops:
+                        break
+                    drops_done, since = drops_done + 1, 0
+                    model.load_state_dict(best_state)
+                    for group in opt.param_groups:
+                        group["lr"] *= 0.5
     elapsed = time.perf_counter() - t0
     if best_state is not None:
         model.load_state_dict(best_state)
@@ -151,5 +159,6 @@ def train(cfg: Config, ds: Dataset, epochs: int | None = None, seed: int | None 
               "validation": evaluate(model, val_ds)}
     if patience is not None:
         report["stopping"] = {"max_epochs": epochs, "patience": patience, "min_delta": min_delta,
+                              "lr_drops": drops_done, "lr_final": opt.param_groups[0]["lr"],
                               "best_epoch": best_epoch, "validation_mse_history": val_history}
     return model, report

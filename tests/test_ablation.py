@@ -39,6 +39,11 @@ def test_stopping_rule_and_device(cfg):
     _, rep = train(cfg, ds, epochs=10, patience=1, min_delta=0.99, device="cpu", variant="pairwise")
     assert rep["epochs"] == 2 and rep["stopping"]["best_epoch"] == 1 and rep["device"] == "cpu"
     assert rep["validation"]["mse"] == pytest.approx(rep["stopping"]["validation_mse_history"][0], rel=1e-5)
+    # plateau schedule: twice the learning rate is halved, from the best weights, then stop
+    _, rep = train(cfg, ds, epochs=10, patience=1, min_delta=0.99, lr_drops=2)
+    st = rep["stopping"]
+    assert rep["epochs"] == 4 and st["best_epoch"] == 1 and st["lr_drops"] == 2
+    assert st["lr_final"] == pytest.approx(rep["lr"] / 4)
     with pytest.raises(ValueError, match="variant"):
         train(cfg, ds, epochs=1, variant="nonsense")
 
