@@ -1,7 +1,8 @@
 """Simulator benchmarks (JSON on stdout): data-generation rate (labelled samples per
 second of wall time, simulated flights of every team) and the C-in-the-loop speed
-as a real-time factor for 1 and 16 robots (500 Hz control, RK4 dynamics,
-ground-truth interactions on, learned fixed-point term on)."""
+as a real-time factor for 1 and 16 robots (host/ns2_fly.c at 1 kHz: sensing, the
+firmware's EKF, ns2_pilot with the learned fixed-point term on; RK4 dynamics;
+ground-truth interactions on)."""
 from __future__ import annotations
 
 import json
