@@ -6,9 +6,10 @@
  * out-of-tree controller, all compiled from the crazyflie-firmware tarball and
  * firmware/app for the STM32F405.  Only functions are stubbed here.
  *
- * bench_init(n_peers): a hovering Crazyflie (radio id 1) with n_peers robots (ids
- *     2..n_peers+1) in a ring 0.3 m around and 0.3 m above it (inside the volume V);
- *     the Kalman filter, the PID and the app initialized.
+ * bench_init(n_peers, xyz): a hovering Crazyflie (radio id 1) at (0, 0, 1) m with
+ *     n_peers robots (ids 2..n_peers+1) at the positions xyz (3 floats each, m; the
+ *     caller's ring: libm's trigonometry is not used here, its cosf gave wrong
+ *     values in the emulator); the Kalman filter, the PID and the app initialized.
  * bench_radio(tick): what the radio task does in that millisecond: one mocap
  *     broadcast packet of 4 positions told to the firmware's peer localization
  *     (a 100 Hz frame of all peers in the first ticks of each period).
@@ -17,7 +18,6 @@
  *     measure = 1: a mocap position measurement too).
  * bench_pid(tick), bench_app(tick): one call of each controller at stabilizer step tick.
  */
-#include <math.h>
 #include <stdbool.h>
 #include <stdint.h>
 #include <string.h>
@@ -43,6 +43,8 @@ static control_t control;
 static Axis3f acc = {.z = 1.0f}, gyro;
 static uint32_t now;
 static uint32_t peers;
+#define BENCH_MAX_PEERS 32u
+static float ring[BENCH_MAX_PEERS][3];
 
 /* function stubs: the firmware's clock, radio, power and logging services */
 TickType_t xTaskGetTickCount(void) { return now; }
@@ -55,8 +57,10 @@ int consolePutchar(int ch) { return ch; }
 int eprintf(int (*putcf)(int), const char *fmt, ...) { (void)putcf; (void)fmt; return 0; }
 void assertFail(char *exp, char *file, int line) { (void)exp; (void)file; (void)line; }
 
-void bench_init(uint32_t n_peers)
+void bench_init(uint32_t n_peers, const float *xyz)
 {
+    peers = n_peers < BENCH_MAX_PEERS ? n_peers : BENCH_MAX_PEERS;
+    memcpy(ring, xyz, (size_t)peers * sizeof ring[0]);
     kalmanCoreDefaultParams(&kp);
     kalmanCoreInit(&kd, &kp, 0u);
     controllerPidInit();
@@ -68,7 +72,6 @@ void bench_init(uint32_t n_peers)
     setpoint.position.z = 1.0f;
     setpoint.mode.x = setpoint.mode.y = setpoint.mode.z = modeAbs;
     setpoint.mode.yaw = modeAbs;
-    peers = n_peers;
 }
 
 void bench_radio(uint32_t tick)
@@ -76,11 +79,10 @@ void bench_radio(uint32_t tick)
     now = tick;
     const uint32_t first = (tick % 10u) * 4u;
     for (uint32_t i = first; i < first + 4u && i < peers; ++i) {
-        const float a = 6.2831853f * (float)i / (float)peers;
         positionMeasurement_t m = {0};
-        m.x = 0.3f * cosf(a);
-        m.y = 0.3f * sinf(a);
-        m.z = 1.3f;
+        m.x = ring[i][0];
+        m.y = ring[i][1];
+        m.z = ring[i][2];
         (void)peerLocalizationTellPosition((int)(i + 2u), &m);
     }
 }

@@ -19,6 +19,8 @@ import subprocess
 import tempfile
 from pathlib import Path
 
+import numpy as np
+
 from . import cfapp, cm4_count, crazyflie
 from .cbuild import BUILD_ROOT, REPO, compile_error, flags
 from .target import ARM_CC, TARGET_DIR
@@ -98,7 +100,9 @@ def iteration(gen_dir: Path, n_peers: int = 15, infer: str = "fixed") -> dict:
     externalizes.  The estimator runs in its own task, so its worst tick may spill
     into the next millisecond; the mean load says whether the CPU keeps up."""
     cm = cm4_count.Cm4(build_image(gen_dir, infer))
-    cm.call("bench_init", n_peers)
+    a = 2.0 * np.pi * np.arange(n_peers) / n_peers  # a ring 0.3 m around and 0.3 m above (inside V)
+    ring = np.stack([0.3 * np.cos(a), 0.3 * np.sin(a), np.full(n_peers, 1.3)], 1).astype("<f4")
+    cm.call("bench_init", n_peers, cm.write(ring.tobytes()))
     runs: dict[str, list] = {"estimator": [], "estimator_other": [], "pid": [], "app": []}
     for tick in range(1, 31):
         period = int(tick % 10 == 0)  # PREDICT_RATE = 100 Hz, mocap at 100 Hz

@@ -319,7 +319,9 @@ static int mix(const ns2_vehicle_t *veh, const float eta[4], float u[4])
     int clamped = eta[0] > 4.0f * f_max || eta[0] < 0.0f;
     for (int i = 0; i < 4; ++i) {
         u[i] = uT + 0.25f * (sx[i] * eta[1] / a + sy[i] * eta[2] / a + sz[i] * eta[3] / veh->kappa_m);
-        highest = fmaxf(highest, u[i]);
+        if (u[i] > highest) { /* false for NaN: NaN never lowers the motors */
+            highest = u[i];
+        }
     }
     const float reduction = highest > f_max ? highest - f_max : 0.0f;
     for (int i = 0; i < 4; ++i) {
