@@ -119,7 +119,8 @@ paper-data: deps
 
 # The paper's ablations (benchmarks/ablation.py: H, L, without relative velocity,
 # sum of pairwise models, type-agnostic deep set; 3 seeds, trained to convergence)
-# on the paper-sized simulated data set.  Hours on 2 CPU cores (docs/ground-truth.md);
+# on the paper-sized simulated data set, plus a test set of larger teams: about 2 h on
+# the 2-core machine, one torch thread per training (docs/ground-truth.md);
 # ABLATION_DEVICE=cuda trains on a GPU.
 ABLATION_DEVICE ?= cpu
 build/paper_data.npz: | deps
