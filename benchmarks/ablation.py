@@ -98,6 +98,7 @@ def main() -> None:
     results, t_all = {}, time.perf_counter()
     for axis, value, over, variant, drop_v in runs(args.axes):
         data = without_velocity(ds) if drop_v else ds
+        test_run = without_velocity(test) if drop_v and test is not None else test
         mses, epochs, wall, tests = [], [], [], []
         for seed in range(args.seeds):
             t0 = time.perf_counter()
@@ -107,8 +108,8 @@ def main() -> None:
             mses.append(rep["validation"]["mse"])
             epochs.append(rep["epochs"])
             wall.append(time.perf_counter() - t0)
-            if test is not None:
-                tests.append(evaluate(model, without_velocity(test) if drop_v else test, device=args.device)["mse"])
+            if test_run is not None:  # train returns the model on the CPU
+                tests.append(evaluate(model, test_run)["mse"])
             print(f"  {axis}={value} seed {seed}: {mses[-1]:.3f} g^2 after {epochs[-1]} epochs "
                   f"({wall[-1]:.0f} s)" + (f", larger teams {tests[-1]:.3f} g^2" if tests else ""),
                   file=sys.stderr, flush=True)
