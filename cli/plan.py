@@ -1,0 +1,98 @@
+"""`ns2 plan`: interaction-aware motion planning (AO-RRT + SCP) and its experiments."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from ns2codegen.config import Config
+
+from .common import (
+    _config, _config_option, _emit, _json_option, _progress,
+    _quiet_option, main,
+)
+
+
+@main.command("plan")
+@click.option("--checkpoint", type=click.Path(dir_okay=False), default=None,
+              help="deep set for the NN planner (its config is used); without it one is trained on simulated "
+                   "flights into --model-dir first (several minutes, announced)")
+@click.option("--model-dir", type=click.Path(file_okay=False), default=None,
+              help="where the planning model is trained without --checkpoint (reused while its config matches) "
+                   "[default: OUT/model]")
+@_config_option
+@click.option("--problem", "problem_path", type=click.Path(dir_okay=False), default=None,
+              help="plan one problem (JSON: robots, axes, limits) instead of the paper's experiments")
+@click.option("--baseline", is_flag=True, help="with --problem: plan with f_a = 0 (BL)")
+@click.option("--out", "out_dir", type=click.Path(file_okay=False), required=True,
+              help="results folder (plans, plan.json, plan.md, figures)")
+@click.option("--scenarios", default="SL,SS,LL,SSL,SLL", show_default=True,
+              help="comma-separated experiment scenarios")
+@click.option("--dims", type=click.Choice(["2", "3", "both"]), default="both", show_default=True,
+              help="plan in the yz plane (2), in 3-D (3) or both")
+@click.option("--trials", type=click.IntRange(min=1), default=5, show_default=True,
+              help="seeds per scenario and planner")
+@click.option("--max-samples", type=click.IntRange(min=1), default=None,
+              help="samples per RRT run, Stage 1's stopping rule [default: SearchParams.max_samples]")
+@click.option("--time-limit", type=click.FloatRange(min=1.0), default=300.0, show_default=True,
+              help="wall-clock safety net in seconds for Stage 1 and again for Stage 2, per plan (the sample and "
+                   "iteration counts stop them first, so a seed gives the same plan on any machine)")
+@_quiet_option
+@_json_option
+def plan_cmd(checkpoint, model_dir, config_path, problem_path, baseline, out_dir, scenarios, dims, trials,
+             max_samples, time_limit, quiet, as_json):
+    """Interaction-aware motion planning (AO-RRT + SCP): the paper's experiments, or one problem.
+    The config is the checkpoint's; --config only without a checkpoint."""
+    from dataclasses import replace
+
+    from ns2exp import planning as ex
+    from ns2plan.problem import PlanningError, RRTParams, SCPParams, SearchParams
+
+    rrt = RRTParams(SearchParams(time_s=min(SearchParams.time_s, time_limit)), total_time_s=time_limit)
+    if max_samples is not None:
+        rrt = replace(rrt, search=replace(rrt.search, max_samples=max_samples))
+    scp_params = SCPParams(time_limit_s=time_limit)
+    names = [s.strip() for s in scenarios.split(",") if s.strip()]
+    unknown = [s for s in names if s not in ex.SCENARIOS]
+    if unknown:
+        raise click.UsageError(f"unknown scenarios {unknown}; choose from {list(ex.SCENARIOS)}")
+    if checkpoint is not None and config_path is not None:
+        raise click.UsageError("give --checkpoint or --config: a checkpoint carries its config")
+    if problem_path and not Path(problem_path).is_file():
+        raise PlanningError(f"problem file not found: {problem_path}")
+    cfg = _plan_config(checkpoint, config_path)
+    if problem_path:
+        ex.load_problem(cfg, problem_path)  # refuse a bad file before any training
+    if checkpoint is None and not (problem_path and baseline):
+        folder = Path(model_dir) if model_dir else Path(out_dir) / "model"
+        checkpoint = ex.default_checkpoint(cfg, folder, log=lambda msg: click.echo(msg, err=True))
+        cfg = _plan_config(checkpoint, None)
+    if problem_path:
+        with _progress(quiet, None, "stage", "plan"):
+            report = ex.plan_problem_file(cfg, problem_path, None if baseline else checkpoint, out_dir, rrt,
+                                          scp_params)
+        summary = {k: report[k] for k in ("valid", "timings", "robots")}
+        _emit(as_json, summary, f"wrote {out_dir}: plan " + ("valid" if report["valid"] else "INVALID")
+              + f", Stage 1 {report['timings']['stage1_s']:.1f} s, Stage 2 {report['timings']['stage2_s']:.1f} s")
+        if not report["valid"]:
+            raise click.ClickException(f"the plan violates a limit (see {out_dir}/plan.json)")
+        return
+    from ns2codegen.export import export as run_export
+
+    gen = Path(out_dir) / "gen"
+    run_export(checkpoint, gen)
+    dim_list = (2, 3) if dims == "both" else (int(dims),)
+    with _progress(quiet, len(dim_list) * len(names) * 2 * trials, "trial", "plan") as update:
+        res = ex.planning_experiments(cfg, checkpoint, gen, out_dir, names, dim_list, trials, rrt, scp_params,
+                                      log=lambda msg: None if quiet else click.echo(msg, err=True), progress=update)
+    _emit(as_json, {k: {m: r["summary"] for m, r in v.items()} for k, v in res.items()},
+          (Path(out_dir) / "plan.md").read_text())
+
+
+def _plan_config(checkpoint, config_path) -> Config:
+    """The checkpoint's config when one is given, else --config or the default."""
+    if checkpoint is None:
+        return _config(config_path)
+    from ns2codegen.checkpoint import load_checkpoint
+
+    return load_checkpoint(checkpoint).cfg
