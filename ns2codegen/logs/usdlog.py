@@ -31,6 +31,28 @@ silent).  Corruption is not truncation and is refused even then: an undecodable
 entry followed by more than one SD sector (TRUNCATION_TAIL) of data, or entries
 that end exactly where a complete file keeps its CRC-32 when that CRC is wrong.  Unknown event ids and malformed headers are errors.
 
+The uSD deck's **original fixed-frequency format** (crazyflie-firmware before 2021;
+the format of the Neural-Swarm2 authors' logs of 2019-2020) is told apart by content
+(a version-2 file starts with 0xBC followed by version 2; an original file starts with
+its variable count followed by an ASCII name) and decoded by ``decode_fixed``:
+
+  header   uint8   number of variables n
+           n times "<name>(<t>),"  (ASCII, each followed by a comma)
+           uint32  CRC-32 of the header bytes before it
+  blocks, until the end of the file:
+           uint8   number of records k (1..255)
+           k records, the variables packed little-endian without padding
+           uint32  CRC-32 of the block's count byte and records
+
+The CRCs are the firmware's ``crc32`` without the final inversion: the stored value
+is the bitwise complement of zlib's CRC-32, so that the CRC of the bytes followed by
+their stored CRC is 0xFFFFFFFF.  The records become the ``fixedFrequency`` event; its
+``timestamp_us`` is the record's ``tick`` variable (microseconds of the robot's
+clock); a file without ``tick`` is refused.  A bad header CRC is an error; a bad block CRC is an
+error naming the block (``allow_truncated`` does not skip corruption); a file that
+ends inside its last block (power loss) is an error unless ``allow_truncated``, which
+keeps the complete blocks before it and says so in ``UsdLog.note``.
+
 This is our own implementation from the documented layout, not bitcraze's code.
 """
 from __future__ import annotations
@@ -182,6 +204,71 @@ def decode(data: bytes, allow_truncated: bool = False) -> UsdLog:
     return UsdLog(version, types, events, crc_ok, note, n)
 
 
+FIXED_TICK = "tick"          # the original format's timestamp variable (microseconds)
+_CRC_DONE = 0xFFFFFFFF       # CRC-32 of bytes + their stored (complemented) CRC
+
+
+def is_fixed_format(data: bytes) -> bool:
+    """True for the original fixed-frequency format (see the module docstring)."""
+    if len(data) >= 3 and data[0] == MAGIC and struct.unpack_from("<H", data, 1)[0] == VERSION:
+        return False
+    return len(data) >= 2 and data[0] > 0 and (chr(data[1]).isalpha() or data[1] == ord("_"))
+
+
+def _fixed_header(data: bytes) -> tuple[list[tuple[str, str]], int]:
+    n, i, variables = data[0], 1, []
+    for k in range(n):
+        end = data.find(b",", i)
+        if end < 0:
+            raise UsdLogError(f"header truncated: variable {k} of {n} has no ',' terminator")
+        try:
+            desc = data[i:end].decode("ascii")
+        except UnicodeDecodeError as e:
+            raise UsdLogError(f"header corrupt: variable {k} at byte {i} is not ASCII") from e
+        if len(desc) < 4 or desc[-3] != "(" or desc[-1] != ")" or desc[-2] not in TYPE_CHARS:
+            raise UsdLogError(f"bad header: variable {desc!r} is not '<name>(<t>)' with t in {TYPE_CHARS}")
+        variables.append((desc[:-3], desc[-2]))
+        i = end + 1
+    if i + 4 > len(data):
+        raise UsdLogError("header truncated: no header CRC-32")
+    if zlib.crc32(data[:i + 4]) != _CRC_DONE:
+        raise UsdLogError("header CRC-32 mismatch: the header is corrupt")
+    names = [v for v, _ in variables]
+    if len(set(names)) != len(names):
+        raise UsdLogError("bad header: a variable is declared twice")
+    if FIXED_TICK not in names:
+        raise UsdLogError(f"bad header: no '{FIXED_TICK}' variable (the records' timestamps)")
+    return variables, i + 4
+
+
+def decode_fixed(data: bytes, allow_truncated: bool = False) -> UsdLog:
+    """Decode the original fixed-frequency format (see the module docstring)."""
+    variables, i = _fixed_header(data)
+    rec = struct.Struct("<" + "".join(t for _, t in variables))
+    rows, blocks, note = [], 0, ""
+    while i < len(data):
+        k = data[i]
+        end = i + 1 + k * rec.size
+        if k == 0:
+            raise UsdLogError(f"block {blocks} at byte {i}: zero records (corrupt data)")
+        if end + 4 > len(data):
+            msg = f"block {blocks} at byte {i} is cut off ({len(data) - i} of {end + 4 - i} bytes)"
+            if not allow_truncated:
+                raise UsdLogError(msg + "; allow_truncated keeps the complete blocks")
+            note = f"no valid end (truncated file): dropped {msg}"
+            break
+        if zlib.crc32(data[i:end + 4]) != _CRC_DONE:
+            raise UsdLogError(f"block {blocks} at byte {i}: CRC-32 mismatch (corrupt data)")
+        rows.extend(rec.iter_unpack(data[i + 1:end]))
+        blocks += 1
+        i = end + 4
+    cols = np.array(rows, dtype=float).reshape(len(rows), len(variables))
+    ev = {name: cols[:, k] for k, (name, _) in enumerate(variables)}
+    ev["timestamp_us"] = ev[FIXED_TICK].astype(np.uint64)
+    et = EventType(FIXED_FREQUENCY_ID, FIXED_FREQUENCY_NAME, tuple(variables))
+    return UsdLog(1, {FIXED_FREQUENCY_ID: et}, {FIXED_FREQUENCY_NAME: ev}, not note, note, len(rows))
+
+
 def read(path: str | Path, allow_truncated: bool = False) -> UsdLog:
     path = Path(path)
     try:
@@ -189,7 +276,7 @@ def read(path: str | Path, allow_truncated: bool = False) -> UsdLog:
     except OSError as e:
         raise UsdLogError(f"cannot read uSD log {path}: {e.strerror or e}") from e
     try:
-        return decode(data, allow_truncated)
+        return (decode_fixed if is_fixed_format(data) else decode)(data, allow_truncated)
     except UsdLogError as e:
         raise UsdLogError(f"{path}: {e}") from e
 
