@@ -22,7 +22,7 @@ DEFAULT := build/default
 ONBOARD := build/onboard
 CHECKPOINT ?= $(DEFAULT)/model.pt
 
-.PHONY: all deps export export-onboard test bench firmware app fuzz sim paper-data ablation clean
+.PHONY: all deps export export-onboard test bench firmware app fuzz sim paper-data ablation real clean
 
 all: export
 
@@ -92,7 +92,7 @@ fuzz: deps $(GEN)/ns2_model_config.h
 SIM := build/sim
 SIM_SECONDS ?= 120
 # one torch thread: the default count thrashes on a loaded 2-core machine (20-60x slower)
-sim paper-data ablation: export OMP_NUM_THREADS ?= 1
+sim paper-data ablation real: export OMP_NUM_THREADS ?= 1
 $(SIM)/round1.npz: | deps $(GEN)/ns2_model_config.h
 	@mkdir -p $(SIM)
 	$(NS2) sim collect --seconds-per-team $(SIM_SECONDS) --seed 1 --out $@
@@ -135,6 +135,32 @@ ablation: build/paper_data.npz build/larger_teams.npz
 		--seeds 3 --lr-drops 2 --device $(ABLATION_DEVICE) \
 		> build/ablation.json.tmp && mv build/ablation.json.tmp build/ablation.json
 	@cat build/ablation.json
+
+# The paper's own flights (docs/real-flights.md): the authors' uSD logs of 16 June 2020
+# (../shared/neural-swarm-data) -> aligned, labelled, cut data sets; the paper's network
+# (H = 20, L = 4, REAL_SEEDS seeds) under the paper's random split and trained without
+# the held-out flights; the ablations scored on the held-out flights; the authors'
+# published networks as a peer; the chosen model exported to C and every held-out
+# sample through it. JSON, tables and plots in build/real/.
+REAL := build/real
+REAL_SEEDS ?= 3
+REAL_EPOCHS ?= 30
+REAL_AXES ?= H,L,V,P,T
+REAL_TRAIN = $(PYTHON) benchmarks/ablation.py --config $(REAL)/real.toml --seeds $(REAL_SEEDS) \
+	--max-epochs $(REAL_EPOCHS) --patience 3 --lr-drops 1
+$(REAL)/all.npz: | deps
+	$(NS2) real data --out $(REAL) --quiet
+$(REAL)/paper.json: $(REAL)/all.npz
+	$(REAL_TRAIN) --data $(REAL)/all.npz --axes paper --save-dir $(REAL)/paper > $@.tmp && mv $@.tmp $@
+$(REAL)/heldout.json: $(REAL)/all.npz
+	$(REAL_TRAIN) --data $(REAL)/train.npz --test-data $(REAL)/heldout.npz --test-label held_out_flights \
+		--axes $(REAL_AXES) --save-dir $(REAL)/heldout > $@.tmp && mv $@.tmp $@
+$(REAL)/gen/ns2_model_config.h: $(REAL)/heldout.json
+	$(NS2) export $(REAL)/heldout/H-20-seed0.pt --out $(REAL)/gen --quiet
+$(REAL)/c_check.json: $(REAL)/gen/ns2_model_config.h
+	$(NS2) real check-c --gen $(REAL)/gen --checkpoint $(REAL)/heldout/H-20-seed0.pt --data-dir $(REAL) --out $@
+real: $(REAL)/paper.json $(REAL)/heldout.json $(REAL)/c_check.json
+	$(NS2) real report --dir $(REAL) --checkpoint $(REAL)/heldout/H-20-seed0.pt
 
 clean:
 	rm -rf build

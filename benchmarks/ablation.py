@@ -28,9 +28,11 @@ import glob
 import json
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 
+from ns2codegen.checkpoint import save_checkpoint
 from ns2codegen.config import ONBOARD_WIDTHS, Config
 from ns2codegen.data.dataset import Dataset
 from ns2codegen.train import evaluate, train
@@ -48,7 +50,8 @@ SAME_AS_PAPER = (("L", "4"), ("W", "40/25"), ("V", "with"), ("P", "deep set"), (
 
 
 def runs(axes: str) -> list:
-    """The runs of the axes named (a comma list of H, L, W, V, P, T); the paper's network once."""
+    """The runs of the axes named (a comma list of H, L, W, V, P, T; "paper": the paper's network alone);
+    the paper's network once, first."""
     order = axes.split(",")
     sel = sorted((r for r in RUNS if r[0] in order), key=lambda r: order.index(r[0]))
     paper = ("H", 20, PAPER, "hetero", False)     # the reference runs first
@@ -88,13 +91,18 @@ def main() -> None:
     ap.add_argument("--device", default="cpu")
     ap.add_argument("--test-data", action="append", default=[],
                     help="also score every model on this set (larger teams than in training)")
+    ap.add_argument("--test-label", default="larger_teams", help="the key of the --test-data scores in the JSON")
+    ap.add_argument("--config", default=None, help="config of the models (default: the package's default.toml)")
+    ap.add_argument("--save-dir", default=None, help="save every trained model there (<axis>-<value>-seed<k>.pt)")
     args = ap.parse_args()
     paths = args.data or sorted(glob.glob("build/sim/round*.npz"))
     if not paths:
         raise SystemExit("no data: run `make paper-data` or pass --data")
     ds = Dataset.concat([Dataset.load(p) for p in paths])
     test = Dataset.concat([Dataset.load(p) for p in args.test_data]) if args.test_data else None
-    cfg = Config.load()
+    cfg = Config.load(args.config)
+    if args.save_dir:
+        Path(args.save_dir).mkdir(parents=True, exist_ok=True)
     results, t_all = {}, time.perf_counter()
     for axis, value, over, variant, drop_v in runs(args.axes):
         data = without_velocity(ds) if drop_v else ds
@@ -110,13 +118,17 @@ def main() -> None:
             wall.append(time.perf_counter() - t0)
             if test_run is not None:  # train returns the model on the CPU
                 tests.append(evaluate(model, test_run)["mse"])
+            if args.save_dir and variant == "hetero":
+                save_checkpoint(Path(args.save_dir) / f"{axis}-{value}-seed{seed}.pt".replace("/", "_"), model,
+                                cfg.with_overrides(**over), {"seed": seed, "data_hash": data.content_hash(),
+                                                             "report": rep, "relative_velocity": not drop_v})
             print(f"  {axis}={value} seed {seed}: {mses[-1]:.3f} g^2 after {epochs[-1]} epochs "
-                  f"({wall[-1]:.0f} s)" + (f", larger teams {tests[-1]:.3f} g^2" if tests else ""),
+                  f"({wall[-1]:.0f} s)" + (f", {args.test_label} {tests[-1]:.3f} g^2" if tests else ""),
                   file=sys.stderr, flush=True)
         results[(axis, value)] = {"mean": float(np.mean(mses)), "std": float(np.std(mses)), "runs": mses,
                                   "epochs": epochs, "wall_s": [round(w, 1) for w in wall]}
         if tests:
-            results[(axis, value)]["larger_teams"] = {"mean": float(np.mean(tests)), "std": float(np.std(tests)),
+            results[(axis, value)][args.test_label] = {"mean": float(np.mean(tests)), "std": float(np.std(tests)),
                                                       "runs": tests}
     out = {"data": paths, "samples": len(ds), "device": args.device, "seeds": args.seeds,
            "stopping_rule": {"max_epochs": args.max_epochs, "patience": args.patience, "min_delta": args.min_delta,

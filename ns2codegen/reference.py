@@ -16,6 +16,7 @@ import numpy as np
 import torch
 
 from .queries import Queries
+from .selection import clamp, env_state, membership
 
 ERR_ROBOT_TYPE, ERR_STATE = -1, -2
 INT32_MAX = 2**31 - 1
@@ -31,34 +32,21 @@ class Selection:
     x_env: np.ndarray      # float32 [Q, 6], clamped environment input
 
 
-def clamp(x: np.ndarray, box: np.ndarray) -> np.ndarray:
-    """x < lo ? lo : (x > hi ? hi : x), elementwise with box [..., 6, 2] (float32)."""
-    lo, hi = box[..., 0], box[..., 1]
-    return np.where(x < lo, lo, np.where(x > hi, hi, x)).astype(np.float32)
-
-
 def select(m, q: Queries) -> Selection:
-    """Mirror of ns2_prepare / ns2_select_neighbors for a batch of queries."""
+    """Mirror of ns2_prepare / ns2_select_neighbors for a batch of queries (the one
+    selection, ``ns2codegen.selection``)."""
     k = m.num_robot_types
     given = q.given()
     with np.errstate(invalid="ignore"):
         own_ok = np.isfinite(q.p).all(1) & np.isfinite(q.v).all(1)
-        status = np.where(q.robot_type >= k, ERR_ROBOT_TYPE, np.where(own_ok, 0, ERR_STATE)).astype(np.int32)
-        ok = status == 0
-        type_ok = q.nbr_type < k
-        valid = given & type_ok & np.isfinite(q.nbr_rel).all(2) & ok[:, None]
-        rt = np.minimum(q.robot_type, k - 1).astype(np.int64)
-        nt = np.minimum(q.nbr_type, k - 1).astype(np.int64)
-        vol = m.volumes[rt[:, None], nt]  # [Q, S, 2, 3]
-        rel = q.nbr_rel[..., :3]
-        inside = ((rel >= vol[..., 0, :]) & (rel <= vol[..., 1, :])).all(2)
-    in_vol = valid & inside
-    rank = np.cumsum(in_vol, axis=1)
-    accepted = in_vol & (rank <= m.max_neighbors)
-    x_env = clamp(np.concatenate([-q.p, -q.v], 1), m.boxes[m.env_index])
+    status = np.where(q.robot_type >= k, ERR_ROBOT_TYPE, np.where(own_ok, 0, ERR_STATE)).astype(np.int32)
+    ok = status == 0
+    valid, inside, accepted = membership(m.volumes, q.robot_type, q.nbr_type, q.nbr_rel, given & ok[:, None], k,
+                                         m.max_neighbors)
+    x_env = clamp(env_state(q.p, q.v), m.boxes[m.env_index])
     cnt = lambda a: np.where(ok, a.sum(1), 0).astype(np.int64)  # noqa: E731
     return Selection(status, accepted, cnt(given & ok[:, None] & ~valid), cnt(valid & ~inside),
-                     cnt(in_vol & ~accepted), x_env)
+                     cnt(inside & ~accepted), x_env)
 
 
 # ---------------------------------------------------------------- float32 reference

@@ -18,13 +18,42 @@ from ns2codegen.train import train
 
 # Tools the tests need (``needs``): missing ones skip those tests, or fail them with CI=true.
 ARM, QEMU, FIRMWARE = "arm-none-eabi-gcc", "qemu-system-arm", "crazyflie-firmware tarball"
+REAL_DATA = "neural-swarm-data"   # the paper's authors' flight logs in ../shared
 CI = os.environ.get("CI", "").lower() == "true"
 
 
 def _have(tool: str) -> bool:
     from ns2host import crazyflie, target
 
-    return {ARM: target.have_toolchain, QEMU: target.have_qemu, FIRMWARE: crazyflie.have_firmware}[tool]()
+    return {ARM: target.have_toolchain, QEMU: target.have_qemu, FIRMWARE: crazyflie.have_firmware,
+            REAL_DATA: lambda: all((crazyflie.SHARED / "neural-swarm-data" / t).is_file() for t in REAL_TARBALLS)}[tool]()
+
+
+REAL_TARBALLS = ("neural-swarm-2020-06-16-swaps.tar.xz", "neural-swarm-2020-06-16-randomwalks-1.tar.xz",
+                 "neural-swarm-2020-06-16-randomwalks-2.tar.xz")
+
+
+def real_logs(tarball: str, members: list[str]) -> Path:
+    """A folder holding ``members`` (paths inside ``tarball`` of ../shared/neural-swarm-data),
+    extracted once into a cache under build/ (the data are never committed)."""
+    import hashlib
+    import tarfile
+
+    from ns2host import crazyflie
+
+    src = crazyflie.SHARED / "neural-swarm-data" / tarball
+    key = hashlib.sha256(f"{tarball}:{src.stat().st_size}:{sorted(members)}".encode()).hexdigest()[:16]
+    root = Path(__file__).resolve().parents[1] / "build" / "test-real" / key
+    if not (root / ".done").is_file():
+        tmp = root.with_name(root.name + ".tmp")
+        with tarfile.open(src) as tar:
+            tar.extractall(tmp, members=[tar.getmember(m) for m in members], filter="data")
+        if root.exists():
+            import shutil
+            shutil.rmtree(root)
+        tmp.rename(root)
+        (root / ".done").write_text("")
+    return root
 
 
 def needs(*tools: str):

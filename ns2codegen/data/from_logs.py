@@ -15,7 +15,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..config import Config
+from ..queries import Queries
 from .dataset import Dataset, scenario_name
+from ..selection import boxes_f32, clamp, env_state, membership, relative_state, volumes_f32
 from .labels import G, residual_force
 
 
@@ -28,6 +30,63 @@ class Flight:
     q: np.ndarray           # [T, N, 4]
     pwm: np.ndarray         # [T, N, 4] normalized
     battery_V: np.ndarray   # [T, N]
+    labelled: list[bool] | None = None      # robots whose labels are used (default all); the others are neighbours only
+    fa_onboard_g: np.ndarray | None = None  # [T, N] the on-board prediction flown, NaN where not logged
+    name: str = ""
+
+
+def _labelled_steps(cfg: Config, flights: list[Flight]):
+    """(flight, robot i, time steps with a label, f_a [T, 3] N) of every labelled robot,
+    in the order of the data set's samples."""
+    for fl in flights:
+        labelled = fl.labelled if fl.labelled is not None else [True] * len(fl.types)
+        for i, ty in enumerate(fl.types):
+            if not labelled[i]:
+                continue
+            veh = cfg.vehicle(ty)
+            fa = residual_force(fl.t, fl.v[:, i], fl.q[:, i], fl.pwm[:, i], fl.battery_V[:, i],
+                                veh["mass_g"] / 1000.0, veh["psi1"], veh["lambda"])
+            yield fl, i, np.flatnonzero(~np.isnan(fa[:, 2])), fa
+
+
+def candidates(cfg: Config, fl: Flight, i: int, steps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The neighbours robot i hands to the C at ``steps``: every other robot of the
+    flight in flight order, types [T, S] and x_ij [T, S, 6] in float32 (``selection``)."""
+    others = [j for j in range(len(fl.types)) if j != i]
+    tidx = np.array([cfg.robot_types.index(t) for t in fl.types])
+    rel = np.zeros((len(steps), len(others), 6), np.float32)
+    for s, j in enumerate(others):
+        rel[:, s] = relative_state(fl.p[steps, i], fl.v[steps, i], fl.p[steps, j], fl.v[steps, j])
+    return np.broadcast_to(tidx[others], rel.shape[:2]).astype(np.int64), rel
+
+
+def neighbor_rows(cfg: Config, fl: Flight, i: int, steps: np.ndarray):
+    """The neighbour rows of robot i at time steps ``steps`` as the drone forms them
+    (``ns2codegen.selection``: float32 relative states, the C's volume test, order
+    and max_neighbors cut, inputs clamped to their boxes), environment last.
+    Returns (sample index into steps, neighbour type, x [rows, 6] float32)."""
+    tidx = cfg.robot_types.index(fl.types[i])
+    boxes = boxes_f32(cfg)
+    ntype, rel = candidates(cfg, fl, i, steps)
+    _, _, acc = membership(volumes_f32(cfg), np.full(len(steps), tidx), ntype, rel, np.ones(ntype.shape, bool),
+                           cfg.num_robot_types, cfg.model["max_neighbors"])
+    ts, ss = np.nonzero(acc)                                                   # by time, then slot order
+    env = clamp(env_state(fl.p[steps, i], fl.v[steps, i]), boxes[cfg.env_index])
+    return (np.concatenate([ts, np.arange(len(steps))]),
+            np.concatenate([ntype[ts, ss], np.full(len(steps), cfg.env_index)]),
+            np.concatenate([clamp(rel[ts, ss], boxes[ntype[ts, ss]]), env]))
+
+
+def flight_queries(cfg: Config, flights: list[Flight]) -> Queries:
+    """The data set's samples (``flights_to_dataset``, same order) as the C API
+    receives them: own state in float32 and every other robot as a neighbour."""
+    parts = []
+    for fl, i, steps, _ in _labelled_steps(cfg, flights):
+        ntype, rel = candidates(cfg, fl, i, steps)
+        parts.append(Queries(np.full(len(steps), cfg.robot_types.index(fl.types[i]), np.uint8),
+                             fl.p[steps, i].astype(np.float32), fl.v[steps, i].astype(np.float32),
+                             np.full(len(steps), ntype.shape[1], np.int64), ntype.astype(np.uint8), rel))
+    return Queries.concat(parts)
 
 
 def flights_to_dataset(cfg: Config, flights: list[Flight], scenario_names: list[str] | None = None) -> Dataset:
@@ -35,48 +94,34 @@ def flights_to_dataset(cfg: Config, flights: list[Flight], scenario_names: list[
     robot_type, label, scenario, time_s = [], [], [], []
     rows_sample, rows_type, rows_state = [], [], []
     n_samples = 0
-    t_offset = 0.0
-    for fl in flights:
-        n = len(fl.types)
-        tidx = np.array([cfg.robot_types.index(t) for t in fl.types])
-        fa = np.stack([residual_force(fl.t, fl.v[:, i], fl.q[:, i], fl.pwm[:, i], fl.battery_V[:, i],
-                                      cfg.vehicle(ty)["mass_g"] / 1000.0, cfg.vehicle(ty)["psi1"],
-                                      cfg.vehicle(ty)["lambda"]) for i, ty in enumerate(fl.types)], 1)
-        ok = ~np.isnan(fa[:, 0, 2])
-        steps = np.flatnonzero(ok)
-        for i in range(n):
-            name = scenario_name(cfg.robot_types, fl.types[i], [fl.types[j] for j in range(n) if j != i])
-            if name not in names:
-                names.append(name)
-            base = n_samples
-            k = len(steps)
-            robot_type.append(np.full(k, tidx[i]))
-            label.append(fa[steps, i, 2] * 1000.0 / G)
-            scenario.append(np.full(k, names.index(name)))
-            time_s.append(fl.t[steps] + t_offset)
-            sample_ids = base + np.arange(k)
-            for j in range(n):
-                if j == i:
-                    continue
-                rel = np.concatenate([fl.p[steps, j] - fl.p[steps, i], fl.v[steps, j] - fl.v[steps, i]], 1)
-                lo, hi = cfg.volume(tidx[i], tidx[j])
-                inside = np.all((rel[:, :3] >= lo) & (rel[:, :3] <= hi), axis=1)
-                rows_sample.append(sample_ids[inside])
-                rows_type.append(np.full(inside.sum(), tidx[j]))
-                rows_state.append(rel[inside])
-            rows_sample.append(sample_ids)
-            rows_type.append(np.full(k, cfg.env_index))
-            rows_state.append(np.concatenate([-fl.p[steps, i], -fl.v[steps, i]], 1))
-            n_samples += k
-        t_offset += float(fl.t[-1] - fl.t[0]) + 1.0  # flights follow each other in time
-    sample_of = np.concatenate(rows_sample)
-    types = np.concatenate(rows_type)
-    order = np.lexsort((types, sample_of))  # by sample, then type (environment last)
+    t_offset, last = 0.0, None
+    for fl, i, steps, fa in _labelled_steps(cfg, flights):
+        if last is not None and fl is not last:
+            t_offset += float(last.t[-1] - last.t[0]) + 1.0  # flights follow each other in time
+        last = fl
+        ty = fl.types[i]
+        name = scenario_name(cfg.robot_types, ty, [fl.types[j] for j in range(len(fl.types)) if j != i])
+        if name not in names:
+            names.append(name)
+        k = len(steps)
+        robot_type.append(np.full(k, cfg.robot_types.index(ty)))
+        label.append(fa[steps, 2] * 1000.0 / G)
+        scenario.append(np.full(k, names.index(name)))
+        time_s.append(fl.t[steps] + t_offset)
+        s_idx, n_type, x = neighbor_rows(cfg, fl, i, steps)
+        rows_sample.append(n_samples + s_idx)
+        rows_type.append(n_type)
+        rows_state.append(x)
+        n_samples += k
+    sample_of = np.concatenate(rows_sample) if rows_sample else np.zeros(0, np.int64)
+    types = np.concatenate(rows_type) if rows_type else np.zeros(0, np.int64)
+    states = np.concatenate(rows_state) if rows_state else np.zeros((0, 6), np.float32)
+    order = np.lexsort((types, sample_of))  # by sample, then type (environment last); stable within a type
     counts = np.bincount(sample_of, minlength=n_samples)
     offsets = np.zeros(n_samples + 1, np.int64)
     np.cumsum(counts, out=offsets[1:])
-    ds = Dataset(np.concatenate(robot_type).astype(np.int64), np.concatenate(label).astype(np.float32),
-                 np.concatenate(scenario).astype(np.int64), np.concatenate(time_s),
-                 offsets, types[order].astype(np.int64), np.concatenate(rows_state)[order].astype(np.float32),
+    cat = lambda a, dt: np.concatenate(a).astype(dt) if a else np.zeros(0, dt)  # noqa: E731
+    ds = Dataset(cat(robot_type, np.int64), cat(label, np.float32), cat(scenario, np.int64), cat(time_s, np.float64),
+                 offsets, types[order].astype(np.int64), states[order].astype(np.float32),
                  cfg.neighbor_types, names, {"generator": "flight-logs"})
     return ds.validated()

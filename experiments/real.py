@@ -1,0 +1,364 @@
+"""The paper's own flights (issue 22): the Neural-Swarm2 authors' uSD logs of the
+16 June 2020 collection -> aligned flights -> labels -> data sets, with every step
+reported (``make real``, ``ns2 real``; docs/real-flights.md).
+
+* ``unpack``: the three tarballs of ``../shared/neural-swarm-data`` under ``build/``
+  (never committed: no licence), and the collection's ``flights.toml``
+  (``ns2codegen.logs.collection``).
+* ``hover_masses``: "hover thrust equals weight": the median thrust through psi_1 (with
+  the motor delay) of each robot type in hover stretches far from neighbours and the
+  ground is its mass for the labels (f_a = 0 there by definition); both vehicle
+  blocks are evaluated, so the data say which block belongs to which type.
+* ``build``: the data sets, all flights (the paper's random piece split happens in
+  training) and whole flights held out (``HELD_OUT``: every fifth flight of each
+  scenario), with a JSON report: alignment per flight, what was cut and why, label
+  statistics per type and scenario against the on-board ``ctrlFa.Faz``.
+"""
+from __future__ import annotations
+
+import copy
+import json
+import tarfile
+from pathlib import Path
+
+import numpy as np
+
+from ns2codegen.config import Config, dump_toml
+from ns2codegen.data.from_logs import Flight, flight_queries, flights_to_dataset
+from ns2codegen.data.labels import motor_forces, residual_force
+from ns2codegen.errors import Ns2Error
+from ns2codegen.fileio import atomic_write_bytes
+from ns2codegen.logs.align import logs_to_flights
+from ns2codegen.logs.collection import COLLECTION, write_manifest
+from ns2codegen.queries import Queries
+from ns2codegen.vehicle import G
+
+TARBALLS = ("neural-swarm-2020-06-16-swaps.tar.xz", "neural-swarm-2020-06-16-randomwalks-1.tar.xz",
+            "neural-swarm-2020-06-16-randomwalks-2.tar.xz")
+HOVER = {"min_z_m": 0.3, "max_speed_mps": 0.1, "min_horizontal_distance_m": 1.0}
+HELD_OUT_EVERY, HELD_OUT_PHASE = 5, 2   # flight k of a scenario (sorted) is held out when k % 5 == 2
+
+
+class RealDataError(Ns2Error, ValueError):
+    """The real-flight data are missing or unusable."""
+
+
+def unpack(shared: str | Path, dest: str | Path) -> Path:
+    """Unpack the tarballs into ``dest`` once (a stamp names their sizes) and write
+    the collection's flights.toml there; returns ``dest``."""
+    shared, dest = Path(shared), Path(dest)
+    missing = [t for t in TARBALLS if not (shared / t).is_file()]
+    if missing:
+        raise RealDataError(f"{shared}: missing {', '.join(missing)} (../shared/neural-swarm-data beside the checkout)")
+    stamp = dest / ".unpacked"
+    key = json.dumps({t: (shared / t).stat().st_size for t in TARBALLS}, sort_keys=True)
+    if not (stamp.is_file() and stamp.read_text() == key):
+        dest.mkdir(parents=True, exist_ok=True)
+        for t in TARBALLS:
+            with tarfile.open(shared / t) as tar:
+                tar.extractall(dest, filter="data")
+        stamp.write_text(key)
+    write_manifest(dest)
+    return dest
+
+
+def is_held_out(name: str, names: list[str]) -> bool:
+    """Whole flights held out: every fifth flight of each scenario (fixed, by number)."""
+    scenario = name.split("/")[0]
+    same = sorted(n for n in names if n.split("/")[0] == scenario)
+    return same.index(name) % HELD_OUT_EVERY == HELD_OUT_PHASE
+
+
+def _alone(fl: Flight, i: int) -> np.ndarray:
+    ok = np.ones(len(fl.t), bool)
+    for j in range(len(fl.types)):
+        if j != i:
+            ok &= np.hypot(*(fl.p[:, j, :2] - fl.p[:, i, :2]).T) > HOVER["min_horizontal_distance_m"]
+    return ok & (fl.p[:, i, 2] > HOVER["min_z_m"]) & (np.linalg.norm(fl.v[:, i], axis=1) < HOVER["max_speed_mps"])
+
+
+def hover_masses(cfg: Config, flights: list[Flight], ids: dict) -> dict:
+    """Median hover thrust (g) of each robot type under each type's vehicle block, and
+    per robot under its own type's block (``ids``: flight name -> robot ids)."""
+    out = {"criteria": HOVER, "by_type": {}, "by_robot": {}}
+    per = {(ty, blk): [] for ty in cfg.robot_types for blk in cfg.robot_types}
+    per_robot: dict = {}
+    for fl in flights:
+        h = float(np.median(np.diff(fl.t)))
+        for i, ty in enumerate(fl.types):
+            if fl.labelled is not None and not fl.labelled[i]:
+                continue
+            m = _alone(fl, i)
+            if not m.any():
+                continue
+            for blk in cfg.robot_types:
+                veh = cfg.vehicle(blk)
+                T = motor_forces(fl.pwm[:, i], fl.battery_V[:, i], veh["psi1"], veh["lambda"], h).sum(1) * 1e3 / G
+                per[(ty, blk)].append(T[m])
+                if blk == ty:
+                    per_robot.setdefault(ids[fl.name][i], []).append(T[m])
+    for ty in cfg.robot_types:
+        out["by_type"][ty] = {f"block of {blk}": {"median_g": round(float(np.median(np.concatenate(per[(ty, blk)]))), 2),
+                                                  "samples": int(sum(len(a) for a in per[(ty, blk)]))}
+                              for blk in cfg.robot_types if per[(ty, blk)]}
+    out["by_robot"] = {r: {"median_g": round(float(np.median(np.concatenate(a))), 2),
+                           "samples": int(sum(len(x) for x in a))} for r, a in sorted(per_robot.items())}
+    return out
+
+
+def real_config(cfg: Config, hover: dict) -> Config:
+    """``cfg`` with each robot type's mass set to its measured hover thrust (0.1 g)."""
+    raw = copy.deepcopy(cfg.raw)
+    for t in raw["robot_types"]:
+        got = hover["by_type"].get(t["name"], {}).get(f"block of {t['name']}")
+        if got is None:
+            raise RealDataError(f"no hover stretch of a {t['name']} robot in the logs: cannot measure its mass")
+        t["mass_g"] = round(got["median_g"], 1)
+    return Config.from_dict(raw)
+
+
+def label_report(cfg: Config, flights: list[Flight]) -> dict:
+    """f_a,z label statistics per robot type and scenario, against the on-board prediction."""
+    from ns2codegen.data.dataset import scenario_name
+
+    acc: dict = {}
+    for fl in flights:
+        for i, ty in enumerate(fl.types):
+            if fl.labelled is not None and not fl.labelled[i]:
+                continue
+            veh = cfg.vehicle(ty)
+            fa = residual_force(fl.t, fl.v[:, i], fl.q[:, i], fl.pwm[:, i], fl.battery_V[:, i], veh["mass_g"] / 1e3,
+                                veh["psi1"], veh["lambda"])[:, 2] * 1e3 / G
+            ok = ~np.isnan(fa)
+            sc = scenario_name(cfg.robot_types, ty, [fl.types[j] for j in range(len(fl.types)) if j != i])
+            for key in (("type", ty), ("scenario", sc)):
+                a = acc.setdefault(key, {"label": [], "onboard": []})
+                a["label"].append(fa[ok])
+                a["onboard"].append(fl.fa_onboard_g[ok, i])
+    out: dict = {"type": {}, "scenario": {}}
+    for (kind, name), a in sorted(acc.items()):
+        lab, ob = np.concatenate(a["label"]), np.concatenate(a["onboard"])
+        both = np.isfinite(ob)
+        d = lab[both] - ob[both]
+        out[kind][name] = {"samples": int(lab.size), "mean_g": round(float(lab.mean()), 3),
+                           "std_g": round(float(lab.std()), 3), "rms_g": round(float(np.sqrt(np.mean(lab ** 2))), 3),
+                           "onboard_rms_g": round(float(np.sqrt(np.mean(ob[both] ** 2))), 3) if both.any() else None,
+                           "label_minus_onboard_rms_g": round(float(np.sqrt(np.mean(d ** 2))), 3) if both.any() else None,
+                           "corr_label_onboard": round(float(np.corrcoef(lab[both], ob[both])[0, 1]), 3)
+                           if both.sum() > 2 and ob[both].std() > 0 else None}
+    return out
+
+
+def build(root: str | Path, out_dir: str | Path, cfg: Config | None = None) -> dict:
+    """Data sets and report from the unpacked collection under ``root`` (see the module
+    docstring): out_dir/{all,train,heldout}.npz, real.toml (the config with the
+    measured masses), data_report.json.  Returns the report."""
+    cfg = cfg or Config.load(None)
+    root, out_dir = Path(root), Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    flights, reports = logs_to_flights(cfg, root)
+    names = [r["name"] for r in reports]
+    ids = {r["name"]: r["robots"] for r in reports}
+    hover = hover_masses(cfg, flights, ids)
+    rcfg = real_config(cfg, hover)
+    atomic_write_bytes(out_dir / "real.toml", dump_toml(rcfg.raw, "ns2codegen config for the real flights: "
+                       "default.toml with each robot type's mass measured in hover (experiments/real.py)").encode())
+    held = {n for n in names if is_held_out(n, names)}
+    sets = {"all": flights, "train": [f for f in flights if f.name not in held],
+            "heldout": [f for f in flights if f.name in held]}
+    sizes = {}
+    save_queries(out_dir / "heldout_queries.npz", flight_queries(rcfg, sets["heldout"]))
+    for key, fls in sets.items():
+        ds = flights_to_dataset(rcfg, fls)
+        ds.extra = dict(ds.extra, generator="usd-logs", source=f"{COLLECTION} ({key})",
+                        flights=sorted({f.name for f in fls}))
+        ds.save(out_dir / f"{key}.npz")
+        sizes[key] = {"samples": len(ds), "flights": len({f.name for f in fls})}
+    report = {"source": "aerorobotics/neural-swarm 48b18511, data/training/datacollection21_06_16_2020",
+              "flights": reports, "hover": hover,
+              "masses_g": {t: rcfg.vehicle(t)["mass_g"] for t in rcfg.robot_types},
+              "labels": label_report(rcfg, flights), "held_out_flights": sorted(held), "data_sets": sizes,
+              "alignment": alignment_summary(reports), "cuts": cut_summary(reports)}
+    atomic_write_bytes(out_dir / "data_report.json", json.dumps(report, indent=1, sort_keys=True).encode())
+    return report
+
+
+def alignment_summary(reports: list[dict]) -> dict:
+    """Per method: flights, and for the setpoint events the residual error (ms)."""
+    out: dict = {}
+    for r in reports:
+        m = out.setdefault(r["sync"], {"flights": 0})
+        m["flights"] += 1
+        e = r.get("alignment_error") or {}
+        if e:
+            m.setdefault("residual_max_ms", []).append(e["residual_max_ms"])
+            m.setdefault("residual_rms_ms", []).append(e["residual_rms_ms"])
+            m.setdefault("log_start_error_max_ms", []).append(e["raw_max_ms"])
+    for m in out.values():
+        for k in ("residual_max_ms", "residual_rms_ms", "log_start_error_max_ms"):
+            if k in m:
+                a = np.array(m[k])
+                m[k] = {"median": round(float(np.median(a)), 2), "max": round(float(a.max()), 2)}
+    return out
+
+
+def cut_summary(reports: list[dict]) -> dict:
+    """Seconds cut per reason over the collection, and the flights with ground touches or impacts."""
+    total: dict = {}
+    flights: dict = {}
+    for r in reports:
+        for reason, robots in r["cut_s_by_reason_and_robot"].items():
+            total[reason] = round(total.get(reason, 0.0) + sum(robots.values()), 2)
+            if reason in ("ground touch", "impact"):
+                flights.setdefault(reason, []).append(r["name"])
+    return {"seconds_by_reason": total, "flights_by_reason": flights,
+            "duration_s": round(sum(r["duration_s"] for r in reports), 2),
+            "used_s": round(sum(r["used_samples"] for r in reports) / 100.0, 2)}
+
+
+def save_queries(path: Path, q: Queries) -> None:
+    """The held-out samples as the C API receives them (``flight_queries``), for the C in the loop."""
+    import io
+
+    buf = io.BytesIO()
+    np.savez(buf, **{k: getattr(q, k) for k in ("robot_type", "p", "v", "n", "nbr_type", "nbr_rel")})
+    atomic_write_bytes(path, buf.getvalue())
+
+
+def load_queries(path: str | Path) -> Queries:
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            return Queries(*(z[k] for k in ("robot_type", "p", "v", "n", "nbr_type", "nbr_rel")))
+    except (OSError, KeyError, ValueError) as e:
+        raise RealDataError(f"{path}: not a query file of `ns2 real data` ({e})") from None
+
+
+def c_in_the_loop(gen_dir: str | Path, checkpoint: str | Path, queries: Queries, labels_g: np.ndarray) -> dict:
+    """Every held-out sample through the exported C (host build), float and fixed point,
+    against the Python references bit for bit; |fixed - float| on the real
+    distribution; the fixed-point output range against the labels' range."""
+    from ns2codegen import reference as ref
+    from ns2codegen.checkpoint import load_checkpoint
+    from ns2codegen.quantize import from_checkpoint
+    from ns2host.cbuild import CModel
+
+    em = from_checkpoint(load_checkpoint(checkpoint))
+    cm = CModel(gen_dir)
+    c_f, info_f = cm.predict(queries, fixed=False)
+    c_q, info_q = cm.predict(queries, fixed=True)
+    r_f, _ = ref.predict_f32(em, queries)
+    r_q, _ = ref.predict_q15(em, queries)
+    f_bits = np.ascontiguousarray(c_f, np.float32).view(np.uint32) != np.ascontiguousarray(r_f, np.float32).view(np.uint32)
+    fixed_g = c_q.astype(np.float64) / 2.0 ** em.q15.out_frac
+    d = np.abs(fixed_g - c_f.astype(np.float64))
+    lo, hi = -(2.0 ** 15) / 2.0 ** em.q15.out_frac, (2.0 ** 15 - 1) / 2.0 ** em.q15.out_frac
+    return {"samples": len(queries), "float_mismatches": int(f_bits.sum()),
+            "fixed_mismatches": int((c_q != r_q).sum()),
+            "status_nonzero": int((info_f["status"] != 0).sum() + (info_q["status"] != 0).sum()),
+            "abs_fixed_minus_float_g": {"mean": float(d.mean()), "p99": float(np.percentile(d, 99)), "max": float(d.max())},
+            "fixed_output_range_g": [lo, hi], "label_range_g": [float(labels_g.min()), float(labels_g.max())],
+            "float_output_range_g": [float(c_f.min()), float(c_f.max())],
+            "labels_inside_fixed_range": bool(labels_g.min() >= lo and labels_g.max() <= hi),
+            "neighbours_used_histogram": np.bincount(info_f["n_used"]).tolist()}
+
+
+def _fmt(r: dict | None, key: str = "mean") -> str:
+    return "-" if not r else f"{r[key]:.2f} +- {r['std']:.2f}"
+
+
+def summary(out_dir: str | Path) -> dict:
+    """The tables of docs/real-flights.md from the JSON of ``make real`` (data_report,
+    paper, heldout, authors, c_check), as one JSON (summary.json) and Markdown (summary.md)."""
+    d = Path(out_dir)
+    load = lambda n: json.loads((d / n).read_text()) if (d / n).is_file() else None  # noqa: E731
+    data, paper, held, authors, cchk = (load(n) for n in ("data_report.json", "paper.json", "heldout.json",
+                                                          "authors.json", "c_check.json"))
+    if data is None or paper is None or held is None:
+        raise RealDataError(f"{d}: run `make real` first (data_report.json, paper.json, heldout.json)")
+    key = "held_out_flights"
+    rows = []
+    for axis, vals in held.items():
+        if axis not in ("H", "L", "W", "V", "P", "T") or not isinstance(vals, dict):
+            continue
+        for value, r in vals.items():
+            rows.append((axis, value, r))
+    lines = ["| model | validation MSE, paper's random split (g^2) | held-out flights MSE (g^2) |", "|---|---|---|"]
+    lines.append(f"| H = 20, L = 4, all flights, paper's protocol | {_fmt(paper['H']['20'])} | - |")
+    seen = set()
+    for axis, value, r in rows:
+        if id(r) in seen:
+            continue
+        seen.add(id(r))
+        lines.append(f"| {axis} = {value} (trained on the other flights) | {_fmt(r)} | {_fmt(r.get(key))} |")
+    if authors:
+        lines.append(f"| authors' published network (trained on all their collections, these flights included) | "
+                     f"{authors['validation_all_mse']:.2f} (training data) | {authors['heldout_mse']:.2f} "
+                     f"(training data) |")
+    out = {"label_variance_g2": {"all": paper.get("label_variance_g2"), "train": held.get("label_variance_g2")},
+           "paper_protocol": paper["H"]["20"], "held_out": {f"{a}={v}": r for a, v, r in rows},
+           "authors": authors, "c_check": cchk, "data": {k: data[k] for k in ("data_sets", "masses_g", "alignment", "cuts")},
+           "table_md": "\n".join(lines)}
+    atomic_write_bytes(d / "summary.json", json.dumps(out, indent=1).encode())
+    atomic_write_bytes(d / "summary.md", ("\n".join(lines) + "\n").encode())
+    return out
+
+
+def plots(out_dir: str | Path, checkpoint: str | Path, root: str | Path) -> list[Path]:
+    """labels vs the on-board prediction and ours over one real swap; held-out MSE per
+    scenario; prediction vs label on the held-out flights."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import torch
+
+    from ns2codegen.checkpoint import load_checkpoint
+    from ns2codegen.data.dataset import Dataset
+    from ns2codegen.train import Batched, evaluate, predict
+
+    d = Path(out_dir)
+    ck = load_checkpoint(checkpoint)
+    model = ck.model()
+    held = Dataset.load(d / "heldout.npz")
+    with torch.no_grad():
+        pred = predict(model, Batched.of(held)).numpy()
+    ev = evaluate(model, held)
+    paths = []
+    fig, ax = plt.subplots(figsize=(6, 6))
+    ax.scatter(held.label_g, pred, s=1, alpha=0.2)
+    lim = [float(min(held.label_g.min(), pred.min())), float(max(held.label_g.max(), pred.max()))]
+    ax.plot(lim, lim, "k--", lw=1)
+    ax.set(xlabel="label f_a,z (g)", ylabel="prediction (g)", title=f"held-out flights: MSE {ev['mse']:.2f} g^2")
+    paths.append(d / "pred_vs_label.png")
+    fig.savefig(paths[-1], dpi=100)
+    plt.close(fig)
+    names = sorted(ev["mse_per_scenario"])
+    fig, ax = plt.subplots(figsize=(8, 4))
+    ax.bar(names, [ev["mse_per_scenario"][n] for n in names])
+    ax.set(ylabel="MSE (g^2)", title="held-out flights: MSE per scenario")
+    ax.tick_params(axis="x", rotation=45)
+    fig.tight_layout()
+    paths.append(d / "mse_per_scenario.png")
+    fig.savefig(paths[-1], dpi=100)
+    plt.close(fig)
+    # one held-out swap: the bottom robot's label, the network flown on board and ours
+    rcfg = Config.load(d / "real.toml")
+    flights, reports = logs_to_flights(rcfg, root)
+    name = next(n for n in json.loads((d / "data_report.json").read_text())["held_out_flights"] if n.startswith("swap_sl"))
+    pieces = [f for f in flights if f.name == name]
+    fig, ax = plt.subplots(figsize=(10, 4))
+    for fl in pieces:
+        i = int(np.argmin(fl.p[:, :, 2].mean(0)))             # the bottom robot
+        ds = flights_to_dataset(rcfg, [Flight(**{**fl.__dict__, "labelled": [k == i for k in range(len(fl.types))]})])
+        with torch.no_grad():
+            ours = predict(model, Batched.of(ds)).numpy()
+        t = fl.t[2:-2]
+        ax.plot(t, ds.label_g, "k", lw=0.8, label="label" if fl is pieces[0] else None)
+        ax.plot(t, fl.fa_onboard_g[2:-2, i], "tab:orange", lw=1, label="on board (authors' network)" if fl is pieces[0] else None)
+        ax.plot(t, ours, "tab:blue", lw=1, label="ours (held out)" if fl is pieces[0] else None)
+    ax.set(xlabel="t (s)", ylabel="f_a,z (g)", title=f"{name}: the bottom robot")
+    ax.legend()
+    fig.tight_layout()
+    paths.append(d / "swap_labels.png")
+    fig.savefig(paths[-1], dpi=100)
+    plt.close(fig)
+    return paths
