@@ -93,6 +93,7 @@ SIM := build/sim
 SIM_SECONDS ?= 120
 # one torch thread: the default count thrashes on a loaded 2-core machine (20-60x slower)
 sim paper-data ablation real: export OMP_NUM_THREADS ?= 1
+build/real/%: export OMP_NUM_THREADS ?= 1
 $(SIM)/round1.npz: | deps $(GEN)/ns2_model_config.h
 	@mkdir -p $(SIM)
 	$(NS2) sim collect --seconds-per-team $(SIM_SECONDS) --seed 1 --out $@
@@ -144,22 +145,27 @@ ablation: build/paper_data.npz build/larger_teams.npz
 # sample through it. JSON, tables and plots in build/real/.
 REAL := build/real
 REAL_SEEDS ?= 3
+REAL_ABLATION_SEEDS ?= 3
 REAL_EPOCHS ?= 30
 REAL_AXES ?= H,L,V,P,T
-REAL_TRAIN = $(PYTHON) benchmarks/ablation.py --config $(REAL)/real.toml --seeds $(REAL_SEEDS) \
-	--max-epochs $(REAL_EPOCHS) --patience 3 --lr-drops 1
+REAL_TRAIN = $(PYTHON) benchmarks/ablation.py --config $(REAL)/real.toml --max-epochs $(REAL_EPOCHS) \
+	--patience 3 --lr-drops 1 --batch-size 1024
+REAL_HELD = --data $(REAL)/train.npz --test-data $(REAL)/heldout.npz --test-label held_out_flights
 $(REAL)/all.npz: | deps
 	$(NS2) real data --out $(REAL) --quiet
+# the paper's protocol: all flights, the random 80/20 split of 50 pieces per scenario
 $(REAL)/paper.json: $(REAL)/all.npz
-	$(REAL_TRAIN) --data $(REAL)/all.npz --axes paper --save-dir $(REAL)/paper > $@.tmp && mv $@.tmp $@
+	$(REAL_TRAIN) --data $(REAL)/all.npz --axes paper --seeds $(REAL_SEEDS) > $@.tmp && mv $@.tmp $@
+# trained without the held-out flights (every fifth of each scenario), scored on them
 $(REAL)/heldout.json: $(REAL)/all.npz
-	$(REAL_TRAIN) --data $(REAL)/train.npz --test-data $(REAL)/heldout.npz --test-label held_out_flights \
-		--axes $(REAL_AXES) --save-dir $(REAL)/heldout > $@.tmp && mv $@.tmp $@
+	$(REAL_TRAIN) $(REAL_HELD) --axes paper --seeds $(REAL_SEEDS) --save-dir $(REAL)/heldout > $@.tmp && mv $@.tmp $@
+$(REAL)/ablation.json: $(REAL)/all.npz
+	$(REAL_TRAIN) $(REAL_HELD) --axes $(REAL_AXES) --no-reference --seeds $(REAL_ABLATION_SEEDS) > $@.tmp && mv $@.tmp $@
 $(REAL)/gen/ns2_model_config.h: $(REAL)/heldout.json
 	$(NS2) export $(REAL)/heldout/H-20-seed0.pt --out $(REAL)/gen --quiet
 $(REAL)/c_check.json: $(REAL)/gen/ns2_model_config.h
 	$(NS2) real check-c --gen $(REAL)/gen --checkpoint $(REAL)/heldout/H-20-seed0.pt --data-dir $(REAL) --out $@
-real: $(REAL)/paper.json $(REAL)/heldout.json $(REAL)/c_check.json
+real: $(REAL)/paper.json $(REAL)/heldout.json $(REAL)/ablation.json $(REAL)/c_check.json
 	$(NS2) real report --dir $(REAL) --checkpoint $(REAL)/heldout/H-20-seed0.pt
 
 clean:

@@ -94,6 +94,10 @@ def main() -> None:
     ap.add_argument("--test-label", default="larger_teams", help="the key of the --test-data scores in the JSON")
     ap.add_argument("--config", default=None, help="config of the models (default: the package's default.toml)")
     ap.add_argument("--save-dir", default=None, help="save every trained model there (<axis>-<value>-seed<k>.pt)")
+    ap.add_argument("--no-reference", action="store_true",
+                    help="skip the paper's network (H = 20, L = 4: trained and reported by another run)")
+    ap.add_argument("--batch-size", type=int, default=None, help="[default: the config's train.batch_size]")
+    ap.add_argument("--lr", type=float, default=None, help="[default: the config's train.lr]")
     args = ap.parse_args()
     paths = args.data or sorted(glob.glob("build/sim/round*.npz"))
     if not paths:
@@ -104,13 +108,17 @@ def main() -> None:
     if args.save_dir:
         Path(args.save_dir).mkdir(parents=True, exist_ok=True)
     results, t_all = {}, time.perf_counter()
-    for axis, value, over, variant, drop_v in runs(args.axes):
+    selected = runs(args.axes)
+    if args.no_reference:
+        selected = [r for r in selected if r[:2] != ("H", 20)]
+    for axis, value, over, variant, drop_v in selected:
         data = without_velocity(ds) if drop_v else ds
         test_run = without_velocity(test) if drop_v and test is not None else test
         mses, epochs, wall, tests = [], [], [], []
         for seed in range(args.seeds):
             t0 = time.perf_counter()
             model, rep = train(cfg.with_overrides(**over), data, epochs=args.max_epochs, seed=seed,
+                               batch_size=args.batch_size, lr=args.lr,
                                device=args.device, variant=variant, patience=args.patience,
                                min_delta=args.min_delta, lr_drops=args.lr_drops)
             mses.append(rep["validation"]["mse"])

@@ -49,11 +49,15 @@ def real_check_c(gen_dir, checkpoint, data_dir, out, as_json):
     """Every held-out real sample through the exported C, float and fixed, against the references."""
     from ns2codegen.data.dataset import Dataset
     from ns2codegen.fileio import atomic_write_bytes
-    from ns2exp.real import c_in_the_loop, load_queries
+    from ns2exp.real import c_in_the_loop, load_queries, selection_mismatches
 
     q = load_queries(Path(data_dir) / "heldout_queries.npz")
     labels = Dataset.load(Path(data_dir) / "heldout.npz").label_g
     res = c_in_the_loop(gen_dir, checkpoint, q, labels)
+    every = Path(data_dir) / "all_queries.npz"
+    if every.is_file():   # issue 29: the selection of every sample of the collection against the C
+        res["selection_all_flights"] = selection_mismatches(gen_dir, load_queries(every),
+                                                            Dataset.load(Path(data_dir) / "all.npz"))
     if out:
         atomic_write_bytes(Path(out), json.dumps(res, indent=1).encode())
     _emit(as_json, res, f"{res['samples']} held-out samples: float C {res['float_mismatches']} and fixed C "
@@ -77,3 +81,20 @@ def real_report(out_dir, checkpoint, unpack_dir, as_json):
     res = summary(out_dir)
     paths = plots(out_dir, checkpoint, unpack_dir)
     _emit(as_json, dict(res, plots=[str(p) for p in paths]), res["table_md"] + "\n\nplots: " + ", ".join(map(str, paths)))
+
+
+@real.command("score")
+@click.option("--checkpoint", type=click.Path(dir_okay=False), required=True, help="the model scored")
+@click.option("--data-dir", type=click.Path(file_okay=False), default="build/real", show_default=True,
+              help="output folder of `ns2 real data`")
+@click.option("--out", type=click.Path(dir_okay=False), default=None, help="write the result as JSON there too")
+@_json_option
+def real_score(checkpoint, data_dir, out, as_json):
+    """MSE of a model on every flight and on the held-out flights (both label conventions)."""
+    from ns2codegen.fileio import atomic_write_bytes
+    from ns2exp.real import score
+
+    res = score(checkpoint, data_dir)
+    if out:
+        atomic_write_bytes(Path(out), json.dumps(res, indent=1).encode())
+    _emit(as_json, res, ", ".join(f"{k} {v:.3f} g^2" for k, v in res.items() if k.endswith("_mse")))

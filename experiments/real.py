@@ -106,15 +106,25 @@ def hover_masses(cfg: Config, flights: list[Flight], ids: dict) -> dict:
     return out
 
 
-def real_config(cfg: Config, hover: dict) -> Config:
-    """``cfg`` with each robot type's mass set to its measured hover thrust (0.1 g)."""
+AUTHORS_MASSES_G = {"small": 32.0, "large": 67.0}   # learning/training.py of aerorobotics/neural-swarm
+
+
+def _with_masses(cfg: Config, masses: dict) -> Config:
     raw = copy.deepcopy(cfg.raw)
     for t in raw["robot_types"]:
-        got = hover["by_type"].get(t["name"], {}).get(f"block of {t['name']}")
-        if got is None:
-            raise RealDataError(f"no hover stretch of a {t['name']} robot in the logs: cannot measure its mass")
-        t["mass_g"] = round(got["median_g"], 1)
+        t["mass_g"] = float(masses[t["name"]])
     return Config.from_dict(raw)
+
+
+def real_config(cfg: Config, hover: dict) -> Config:
+    """``cfg`` with each robot type's mass set to its measured hover thrust (0.1 g)."""
+    masses = {}
+    for t in cfg.robot_types:
+        got = hover["by_type"].get(t, {}).get(f"block of {t}")
+        if got is None:
+            raise RealDataError(f"no hover stretch of a {t} robot in the logs: cannot measure its mass")
+        masses[t] = round(got["median_g"], 1)
+    return _with_masses(cfg, masses)
 
 
 def label_report(cfg: Config, flights: list[Flight]) -> dict:
@@ -136,12 +146,17 @@ def label_report(cfg: Config, flights: list[Flight]) -> dict:
                 a["label"].append(fa[ok])
                 a["onboard"].append(fl.fa_onboard_g[ok, i])
     out: dict = {"type": {}, "scenario": {}}
+    every = np.concatenate([np.concatenate(a["label"]) for (kind, _), a in acc.items() if kind == "type"])
+    out["all"] = {"samples": int(every.size), "rms_g": round(float(np.sqrt(np.mean(every ** 2))), 3),
+                  "sqrt_std_of_squares_g": round(float(np.sqrt(np.std(every ** 2))), 3),
+                  "mean_g": round(float(every.mean()), 3), "variance_g2": round(float(every.var()), 3)}
     for (kind, name), a in sorted(acc.items()):
         lab, ob = np.concatenate(a["label"]), np.concatenate(a["onboard"])
         both = np.isfinite(ob)
         d = lab[both] - ob[both]
         out[kind][name] = {"samples": int(lab.size), "mean_g": round(float(lab.mean()), 3),
                            "std_g": round(float(lab.std()), 3), "rms_g": round(float(np.sqrt(np.mean(lab ** 2))), 3),
+                           "sqrt_std_of_squares_g": round(float(np.sqrt(np.std(lab ** 2))), 3),
                            "onboard_rms_g": round(float(np.sqrt(np.mean(ob[both] ** 2))), 3) if both.any() else None,
                            "label_minus_onboard_rms_g": round(float(np.sqrt(np.mean(d ** 2))), 3) if both.any() else None,
                            "corr_label_onboard": round(float(np.corrcoef(lab[both], ob[both])[0, 1]), 3)
@@ -168,12 +183,19 @@ def build(root: str | Path, out_dir: str | Path, cfg: Config | None = None) -> d
             "heldout": [f for f in flights if f.name in held]}
     sizes = {}
     save_queries(out_dir / "heldout_queries.npz", flight_queries(rcfg, sets["heldout"]))
+    save_queries(out_dir / "all_queries.npz", flight_queries(rcfg, sets["all"]))
     for key, fls in sets.items():
         ds = flights_to_dataset(rcfg, fls)
         ds.extra = dict(ds.extra, generator="usd-logs", source=f"{COLLECTION} ({key})",
                         flights=sorted({f.name for f in fls}))
         ds.save(out_dir / f"{key}.npz")
         sizes[key] = {"samples": len(ds), "flights": len({f.name for f in fls})}
+    # the held-out flights labelled with the authors' masses too (their code: 32 g and 67 g),
+    # to score their published network against the labels it was trained for
+    acfg = _with_masses(cfg, AUTHORS_MASSES_G)
+    ds = flights_to_dataset(acfg, sets["heldout"])
+    ds.extra = dict(ds.extra, generator="usd-logs", source=f"{COLLECTION} (heldout, masses {AUTHORS_MASSES_G} g)")
+    ds.save(out_dir / "heldout_authors_masses.npz")
     report = {"source": "aerorobotics/neural-swarm 48b18511, data/training/datacollection21_06_16_2020",
               "flights": reports, "hover": hover,
               "masses_g": {t: rcfg.vehicle(t)["mass_g"] for t in rcfg.robot_types},
@@ -266,41 +288,62 @@ def _fmt(r: dict | None, key: str = "mean") -> str:
     return "-" if not r else f"{r[key]:.2f} +- {r['std']:.2f}"
 
 
+PAPER_TABLE = {"H=20": "6.42 +- 0.18", "H=10": "6.70 +- 0.05", "H=40": "6.63 +- 0.35", "L=3": "6.52 +- 0.17",
+               "L=5": "7.21 +- 0.28", "V=without": "7.60"}
+
+
 def summary(out_dir: str | Path) -> dict:
     """The tables of docs/real-flights.md from the JSON of ``make real`` (data_report,
-    paper, heldout, authors, c_check), as one JSON (summary.json) and Markdown (summary.md)."""
+    paper, heldout, ablation, authors, c_check) as summary.json and summary.md."""
     d = Path(out_dir)
     load = lambda n: json.loads((d / n).read_text()) if (d / n).is_file() else None  # noqa: E731
-    data, paper, held, authors, cchk = (load(n) for n in ("data_report.json", "paper.json", "heldout.json",
-                                                          "authors.json", "c_check.json"))
+    data, paper, held, abl, authors, cchk = (load(n) for n in ("data_report.json", "paper.json", "heldout.json",
+                                                               "ablation.json", "authors.json", "c_check.json"))
     if data is None or paper is None or held is None:
         raise RealDataError(f"{d}: run `make real` first (data_report.json, paper.json, heldout.json)")
     key = "held_out_flights"
-    rows = []
-    for axis, vals in held.items():
-        if axis not in ("H", "L", "W", "V", "P", "T") or not isinstance(vals, dict):
-            continue
-        for value, r in vals.items():
-            rows.append((axis, value, r))
-    lines = ["| model | validation MSE, paper's random split (g^2) | held-out flights MSE (g^2) |", "|---|---|---|"]
-    lines.append(f"| H = 20, L = 4, all flights, paper's protocol | {_fmt(paper['H']['20'])} | - |")
-    seen = set()
-    for axis, value, r in rows:
-        if id(r) in seen:
-            continue
-        seen.add(id(r))
-        lines.append(f"| {axis} = {value} (trained on the other flights) | {_fmt(r)} | {_fmt(r.get(key))} |")
+    rows = [("H=20", "H = 20, L = 4 (the paper's network)", held["H"]["20"])]
+    names = {"H": "H = {}", "L": "L = {}", "V": "{} relative velocity", "P": "{}", "T": "{} deep set", "W": "widths {}"}
+    same = {("L", "4"), ("W", "40/25"), ("V", "with"), ("P", "deep set"), ("T", "heterogeneous")}
+    for axis, vals in (abl or {}).items():
+        if axis in names and isinstance(vals, dict):
+            rows += [(f"{axis}={v}", names[axis].format(v), r) for v, r in vals.items() if (axis, v) not in same]
+    lines = ["| model | paper (g^2) | validation, paper's random split (g^2) | held-out flights (g^2) |",
+             "|---|---|---|---|",
+             f"| H = 20, L = 4, every flight, the paper's protocol | 6.42 +- 0.18 | {_fmt(paper['H']['20'])} | - |"]
+    for k, label, r in rows:
+        lines.append(f"| {label}, without the held-out flights | {PAPER_TABLE.get(k, '-')} | {_fmt(r)} | "
+                     f"{_fmt(r.get(key))} |")
     if authors:
-        lines.append(f"| authors' published network (trained on all their collections, these flights included) | "
-                     f"{authors['validation_all_mse']:.2f} (training data) | {authors['heldout_mse']:.2f} "
-                     f"(training data) |")
+        lines.append(f"| the authors' published network (trained on all their collections, these flights included: "
+                     f"a training score) | - | {authors['all_mse']:.2f} (every flight) | {authors['heldout_mse']:.2f} |")
     out = {"label_variance_g2": {"all": paper.get("label_variance_g2"), "train": held.get("label_variance_g2")},
-           "paper_protocol": paper["H"]["20"], "held_out": {f"{a}={v}": r for a, v, r in rows},
-           "authors": authors, "c_check": cchk, "data": {k: data[k] for k in ("data_sets", "masses_g", "alignment", "cuts")},
-           "table_md": "\n".join(lines)}
+           "paper_protocol": paper["H"]["20"], "held_out": {k: r for k, _, r in rows},
+           "authors": authors, "c_check": cchk,
+           "data": {k: data[k] for k in ("data_sets", "masses_g", "alignment", "cuts")},
+           "labels_all": data["labels"].get("all"), "table_md": "\n".join(lines)}
+    out["flights_md"] = flights_table(data["flights"])
     atomic_write_bytes(d / "summary.json", json.dumps(out, indent=1).encode())
-    atomic_write_bytes(d / "summary.md", ("\n".join(lines) + "\n").encode())
+    atomic_write_bytes(d / "summary.md", ("\n".join(lines) + "\n\n" + out["flights_md"] + "\n").encode())
     return out
+
+
+def flights_table(reports: list[dict]) -> str:
+    """Per flight: alignment method, clock offsets and measured error, what was cut and why."""
+    lines = ["| flight | robots | alignment | offsets (ms) | event residual max (ms) | cut (s): reason robot | used (s) |",
+             "|---|---|---|---|---|---|---|"]
+    for r in reports:
+        e = r.get("alignment_error") or {}
+        cuts = "; ".join(f"{why}: " + ", ".join(f"{rid} {sec:g}" for rid, sec in rob.items())
+                         for why, rob in sorted(r["cut_s_by_reason_and_robot"].items())) or "-"
+        robots = ", ".join(x + (" (not labelled)" if x in r.get("not_labelled", []) else "") for x in r["robots"])
+        lines.append(f"| {r['name']} | {robots} | {r['sync']} | "
+                     f"{', '.join(f'{o * 1e3:+.1f}' for o in r['clock_offsets_s'])} | "
+                     f"{e['residual_max_ms']:.1f}" if e else
+                     f"| {r['name']} | {robots} | {r['sync']} | "
+                     f"{', '.join(f'{o * 1e3:+.1f}' for o in r['clock_offsets_s'])} | -")
+        lines[-1] += f" | {cuts} | {r['used_samples'] / 100.0:.1f} |"
+    return "\n".join(lines)
 
 
 def plots(out_dir: str | Path, checkpoint: str | Path, root: str | Path) -> list[Path]:
@@ -362,3 +405,35 @@ def plots(out_dir: str | Path, checkpoint: str | Path, root: str | Path) -> list
     fig.savefig(paths[-1], dpi=100)
     plt.close(fig)
     return paths
+
+
+def score(checkpoint: str | Path, data_dir: str | Path) -> dict:
+    """MSE (g^2) of a checkpoint on every flight, on the held-out flights, and on the
+    held-out flights labelled with the authors' masses (for their network)."""
+    from ns2codegen.checkpoint import load_checkpoint
+    from ns2codegen.data.dataset import Dataset
+    from ns2codegen.train import evaluate
+
+    model = load_checkpoint(checkpoint).model()
+    d = Path(data_dir)
+    out = {"checkpoint": str(checkpoint)}
+    for key, name in (("all", "all.npz"), ("heldout", "heldout.npz"), ("heldout_authors_masses", "heldout_authors_masses.npz")):
+        if (d / name).is_file():
+            ev = evaluate(model, Dataset.load(d / name))
+            out[f"{key}_mse"] = ev["mse"]
+            out[f"{key}_mse_per_scenario"] = ev["mse_per_scenario"]
+    return out
+
+
+def selection_mismatches(gen_dir: str | Path, queries: Queries, ds) -> dict:
+    """Issue 29 on the whole collection: the data set's neighbour count of every sample
+    against the C's selection (host build, ``info.n_used``) for the same sample."""
+    from ns2host.cbuild import CModel
+
+    _, info = CModel(gen_dir).predict(queries, fixed=True)
+    ours = np.diff(ds.nbr_offsets) - 1
+    if len(ours) != len(queries):
+        raise RealDataError(f"{len(queries)} queries for {len(ours)} samples: not the same flights")
+    bad = info["n_used"].astype(np.int64) != ours
+    return {"samples": len(queries), "mismatches": int(bad.sum()),
+            "neighbours_used": int(ours.sum()), "status_nonzero": int((info["status"] != 0).sum())}

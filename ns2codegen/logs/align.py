@@ -232,7 +232,10 @@ CUT_PAD_S = 0.3         # cut this long around a ground touch or impact (the tra
 def _cut_reasons(x: dict, ok: np.ndarray, ground_z: float | None, z_min: float, rate_hz: float) -> dict:
     """Unusable grid points of one robot, by reason (masks over the grid)."""
     z = x["p"][:, 2]
-    touch = z <= (ground_z + TOUCH_MARGIN_M if ground_z is not None else z_min)
+    if ground_z is None:   # no ground plane given: only "on the ground" (z <= z_min), unpadded
+        touch, low = np.zeros(len(z), bool), z <= z_min
+    else:
+        touch, low = z <= ground_z + TOUCH_MARGIN_M, np.zeros(len(z), bool)
     dv = np.zeros(len(z))
     if len(z) > 1:
         dv[1:] = np.linalg.norm(np.diff(x["v"], axis=0), axis=1) * rate_hz
@@ -244,7 +247,7 @@ def _cut_reasons(x: dict, ok: np.ndarray, ground_z: float | None, z_min: float, 
         touch = np.convolve(touch, kernel, "same") > 0
         impact = np.convolve(impact, kernel, "same") > 0
     return {"log gap": ~ok, "motors off": x["pwm"].mean(axis=1) <= PWM_ON, "ground touch": touch,
-            "impact": impact}
+            "on the ground": low, "impact": impact}
 
 
 def align(types: list[str], robots: list[RobotLog], rate_hz: float = 100.0, max_gap_s: float = 0.05,
