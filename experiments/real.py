@@ -297,8 +297,11 @@ def summary(out_dir: str | Path) -> dict:
     paper, heldout, ablation, authors, c_check) as summary.json and summary.md."""
     d = Path(out_dir)
     load = lambda n: json.loads((d / n).read_text()) if (d / n).is_file() else None  # noqa: E731
-    data, paper, held, abl, authors, cchk = (load(n) for n in ("data_report.json", "paper.json", "heldout.json",
-                                                               "ablation.json", "authors.json", "c_check.json"))
+    data, paper, held, authors, cchk = (load(n) for n in ("data_report.json", "paper.json", "heldout.json",
+                                                          "authors.json", "c_check.json"))
+    abl = {}
+    for f in sorted(d.glob("ablation-*.json")):
+        abl.update({k: v for k, v in json.loads(f.read_text()).items() if k in ("H", "L", "W", "V", "P", "T")})
     if data is None or paper is None or held is None:
         raise RealDataError(f"{d}: run `make real` first (data_report.json, paper.json, heldout.json)")
     key = "held_out_flights"
