@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from .common import _emit, _json_option, _progress, _quiet_option, main
+from .common import _config_option, _emit, _json_option, _parent_ok, _progress, _quiet_option, main
 
 
 @main.group()
@@ -98,3 +98,66 @@ def real_score(checkpoint, data_dir, out, as_json):
     if out:
         atomic_write_bytes(Path(out), json.dumps(res, indent=1).encode())
     _emit(as_json, res, ", ".join(f"{k} {v:.3f} g^2" for k, v in res.items() if k.endswith("_mse")))
+
+
+@real.command("import-authors")
+@click.argument("models_dir", type=click.Path(file_okay=False))
+@click.option("--out", required=True, type=click.Path(dir_okay=False), help="project checkpoint to write (.pt)")
+@click.option("--suffix", default="", show_default=True,
+              help="file name suffix of the set (the 2019 folder also holds phi_S_rw.pth ...: --suffix _rw)")
+@_config_option
+@_json_option
+def import_authors(models_dir, out, suffix, config_path, as_json):
+    """Load the published phi_S/phi_L/phi_G/rho_S/rho_L.pth of MODELS_DIR into the project's
+    deep set, unchanged, and save it as a checkpoint that `ns2 export` exports."""
+    from ns2codegen.authors import load_authors
+    from ns2codegen.checkpoint import save_checkpoint
+    from ns2codegen.config import Config
+
+    _parent_ok(out)
+    model, cfg, meta = load_authors(models_dir, suffix, Config.load(config_path))
+    save_checkpoint(out, model, cfg, {"seed": None, "data_hash": None, "authors": meta})
+    result = {"checkpoint": out, "phi_dims": meta["phi_dims"], "rho_dims": meta["rho_dims"],
+              "ground": meta["ground"], "files": meta["files"], "assumptions": meta["assumptions"]}
+    ground = (f"phi_G with {meta['ground']['inputs']} inputs -> environment columns "
+              f"{meta['ground']['columns_of_env_input']}" if meta["ground"] else "no phi_G: environment phi = 0")
+    _emit(as_json, result, f"wrote {out}: phi {meta['phi_dims']}, rho {meta['rho_dims']}, {ground}")
+
+
+@real.command("authors-faz")
+@click.argument("checkpoint", type=click.Path(dir_okay=False))
+@click.option("--data", "data_dir", type=click.Path(file_okay=False), default=None,
+              help="folder of the 16 June 2020 collection [default: unpacked by `ns2 real data` from "
+                   "../shared/neural-swarm-data into build/neural-swarm-data]")
+@click.option("--out", type=click.Path(dir_okay=False), default=None, help="also write the result as JSON here")
+@_json_option
+def authors_faz(checkpoint, data_dir, out, as_json):
+    """Recompute the logged on-board ctrlFa.Faz of every flight with CHECKPOINT's network
+    (with and without the ground input) and report rms / max error per scenario and robot type."""
+    from ns2codegen.checkpoint import load_checkpoint
+    from ns2codegen.fileio import atomic_write_bytes
+    from ns2codegen.logs.collection import COLLECTION
+    from ns2exp.onboard_faz import reproduce
+    from ns2exp.real import unpack
+    from ns2host.crazyflie import SHARED
+
+    if data_dir is None:
+        data_dir = str(unpack(SHARED / "neural-swarm-data", "build/neural-swarm-data") / COLLECTION)
+    model = load_checkpoint(checkpoint).model()
+    result = {"checkpoint": checkpoint, "data": str(data_dir),
+              "with_ground": reproduce(model, data_dir, ground=True),
+              "without_ground": reproduce(model, data_dir, ground=False)}
+    if out:
+        _parent_ok(out)
+        atomic_write_bytes(Path(out), (json.dumps(result, indent=1, sort_keys=True) + "\n").encode())
+    lines = []
+    for key in ("with_ground", "without_ground"):
+        r = result[key]
+        lines.append(f"{key.replace('_', ' ')}: " + ", ".join(
+            f"{k} rms {v['rms_g']:.2f} g, max {v['max_abs_g']:.1f} g, mean {v['mean_g']:+.2f} g, corr {v['corr']:.3f}, "
+            f"Faz ~ {v['fit_slope']:.3f} x prediction {v['fit_offset_g']:+.2f} g" for k, v in r["overall"].items()))
+        for name, d in r["per_scenario"].items():
+            lines.append(f"  {name:15s} " + "  ".join(
+                f"{k}: rms {v['rms_g']:5.2f} max {v['max_abs_g']:5.1f} (|Faz| rms {v['faz_rms_g']:.2f}, "
+                f"{v['samples']} samples)" for k, v in d.items()))
+    _emit(as_json, result, "\n".join(lines))

@@ -131,6 +131,11 @@ def _missing_input_calls(tmp_path):
         ("sim", "swaps"): ["--gen", nope, "--out", tmp_path / "swaps"],
         ("sim", "rings"): ["--gen", nope, "--out", tmp_path / "rings"],
         ("plan",): ["--checkpoint", nope / "m.pt", "--out", tmp_path / "plan"],
+        ("real", "data"): ["--shared", nope, "--unpack-dir", tmp_path / "u", "--out", tmp_path / "real"],
+        ("real", "check-c"): ["--gen", nope, "--checkpoint", nope / "m.pt", "--data-dir", nope],
+        ("real", "report"): ["--dir", nope, "--checkpoint", nope / "m.pt", "--unpack-dir", nope],
+        ("real", "import-authors"): [nope, "--out", tmp_path / "authors.pt"],
+        ("real", "authors-faz"): [nope / "authors.pt", "--data", nope, "--out", tmp_path / "faz.json"],
     }
 
 
