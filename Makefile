@@ -162,12 +162,17 @@ $(REAL)/heldout.json: $(REAL)/all.npz
 # the ablations, one JSON per axis (they run side by side with make -j)
 $(REAL)/ablation-%.json: $(REAL)/all.npz
 	$(REAL_TRAIN) $(REAL_HELD) --axes $* --no-reference --seeds $(REAL_ABLATION_SEEDS) > $@.tmp && mv $@.tmp $@
+# the authors' published networks (trained on all their collections, these flights included)
+$(REAL)/authors.pt: $(REAL)/all.npz
+	$(NS2) real import-authors build/neural-swarm-data/models/models/output --out $@
+$(REAL)/authors.json: $(REAL)/authors.pt
+	$(NS2) real score --checkpoint $< --data-dir $(REAL) --out $@
 $(REAL)/gen/ns2_model_config.h: $(REAL)/heldout.json
 	$(NS2) export $(REAL)/heldout/H-20-seed0.pt --out $(REAL)/gen --quiet
 $(REAL)/c_check.json: $(REAL)/gen/ns2_model_config.h
 	$(NS2) real check-c --gen $(REAL)/gen --checkpoint $(REAL)/heldout/H-20-seed0.pt --data-dir $(REAL) --out $@
 real: $(REAL)/paper.json $(REAL)/heldout.json $(foreach a,$(REAL_AXES),$(REAL)/ablation-$(a).json) \
-		$(REAL)/c_check.json
+		$(REAL)/authors.json $(REAL)/c_check.json
 	$(NS2) real report --dir $(REAL) --checkpoint $(REAL)/heldout/H-20-seed0.pt
 
 clean:
