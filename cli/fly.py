@@ -25,3 +25,42 @@ def swarm_params(export_dir, swarm_file, out, as_json):
                                   **{g: dict(r.firmware_params[g]) for g in sw.GROUPS}} for r in s.robots}}
     _emit(as_json, result, f"wrote {out or swarm_file}: parameters of {len(s.robots)} robots "
           f"({', '.join(f'{r.name}={r.ns2_type}' for r in s.robots)})")
+
+
+@main.command("fly")
+@click.argument("export_dir", type=click.Path(file_okay=False))
+@click.argument("swarm_file", type=click.Path(dir_okay=False))
+@click.option("--plan", "plan_dir", type=click.Path(file_okay=False), required=True,
+              help="the planner's folder (<name>.bin per robot, or ns2 plan's robot<i>_<type>.bin in order)")
+@click.option("--log", "log_path", type=click.Path(dir_okay=False), required=True,
+              help="flight log to append to (JSON lines: every log packet of every robot)")
+@click.option("--height", type=click.FloatRange(min=0.1, max=2.0), default=0.5, show_default=True,
+              help="take-off height (m)")
+@click.option("--takeoff-s", type=click.FloatRange(min=0.0, min_open=True), default=2.5, show_default=True)
+@click.option("--land-s", type=click.FloatRange(min=0.0, min_open=True), default=2.5, show_default=True)
+@click.option("--min-battery", type=float, default=3.3, show_default=True, help="land everyone below this (V)")
+@_json_option
+def fly(export_dir, swarm_file, plan_dir, log_path, height, takeoff_s, land_s, min_battery, as_json):
+    """Fly the plan with every enabled robot of SWARM_FILE (cflib): the model fingerprint of
+    EXPORT_DIR checked on every robot first, parameters, ns2.sync, trajectories uploaded,
+    take off, start together, land (docs/flying.md)."""
+    from ns2ground import cf, mission
+    from ns2ground import swarm as sw
+
+    cfg = _export_config(export_dir)
+    s = sw.load(swarm_file, cfg)
+    plans = mission.plans_for(s, plan_dir)
+    settings = mission.Settings(height, takeoff_s, land_s, min_battery)
+
+    def status(last):
+        line = "  ".join(f"{n}: {v.get('pm.vbat', float('nan')):.2f} V faHat {v.get('ns2.faHat', float('nan')):+.1f} g "
+                         f"e {v.get('ns2.ez', float('nan')):+.3f} m" for n, v in sorted(last.items()))
+        click.echo("\r" + line, nl=False, err=True)
+
+    swarm, links = cf.open_swarm({r.name: r.uri for r in s.enabled})
+    try:
+        rep = mission.fly(links, s, cfg, export_dir, plans, log_path, settings, status)
+    finally:
+        swarm.close_links()
+    click.echo("", err=True)
+    _emit(as_json, rep, f"flew {len(links)} robots ({', '.join(links)}): log {log_path}")

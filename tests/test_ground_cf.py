@@ -253,3 +253,29 @@ def test_safety_paths_land_the_swarm(elf, exported, tmp_path, fault):
         assert "COMMAND_START_TRAJECTORY_2" in [names[d[0]] for d in rb.hl]
     lines = (tmp_path / "f.jsonl").read_text().splitlines()
     assert lines and all(json.loads(x)["robot"] in robots for x in lines)   # the log up to then is on disk
+
+
+def test_ns2_fly_command(elf, exported, tmp_path):
+    """`ns2 fly` end to end through cflib and the driver: the planner's file names, in order."""
+    from click.testing import CliRunner
+
+    from ns2cli import main
+    from ns2plan.output import poly4d_bytes
+
+    s = _swarm(tmp_path, exported.cfg)
+    plan = tmp_path / "plan"
+    plan.mkdir()
+    (plan / "robot0_small.bin").write_bytes(poly4d_bytes(_pieces(1, 2)))
+    (plan / "robot1_large.bin").write_bytes(poly4d_bytes(_pieces(2, 2)))
+    robots = {r.name: cfrobot.Robot(elf, r.name) for r in s.enabled}
+    for r in robots.values():
+        r.log_values["pm.vbat"] = 3.9
+    cfrobot.install({r.uri: robots[r.name] for r in s.enabled})
+    r = CliRunner().invoke(main, ["fly", str(exported.gen_dir), str(s.path), "--plan", str(plan), "--log",
+                                  str(tmp_path / "f.jsonl"), "--takeoff-s", "0.1", "--land-s", "0.1", "--json"])
+    assert r.exit_code == 0, r.output
+    assert bytes(robots["cf7"].traj[:2 * 132]) == (plan / "robot1_large.bin").read_bytes()
+    (plan / "robot1_large.bin").rename(plan / "robot1_small.bin")
+    r = CliRunner().invoke(main, ["fly", str(exported.gen_dir), str(s.path), "--plan", str(plan), "--log",
+                                  str(tmp_path / "f.jsonl")])
+    assert r.exit_code == 1 and "a small robot's plan for robots.cf7 (large)" in r.output, r.output
