@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import click
 
-from .common import _emit, _export_config, _json_option, main
+from .common import _emit, _export_config, _json_option, _parent_ok, main
 
 
 @main.command("swarm-params")
@@ -39,11 +39,16 @@ def swarm_params(export_dir, swarm_file, out, as_json):
 @click.option("--takeoff-s", type=click.FloatRange(min=0.0, min_open=True), default=2.5, show_default=True)
 @click.option("--land-s", type=click.FloatRange(min=0.0, min_open=True), default=2.5, show_default=True)
 @click.option("--min-battery", type=float, default=3.3, show_default=True, help="land everyone below this (V)")
+@click.option("--sim", is_flag=True, help="dry run: the same mission in the simulator (no radio); also writes "
+              "the robots' uSD logs (flights.toml, for ns2 logs-to-data) into LOG's folder, <stem>-usd/")
+@click.option("--seed", type=int, default=0, show_default=True, help="with --sim: the simulator's noise")
 @_json_option
-def fly(export_dir, swarm_file, plan_dir, log_path, height, takeoff_s, land_s, min_battery, as_json):
+def fly(export_dir, swarm_file, plan_dir, log_path, height, takeoff_s, land_s, min_battery, sim, seed, as_json):
     """Fly the plan with every enabled robot of SWARM_FILE (cflib): the model fingerprint of
     EXPORT_DIR checked on every robot first, parameters, ns2.sync, trajectories uploaded,
     take off, start together, land (docs/flying.md)."""
+    from pathlib import Path
+
     from ns2ground import cf, mission
     from ns2ground import swarm as sw
 
@@ -57,6 +62,22 @@ def fly(export_dir, swarm_file, plan_dir, log_path, height, takeoff_s, land_s, m
                          f"e {v.get('ns2.ez', float('nan')):+.3f} m" for n, v in sorted(last.items()))
         click.echo("\r" + line, nl=False, err=True)
 
+    _parent_ok(log_path)
+    if sim:
+        from ns2ground.sim import SimSwarm
+
+        dry = SimSwarm(s, export_dir)
+        rep = mission.fly(dry.robots, s, cfg, export_dir, plans, log_path, settings, clock=dry.clock)
+        usd = Path(log_path).with_name(Path(log_path).stem + "-usd")
+        rec = mission.Recorder(log_path)
+        try:
+            flown = dry.fly(cfg, rec, usd, seed)
+        finally:
+            rec.close()
+        rep.update(usd=str(usd), samples=len(flown["t"]), simulated_s=float(flown["t"][-1]))
+        _emit(as_json, rep, f"flew {len(dry.robots)} simulated robots ({', '.join(dry.robots)}): log {log_path}, "
+              f"uSD logs {usd}")
+        return
     swarm, links = cf.open_swarm({r.name: r.uri for r in s.enabled})
     try:
         rep = mission.fly(links, s, cfg, export_dir, plans, log_path, settings, status)

@@ -5,11 +5,13 @@ param, has_param, set_param, trajectory_memory_size, upload, takeoff, start, lan
 stop, start_logs):
   1. every robot's ``ns2.modelId`` against the export (no app, or another model:
      one line naming the robot, nothing sent);
-  2. every plan against the robot's trajectory memory (read from the robot);
+  2. every plan against the robot's trajectory memory (read from the robot) and
+     its first point against the robot's initial position;
   3. the app's parameters of the swarm file and the export (ns2, ns2type, ns2gain);
   4. ``ns2.sync`` with one sequence number on every robot (log alignment);
   5. the trajectories uploaded and defined, the logs started;
-  6. take off, start the trajectories together, land.
+  6. take off (to the height of the plan's first point), start the trajectories
+     together, land.
 From 5 on, a lost link, a low battery, an app status error or Ctrl-C lands every
 robot that still answers; every log packet is on disk as it arrives.
 """
@@ -30,9 +32,12 @@ class Abort(Ns2Error, RuntimeError):
     """The flight was ended early; every robot was told to land."""
 
 
+START_TOLERANCE_M = 0.25   # a plan's first point against the robot's initial_position (x, y)
+
+
 @dataclass
 class Settings:
-    takeoff_height_m: float = 0.5
+    takeoff_height_m: float = 0.5     # when a plan starts lower than 0.1 m
     takeoff_s: float = 2.5
     land_s: float = 2.5
     min_battery_V: float = 3.3
@@ -70,6 +75,11 @@ def duration_s(plan: bytes) -> float:
     return float(sum(d for d, _ in read_poly4d(plan)))
 
 
+def start_point(plan: bytes):
+    """x, y, z of a plan's first point."""
+    return [float(x) for x in read_poly4d(plan)[0][1][:3, 0]]
+
+
 class Recorder:
     """Every log packet of every robot, one JSON line each, flushed as it arrives."""
 
@@ -98,6 +108,12 @@ def preflight(robots: dict, swarm: Swarm, cfg, export_dir, plans: dict[str, byte
                            f"the robot's trajectory memory holds {size // POLY4D_BYTES} ({size} bytes): "
                            f"plan with longer pieces (ns2 plan --steps-per-piece)")
     by_name = {r.name: r for r in swarm.robots}
+    for name in robots:
+        x, y, _ = start_point(plans[name])
+        x0, y0, _ = by_name[name].initial_position
+        if max(abs(x - x0), abs(y - y0)) > START_TOLERANCE_M:
+            raise Ns2Error(f"{swarm.path}: robots.{name}.initial_position: ({x0:g}, {y0:g}) but its plan starts at "
+                           f"({x:.2f}, {y:.2f}): the robot would take off elsewhere")
     for name, rb in robots.items():
         for group, values in params(swarm, cfg, by_name[name]).items():
             for k, v in values.items():
@@ -119,13 +135,20 @@ def _check(robots: dict, rec: Recorder, s: Settings) -> None:
             raise Abort(f"{name}: app status {last['ns2.status']}")
 
 
-def _wait(robots, rec, s: Settings, seconds: float, status=None) -> None:
-    end = time.monotonic() + seconds
-    while time.monotonic() < end:
+class WallClock:
+    """Real time (the simulator's dry run passes a virtual clock, ground/sim.py)."""
+
+    now = staticmethod(time.monotonic)
+    sleep = staticmethod(time.sleep)
+
+
+def _wait(robots, rec, s: Settings, seconds: float, status, clock) -> None:
+    end = clock.now() + seconds
+    while clock.now() < end:
         _check(robots, rec, s)
         if status is not None:
             status(rec.last)
-        time.sleep(s.poll_s)
+        clock.sleep(s.poll_s)
 
 
 def land_all(robots: dict, s: Settings) -> list[str]:
@@ -142,8 +165,9 @@ def land_all(robots: dict, s: Settings) -> list[str]:
 
 
 def fly(robots: dict, swarm: Swarm, cfg, export_dir, plans: dict[str, bytes], log_path,
-        s: Settings = Settings(), status=None) -> dict:
-    """The whole flight; returns a report.  Raises ``Abort`` (after landing) on the safety paths."""
+        s: Settings = Settings(), status=None, clock=WallClock) -> dict:
+    """The whole flight; returns a report.  Raises ``Abort`` (after landing) on the safety paths.
+    ``status(last)`` is called at every poll with each robot's last logged values."""
     seq = preflight(robots, swarm, cfg, export_dir, plans)
     pieces = {name: rb.upload(plans[name]) for name, rb in robots.items()}
     rec = Recorder(log_path)
@@ -151,19 +175,20 @@ def fly(robots: dict, swarm: Swarm, cfg, export_dir, plans: dict[str, bytes], lo
         for rb in robots.values():
             rb.start_logs(rec)
         try:
-            for rb in robots.values():
-                rb.takeoff(s.takeoff_height_m, s.takeoff_s)
-            _wait(robots, rec, s, s.takeoff_s, status)
+            for name, rb in robots.items():   # up to the plan's first point
+                z = start_point(plans[name])[2]
+                rb.takeoff(z if z >= 0.1 else s.takeoff_height_m, s.takeoff_s)
+            _wait(robots, rec, s, s.takeoff_s, status, clock)
             for rb in robots.values():   # back to back: together within a radio round trip
                 rb.start()
-            _wait(robots, rec, s, max(duration_s(p) for p in plans.values()), status)
+            _wait(robots, rec, s, max(duration_s(p) for p in plans.values()), status, clock)
         except (Abort, KeyboardInterrupt) as e:
             told = land_all(robots, s)
             why = "Ctrl-C" if isinstance(e, KeyboardInterrupt) else str(e)
             raise Abort(f"flight ended early ({why}): landing {', '.join(told) or 'no robot (no link)'}; "
                         f"log {rec.path}") from e
         land_all(robots, s)
-        _wait(robots, rec, s, s.land_s, status)
+        _wait(robots, rec, s, s.land_s, status, clock)
         for rb in robots.values():
             rb.stop()
     finally:

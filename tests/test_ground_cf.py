@@ -58,8 +58,12 @@ def _swarm(tmp_path, cfg):
     return sw.load(p, cfg)
 
 
+START = {1: (0.0, -0.5), 2: (0.0, 0.5)}   # initial_position of cf1, cf7
+
+
 def _pieces(seed: int, n: int = 3):
-    """Smooth poly4d pieces (the planner's layout), a few tenths of a metre of motion."""
+    """Smooth poly4d pieces (the planner's layout), a few tenths of a metre of motion,
+    starting above robot ``seed``'s initial position."""
     rng = np.random.default_rng(seed)
     out = []
     for _ in range(n):
@@ -67,6 +71,7 @@ def _pieces(seed: int, n: int = 3):
         c[:3, :4] = rng.normal(0, 0.3, (3, 4))
         c[2, 0] = 0.5 + abs(c[2, 0])
         out.append((0.4, c))
+    out[0][1][:2, 0] = START.get(seed, (0.0, 0.5))
     return out
 
 
@@ -193,7 +198,7 @@ def test_another_model_or_no_app_is_refused_before_anything_is_sent(elf, exporte
         i = rb.index(fingerprint.PARAM)
         del rb.params[i], rb.values[i]
 
-    big = dict(plans, cf7=poly4d_bytes(_pieces(3, 4096 // 132 + 1)))
+    big = dict(plans, cf7=poly4d_bytes(_pieces(2, 4096 // 132 + 1)))
     cases = [(other_model, plans, r"^cf7: flies model 0x[0-9a-f]{8}, the export is 0x[0-9a-f]{8}"),
              (no_app, plans, r"^cf1: no parameter ns2.modelId: the ns2 app is not on this robot"),
              # a plan that does not fit the robot's trajectory memory (its size read from the robot)
@@ -279,3 +284,19 @@ def test_ns2_fly_command(elf, exported, tmp_path):
     r = CliRunner().invoke(main, ["fly", str(exported.gen_dir), str(s.path), "--plan", str(plan), "--log",
                                   str(tmp_path / "f.jsonl")])
     assert r.exit_code == 1 and "a small robot's plan for robots.cf7 (large)" in r.output, r.output
+
+
+def test_a_start_far_from_the_initial_position_is_refused(elf, exported, tmp_path):
+    from ns2ground import mission
+    from ns2plan.output import poly4d_bytes
+
+    s = _swarm(tmp_path, exported.cfg)
+    plans = {"cf1": poly4d_bytes(_pieces(2)), "cf7": poly4d_bytes(_pieces(2))}   # cf1 would start at cf7's place
+    robots, sw_, links = _connect(elf, s)
+    try:
+        with pytest.raises(Ns2Error, match=r"robots.cf1.initial_position: \(0, -0.5\) but its plan starts at "
+                                           r"\(0.00, 0.50\)"):
+            mission.fly(links, s, exported.cfg, exported.gen_dir, plans, tmp_path / "f.jsonl", _fast())
+    finally:
+        sw_.close_links()
+    assert all(rb.param_writes == [] and rb.hl == [] for rb in robots.values())
