@@ -2,7 +2,7 @@
 simulated robots (the project's C-in-the-loop simulator, ns2host.sim.cloop).
 
 A ``SimRobot`` answers what a Crazyflie with the app built from the export would:
-``ns2.modelId`` is the low 32 bits of ``NS2_MODEL_ID`` read from the export's
+the parameters the app declares (its source), ``ns2.modelId`` is the low 32 bits of ``NS2_MODEL_ID`` read from the export's
 generated header (what the firmware built from it carries), the trajectory memory
 has the stock firmware's size, parameters are kept as set.  The mission's waits run
 on a virtual clock; the commands (take off, start, land, stop) are recorded with
@@ -46,6 +46,21 @@ class Clock:
         self.t += dt
 
 
+def app_params() -> set[str]:
+    """The parameters the app declares (PARAM_ADD and NS2_GAIN3 in firmware/app/src/ns2_app.c)."""
+    from ns2host.cbuild import REPO
+
+    out, group = set(), None
+    for line in (REPO / "firmware/app/src/ns2_app.c").read_text().splitlines():
+        if m := re.match(r"PARAM_GROUP_START\((\w+)\)", line):
+            group = m.group(1)
+        elif m := re.match(r"PARAM_ADD\([^,]+, (\w+),", line):
+            out.add(f"{group}.{m.group(1)}")
+        elif m := re.match(r"NS2_GAIN3\((\w+)\)", line):
+            out |= {f"{group}.{m.group(1)}{ax}" for ax in "xyz"}
+    return out
+
+
 def header_model_id(export_dir) -> int:
     """``ns2.modelId`` of an app built from the export: NS2_MODEL_ID & 0xFFFFFFFF."""
     text = (Path(export_dir) / "ns2_model_config.h").read_text()
@@ -55,8 +70,8 @@ def header_model_id(export_dir) -> int:
 class SimRobot:
     """A simulated Crazyflie with the app, as ``ns2ground.cf.CfRobot`` is used by the mission."""
 
-    def __init__(self, name: str, clock: Clock, model_id: int):
-        self.name, self.clock = name, clock
+    def __init__(self, name: str, clock: Clock, model_id: int, names: set[str]):
+        self.name, self.clock, self.names = name, clock, names
         self.lost = threading.Event()   # a simulated link is never lost
         self.params = {"ns2.modelId": model_id, "ns2.enable": 1, "ns2.fixed": 1}
         self.pieces: list = []
@@ -67,11 +82,11 @@ class SimRobot:
         return self.params.get(full)
 
     def has_param(self, full: str) -> bool:
-        return full == "ns2.modelId" or full.split(".")[0] in ("ns2", "ns2type", "ns2gain")
+        return full in self.names
 
     def set_param(self, full: str, value) -> None:
-        if full == "ns2.modelId":
-            raise ValueError("ns2.modelId is read-only")
+        if full not in self.names or full == "ns2.modelId":
+            raise ValueError(f"{self.name}: {full}: not a writable parameter of the app")
         self.params[full] = value
 
     def trajectory_memory_size(self) -> int:
@@ -118,6 +133,8 @@ def _eval(pieces, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         if t <= d:
             break
         t -= d
+    else:
+        t = d  # after the last piece: its end, held
     s = min(max(t, 0.0), d)
     k = np.arange(DEG + 1)
     pw = s ** k
@@ -133,7 +150,8 @@ class SimSwarm:
         self.swarm, self.export_dir = swarm, Path(export_dir)
         self.clock = Clock()
         mid = header_model_id(export_dir)
-        self.robots = {r.name: SimRobot(r.name, self.clock, mid) for r in swarm.enabled}
+        names = app_params()
+        self.robots = {r.name: SimRobot(r.name, self.clock, mid, names) for r in swarm.enabled}
 
     def _setpoints(self, t0: float, start_pos: np.ndarray):
         from ns2host.sim.cloop import Setpoints

@@ -105,6 +105,9 @@ def test_every_name_the_ground_side_uses_is_in_the_elf(elf, exported, tmp_path):
         assert not params[name] & cfrobot.PARAM_RONLY, name
     assert params["ns2.sync"] & 0x0F == 0x0A                                   # uint32
     assert params[fingerprint.PARAM] == 0x0A | cfrobot.PARAM_RONLY              # read-only uint32
+    # the dry run's robots know the app's parameters as the built firmware has them
+    from ns2ground.sim import app_params
+    assert app_params() == {k for k in params if k.split(".")[0] in sw.GROUPS}
     sizes = {1: 1, 2: 2, 3: 4, 4: 1, 5: 2, 6: 4, 7: 4}
     for block, names in cf.LOG_BLOCKS:
         assert all(n in logs for n in names), (block, [n for n in names if n not in logs])
