@@ -6,6 +6,13 @@ import click
 from .common import _emit, _export_config, _json_option, _parent_ok, main
 
 
+def _live() -> bool:
+    """Live lines (progress, per-robot status) only on a terminal, as the progress bars."""
+    import sys
+
+    return sys.stderr.isatty()
+
+
 @main.command("swarm-params")
 @click.argument("export_dir", type=click.Path(file_okay=False))
 @click.argument("swarm_file", type=click.Path(dir_okay=False))
@@ -80,8 +87,46 @@ def fly(export_dir, swarm_file, plan_dir, log_path, height, takeoff_s, land_s, m
         return
     swarm, links = cf.open_swarm({r.name: r.uri for r in s.enabled})
     try:
-        rep = mission.fly(links, s, cfg, export_dir, plans, log_path, settings, status)
+        rep = mission.fly(links, s, cfg, export_dir, plans, log_path, settings, status if _live() else None)
     finally:
         swarm.close_links()
-    click.echo("", err=True)
+    if _live():
+        click.echo("", err=True)
     _emit(as_json, rep, f"flew {len(links)} robots ({', '.join(links)}): log {log_path}")
+
+
+@main.command("flash")
+@click.argument("image", type=click.Path(dir_okay=False), default="build/app/cf2.bin")
+@click.option("--uri", default=None, help="one robot, e.g. radio://0/80/2M/E7E7E7E701")
+@click.option("--swarm", "swarm_file", type=click.Path(dir_okay=False), default=None,
+              help="every enabled robot of this Crazyswarm2 crazyflies.yaml")
+@_json_option
+def flash_cmd(image, uri, swarm_file, as_json):
+    """Write IMAGE (default build/app/cf2.bin) to one robot or a swarm through cflib's
+    bootloader, one robot after the other; say which robots failed and why."""
+    from ns2ground import flash
+    from ns2ground.swarm import SwarmFileError, radio_id, read_robots
+
+    if (uri is None) == (swarm_file is None):
+        raise click.UsageError("give --uri or --swarm")
+    if uri is not None:
+        try:
+            radio_id(uri)
+        except ValueError as e:
+            raise SwarmFileError(f"--uri {uri}: {e}") from None
+        robots = {uri: uri}
+    else:
+        robots = read_robots(swarm_file)
+
+    def progress(name, msg, pct):
+        click.echo(f"\r{name}: {msg} {pct:3d}%", nl=False, err=True)
+
+    result = flash.flash(image, robots, progress if _live() else None)
+    if _live():
+        click.echo("", err=True)
+    failed = {n: why for n, why in result.items() if why is not None}
+    _emit(as_json, {"image": image, "robots": result},
+          "\n".join(f"{n}: {'flashed' if why is None else 'FAILED: ' + why}" for n, why in result.items()))
+    if failed:
+        raise flash.FlashError(f"{len(failed)} of {len(result)} robots not flashed: "
+                               + "; ".join(f"{n}: {why}" for n, why in failed.items()))

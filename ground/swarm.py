@@ -100,20 +100,41 @@ def radio_id(uri: str) -> int:
     return int(m.group(2), 16) & 0xFF
 
 
-def _robot(path: Path, doc, name: str, entry, types: list[str]) -> Robot:
+def _link(path: Path, name: str, entry) -> tuple[str, bool, int]:
+    """uri, enabled and radio id of a robot entry."""
     where = f"{path}: robots.{name}"
     if not isinstance(entry, dict):
         raise SwarmFileError(f"{where}: not a mapping")
-    for key in ("uri", "type"):
-        if not isinstance(entry.get(key), str):
-            raise SwarmFileError(f"{where}.{key}: missing or not a string")
+    if not isinstance(entry.get("uri"), str):
+        raise SwarmFileError(f"{where}.uri: missing or not a string")
     enabled = entry.get("enabled", True)
     if not isinstance(enabled, bool):
         raise SwarmFileError(f"{where}.enabled: must be true or false")
     try:
-        rid = radio_id(entry["uri"])
+        return entry["uri"], enabled, radio_id(entry["uri"])
     except ValueError as e:
         raise SwarmFileError(f"{where}.uri: {entry['uri']!r}: {e}") from None
+
+
+def read_robots(path) -> dict[str, str]:
+    """name -> uri of the enabled robots (no export needed: for ns2 flash)."""
+    path = Path(path)
+    doc = _read(path)
+    out = {}
+    for name, entry in doc["robots"].items():
+        uri, enabled, _ = _link(path, str(name), entry)
+        if enabled:
+            out[str(name)] = uri
+    if not out:
+        raise SwarmFileError(f"{path}: robots: no robot is enabled")
+    return out
+
+
+def _robot(path: Path, doc, name: str, entry, types: list[str]) -> Robot:
+    where = f"{path}: robots.{name}"
+    _, enabled, rid = _link(path, name, entry)
+    if not isinstance(entry.get("type"), str):
+        raise SwarmFileError(f"{where}.type: missing or not a string")
     pos = entry.get("initial_position", [0.0, 0.0, 0.0])
     if not (isinstance(pos, list) and len(pos) == 3 and all(isinstance(x, (int, float)) and not isinstance(x, bool)
                                                            for x in pos)):
