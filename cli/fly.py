@@ -43,8 +43,10 @@ def swarm_params(export_dir, swarm_file, out, as_json):
               help="flight log to append to (JSON lines: every log packet of every robot)")
 @click.option("--height", type=click.FloatRange(min=0.1, max=2.0), default=0.5, show_default=True,
               help="take-off height (m)")
-@click.option("--takeoff-s", type=click.FloatRange(min=0.0, min_open=True), default=2.5, show_default=True)
-@click.option("--land-s", type=click.FloatRange(min=0.0, min_open=True), default=2.5, show_default=True)
+@click.option("--takeoff-s", type=click.FloatRange(min=0.0, min_open=True), default=2.5, show_default=True,
+              help="time to climb to each plan's first point (s)")
+@click.option("--land-s", type=click.FloatRange(min=0.0, min_open=True), default=2.5, show_default=True,
+              help="time to descend at the end or on a safety stop (s)")
 @click.option("--min-battery", type=float, default=3.3, show_default=True, help="land everyone below this (V)")
 @click.option("--sim", is_flag=True, help="dry run: the same mission in the simulator (no radio); also writes "
               "the robots' uSD logs (flights.toml, for ns2 logs-to-data) into LOG's folder, <stem>-usd/")

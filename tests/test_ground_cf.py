@@ -13,13 +13,13 @@ import struct
 import numpy as np
 import pytest
 
+import cfrobot  # the tests' cflib link driver (tests/ is on sys.path, as for conftest)
 from conftest import ARM, FIRMWARE, needs
 from ns2codegen.errors import Ns2Error
 from ns2host import cfapp, crazyflie
 
 pytestmark = needs(ARM, FIRMWARE)
 
-cfrobot = pytest.importorskip("cfrobot")  # tests/ is on sys.path (conftest's folder)
 
 SWARM = """\
 robots:

@@ -3,17 +3,14 @@ failed robots named with the reason; the image checked first."""
 from __future__ import annotations
 
 import json
-import sys
 from pathlib import Path
 
 import pytest
 from click.testing import CliRunner
 
+import cfrobot  # the tests' cflib link driver
 from ns2cli import main
 from ns2ground import flash
-
-sys.path.insert(0, str(Path(__file__).parent))
-import cfrobot  # noqa: E402  the tests' cflib link driver
 
 SWARM = """\
 robots:
