@@ -66,8 +66,11 @@ def fly(export_dir, swarm_file, plan_dir, log_path, height, takeoff_s, land_s, m
     plans = mission.plans_for(s, plan_dir)
     settings = mission.Settings(height, takeoff_s, land_s, min_battery)
 
+    links = {}
+
     def status(last):
-        line = "  ".join(f"{n}: {v.get('pm.vbat', float('nan')):.2f} V faHat {v.get('ns2.faHat', float('nan')):+.1f} g "
+        line = "  ".join(f"{n}: link {getattr(links.get(n), 'quality', float('nan')):.0f}% "
+                         f"{v.get('pm.vbat', float('nan')):.2f} V faHat {v.get('ns2.faHat', float('nan')):+.1f} g "
                          f"e {v.get('ns2.ez', float('nan')):+.3f} m" for n, v in sorted(last.items()))
         click.echo("\r" + line, nl=False, err=True)
 
@@ -87,7 +90,8 @@ def fly(export_dir, swarm_file, plan_dir, log_path, height, takeoff_s, land_s, m
         _emit(as_json, rep, f"flew {len(dry.robots)} simulated robots ({', '.join(dry.robots)}): log {log_path}, "
               f"uSD logs {usd}")
         return
-    swarm, links = cf.open_swarm({r.name: r.uri for r in s.enabled})
+    swarm, opened = cf.open_swarm({r.name: r.uri for r in s.enabled})
+    links.update(opened)
     try:
         rep = mission.fly(links, s, cfg, export_dir, plans, log_path, settings, status if _live() else None)
     finally:

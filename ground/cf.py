@@ -40,6 +40,11 @@ class CfRobot:
         self.cf.disconnected.add_callback(lambda uri: self.lost.set())
         self.cf.connection_lost.add_callback(lambda uri, msg: self.lost.set())
         self._logs = []
+        self.quality = float("nan")     # link quality (%), from cflib's link statistics
+        self.cf.link_statistics.link_quality_updated.add_callback(self._quality)
+
+    def _quality(self, percent) -> None:
+        self.quality = float(percent)
 
     # -- parameters
     def param(self, full: str):
@@ -112,9 +117,6 @@ class CfRobot:
             lc.data_received_cb.add_callback(lambda ts, data, conf, n=self.name: callback(n, ts, data))
             lc.start()
             self._logs.append(lc)
-
-    def link_quality(self) -> float:
-        return float(getattr(self.cf.link_statistics, "link_quality", float("nan")) or float("nan"))
 
 
 def open_swarm(uris: dict[str, str]):
