@@ -22,7 +22,7 @@ DEFAULT := build/default
 ONBOARD := build/onboard
 CHECKPOINT ?= $(DEFAULT)/model.pt
 
-.PHONY: all deps export export-onboard test bench firmware app fuzz sim paper-data ablation real clean
+.PHONY: all deps export export-onboard test bench firmware app flash fuzz sim paper-data ablation real clean
 
 all: export
 
@@ -72,11 +72,15 @@ $(GEN)/ns2_model_config.h:
 	$(MAKE) export
 
 # crazyflie-firmware (../shared tarball unpacked under build/, or CRAZYFLIE_BASE=...)
-# with the app; `make -C firmware/app cload` flashes build/app/cf2.bin
+# with the app; `make flash URI=radio://...` or `make flash SWARM=crazyflies.yaml` writes
+# build/app/cf2.bin through cflib's bootloader (ns2 flash, docs/flying.md)
 NS2_INFER ?= fixed
 NS2_TABLES ?= flash
 app: deps $(GEN)/ns2_model_config.h
 	$(PYTHON) -m ns2host.cfapp $(GEN) --out build/app --infer $(NS2_INFER) --tables $(NS2_TABLES)
+
+flash: deps
+	$(PYTHON) -m ns2cli flash build/app/cf2.bin $(if $(SWARM),--swarm $(SWARM),--uri $(URI))
 
 # Structured fuzzing under -fsanitize=address,undefined (fuzz/ns2_fuzz.c, host/fuzz.py);
 # a bounded run of the same drivers is part of `make test` (tests/test_fuzz.py).

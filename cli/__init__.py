@@ -12,7 +12,7 @@ One convention for every command:
 One module per command group (``common`` holds what they share); importing them
 registers their commands on ``main``.
 """
-from . import core, flights, plan, real, sim, target  # noqa: F401  (registers the commands)
+from . import core, flights, fly, plan, real, sim, target  # noqa: F401  (registers the commands)
 from .common import main
 
 __all__ = ["main"]

@@ -14,7 +14,8 @@ from ns2codegen.errors import Ns2Error
 
 # the extra that installs a module the core does not need (pyproject.toml)
 _EXTRAS = {"scipy": "sysid", "matplotlib": "sim", "cffi": "target", "unicorn": "target", "capstone": "target",
-           "elftools": "target", "serial": "target", "cvxpy": "plan", "clarabel": "plan"}
+           "elftools": "target", "serial": "target", "cvxpy": "plan", "clarabel": "plan", "cflib": "fly",
+           "ruamel": "fly"}
 _COMMAND_EXTRAS = {"sysid": "sysid", "hil": "target", "sim": "sim", "plan": "plan"}
 
 

@@ -222,42 +222,59 @@ class Image:
         return None
 
 
-def _groups(entries, parse, group_bit: int) -> dict[str, list[tuple[str, int, int]]]:
-    out, cur = {}, None
-    for e in entries:
-        typ, name, addr = parse(e)
-        if typ & group_bit:
-            cur = name if typ & START else None
-            if cur is not None:
-                out[cur] = []
-        elif cur is not None:
-            out[cur].append((name, typ, addr))
+def _groups(entries) -> dict[str, list[tuple[str, int, int]]]:
+    out = {}
+    for group, name, typ, _, addr in entries:
+        out.setdefault(group, []).append((name, typ, addr))
     return out
 
 
-def param_groups(elf: Path) -> dict[str, list[tuple[str, int, int]]]:
-    """PARAM groups: group -> [(name, type, address)] (struct param_s: u8 type,
-    u8 extended_type, char *name, void *address, callback, getter)."""
+def _entries(entries, parse, group_bit: int) -> list[tuple[str, str, int, int, int]]:
+    """The variables of a table in its order (the TOC ids the firmware gives them):
+    (group, name, type, extended type, address)."""
+    out, cur = [], None
+    for e in entries:
+        typ, ext, name, addr = parse(e)
+        if typ & group_bit:
+            cur = name if typ & START else None
+        elif cur is not None:
+            out.append((cur, name, typ, ext, addr))
+    return out
+
+
+def param_entries(elf: Path) -> list[tuple[str, str, int, int, int]]:
+    """The PARAM table in order: (group, name, type, extended type, address)
+    (struct param_s: u8 type, u8 extended_type, char *name, void *address, callback, getter)."""
     im = Image(elf)
     try:
         def parse(e):
-            typ, _, name, addr = struct.unpack_from("<BBxxII", e)
-            return typ, im.cstr(name), addr
-        return _groups(im.table("param", PARAM_SIZE), parse, PARAM_GROUP)
+            typ, ext, name, addr = struct.unpack_from("<BBxxII", e)
+            return typ, ext, im.cstr(name), addr
+        return _entries(im.table("param", PARAM_SIZE), parse, PARAM_GROUP)
     finally:
         im.close()
 
 
-def log_groups(elf: Path) -> dict[str, list[tuple[str, int, int]]]:
-    """LOG groups: group -> [(name, type, address)] (struct log_s: u8 type, char *name, void *address)."""
+def log_entries(elf: Path) -> list[tuple[str, str, int, int, int]]:
+    """The LOG table in order: (group, name, type, 0, address) (struct log_s: u8 type, char *name, void *address)."""
     im = Image(elf)
     try:
         def parse(e):
             typ, name, addr = struct.unpack_from("<BxxxII", e)
-            return typ, im.cstr(name), addr
-        return _groups(im.table("log", LOG_SIZE), parse, LOG_GROUP)
+            return typ, 0, im.cstr(name), addr
+        return _entries(im.table("log", LOG_SIZE), parse, LOG_GROUP)
     finally:
         im.close()
+
+
+def param_groups(elf: Path) -> dict[str, list[tuple[str, int, int]]]:
+    """PARAM groups: group -> [(name, type, address)]."""
+    return _groups(param_entries(elf))
+
+
+def log_groups(elf: Path) -> dict[str, list[tuple[str, int, int]]]:
+    """LOG groups: group -> [(name, type, address)]."""
+    return _groups(log_entries(elf))
 
 
 def event_triggers(elf: Path) -> dict[str, dict]:

@@ -140,3 +140,52 @@ def load_fly(gen_dir: str | Path):
         ffi.compile(tmpdir=str(tmp), verbose=False)
 
     return _module("fly_" + h.hexdigest()[:18], "_ns2_fly", build)
+
+
+PPTRAJ_CDEF = """
+int ns2_pptraj_eval(const uint8_t *mem, uint32_t mem_size, uint32_t offset, uint8_t n_pieces, float t, float out[7]);
+"""
+# The high-level commander's view of an uploaded trajectory (crtp_commander_high_level.c):
+# the pieces are the trajectory memory's bytes at the definition's offset, cast to
+# struct poly4d; piecewise_eval of the firmware's pptraj.c evaluates them.
+PPTRAJ_SOURCE = r"""
+#include <string.h>
+#include "pptraj.h"
+int ns2_pptraj_eval(const uint8_t *mem, uint32_t mem_size, uint32_t offset, uint8_t n_pieces, float t, float out[7])
+{
+    static uint8_t trajectories_memory[1u << 16] __attribute__((aligned(4)));
+    if (mem_size > sizeof(trajectories_memory) || offset + (uint32_t)n_pieces * sizeof(struct poly4d) > mem_size) {
+        return -1;
+    }
+    memcpy(trajectories_memory, mem, mem_size);
+    struct piecewise_traj tr = {0};
+    tr.timescale = 1.0f;
+    tr.n_pieces = n_pieces;
+    tr.pieces = (struct poly4d *)&trajectories_memory[offset];
+    struct traj_eval ev = piecewise_eval(&tr, t);
+    const float v[7] = {ev.pos.x, ev.pos.y, ev.pos.z, ev.vel.x, ev.vel.y, ev.vel.z, ev.yaw};
+    memcpy(out, v, sizeof v);
+    return 0;
+}
+"""
+
+
+def load_pptraj():
+    """The firmware's own pptraj.c (its piecewise polynomial evaluation) on the host,
+    with ``ns2_pptraj_eval`` reading pieces from trajectory-memory bytes as the
+    high-level commander does; returns (ffi, lib)."""
+    from cffi import FFI
+
+    fw = firmware_dir()
+    src = fw / "src/modules/src/pptraj.c"
+    h = hashlib.sha256(src.read_bytes() + (fw / "src/modules/interface/pptraj.h").read_bytes()
+                       + PPTRAJ_CDEF.encode() + PPTRAJ_SOURCE.encode() + repr(FW_FLAGS).encode())
+
+    def build(tmp: Path, name: str) -> None:
+        ffi = FFI()
+        ffi.cdef(PPTRAJ_CDEF)
+        ffi.set_source(name, PPTRAJ_SOURCE, sources=[str(src)], include_dirs=[str(fw / i) for i in FW_INCLUDES],
+                       libraries=["m"], extra_compile_args=[*FW_FLAGS, "-ffp-contract=off"])
+        ffi.compile(tmpdir=str(tmp), verbose=False)
+
+    return _module("pptraj_" + h.hexdigest()[:18], "_ns2_pptraj", build)

@@ -15,7 +15,7 @@ from ns2host.cbuild import REPO, flags
 
 pytestmark = needs(ARM, FIRMWARE)
 
-PARAM_UINT8, PARAM_UINT16, PARAM_UINT32, PARAM_FLOAT = 0x08, 0x09, 0x0A, 0x06
+PARAM_UINT8, PARAM_UINT16, PARAM_UINT32, PARAM_FLOAT, PARAM_RONLY = 0x08, 0x09, 0x0A, 0x06, 0x40
 LOG_UINT8, LOG_UINT32, LOG_INT32, LOG_FLOAT = 1, 3, 6, 7
 EVENT_UINT32 = 3
 
@@ -77,7 +77,7 @@ def test_param_and_log_groups_in_the_elf(app):
         assert ns2 == {"enable": (PARAM_UINT8, "cfg"), "fixed": (PARAM_UINT8, "cfg"),
                        "selfType": (PARAM_UINT8, "cfg"), "phiPerTick": (PARAM_UINT8, "cfg"),
                        "maxAgeMs": (PARAM_UINT16, "cfg"), "faLimit": (PARAM_FLOAT, "cfg"),
-                       "sync": (PARAM_UINT32, "syncSeq")}
+                       "sync": (PARAM_UINT32, "syncSeq"), "modelId": (PARAM_UINT32 | PARAM_RONLY, "modelId")}
         assert {n: (t, where(a)) for n, t, a in params["ns2type"]} == {
             "mask1": (PARAM_UINT32, "typeMask1"), "mask2": (PARAM_UINT32, "typeMask2")}
         gains = params["ns2gain"]

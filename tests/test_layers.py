@@ -1,4 +1,4 @@
-"""The packages import one way only: core <- host <- simulator / planner <- experiments <- CLI.
+"""The packages import one way only: core <- host <- simulator / planner <- experiments <- ground <- CLI.
 
 Every import in every module, at module level and inside functions, is checked
 against the layer table (AST, so an import hidden in a function counts too)."""
@@ -16,7 +16,8 @@ LAYERS = {
     "ns2host.sim": ("host/sim", {"ns2codegen", "ns2host"}),
     "ns2plan": ("planner", {"ns2codegen"}),
     "ns2exp": ("experiments", {"ns2codegen", "ns2host", "ns2host.sim", "ns2plan"}),
-    "ns2cli": ("cli", {"ns2codegen", "ns2host", "ns2host.sim", "ns2plan", "ns2exp"}),
+    "ns2ground": ("ground", {"ns2codegen", "ns2host", "ns2host.sim", "ns2plan", "ns2exp"}),
+    "ns2cli": ("cli", {"ns2codegen", "ns2host", "ns2host.sim", "ns2plan", "ns2exp", "ns2ground"}),
 }
 ALL = set(LAYERS)
 

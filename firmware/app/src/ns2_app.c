@@ -30,7 +30,7 @@
  * parameter ns2.sync (broadcast to all drones before take-off) logs the uSD
  * event ns2Sync with the written value as seq; ns2codegen.logs.align aligns the
  * robots' clocks on it.
- * PARAM: ns2 (switches, limits, sync), ns2type (robot types of radio ids), ns2gain.
+ * PARAM: ns2 (switches, limits, sync, modelId), ns2type (robot types of radio ids), ns2gain.
  * LOG ns2: faHat (g), inferUs (the longest prediction step of the last period, the
  * finish + begin at the position tick or a slice, us),
  * nUsed, status, ctrlStatus, ex/ey/ez (position error, m).
@@ -77,6 +77,11 @@ static const ns2_gains_t default_gains[NS2_NUM_ROBOT_TYPES] = NS2_DEFAULT_GAINS_
 /* PARAM ns2: switches and limits of ns2_pilot (enable, fixed, self_type,
  * phi_per_tick, max_age_ms, fa_limit_g), copied into the pilot at every tick */
 static ns2_pilot_cfg_t cfg = {1, 1, NS2_TYPE_SMALL, 4, 100, 20.0f};
+
+/* PARAM ns2.modelId (read-only): the low 32 bits of the generated headers'
+ * NS2_MODEL_ID (the first 60 bits of the model hash), which the ground side
+ * compares with the export it is told to fly before anything else */
+static uint32_t modelId = (uint32_t)(NS2_MODEL_ID & 0xFFFFFFFFu);
 
 static uint32_t syncSeq;   /* PARAM ns2.sync: a new value logs the event ns2Sync */
 static uint32_t syncLogged;
@@ -262,6 +267,7 @@ PARAM_ADD(PARAM_UINT8, phiPerTick, &cfg.phi_per_tick)
 PARAM_ADD(PARAM_UINT16, maxAgeMs, &cfg.max_age_ms)
 PARAM_ADD(PARAM_FLOAT, faLimit, &cfg.fa_limit_g)
 PARAM_ADD(PARAM_UINT32, sync, &syncSeq)
+PARAM_ADD(PARAM_UINT32 | PARAM_RONLY, modelId, &modelId)
 PARAM_GROUP_STOP(ns2)
 
 PARAM_GROUP_START(ns2type)

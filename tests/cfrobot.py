@@ -1,0 +1,247 @@
+"""A link driver of the tests for bitcraze's cflib, and the robot behind it.
+
+``RecordingDriver`` is a cflib link driver (``cflib.crtp.CLASSES``): cflib itself
+builds every packet; the driver records them and hands them to a ``Robot`` whose
+answers come from the built cf2.elf: its PARAM and LOG tables in table order (the
+TOC ids the firmware gives them), each parameter's start value read from the ELF's
+initialized data, the trajectory memory's size from the size of the firmware's
+``trajectories_memory``.  The robot answers as the firmware's CRTP services do
+(param_logic.c, log.c, mem.c, platformservice.c, read for the protocol, no code
+taken), so cflib connects, reads and writes parameters, uploads trajectories and
+streams log blocks through it; the tests then decode what cflib sent.  ``lose``
+ends the link (cflib's link error), ``log_values`` sets what the robot logs.
+"""
+from __future__ import annotations
+
+import queue
+import struct
+import time
+import zlib
+
+from cflib.crtp.crtpdriver import CRTPDriver
+from cflib.crtp.crtpstack import CRTPPacket
+from cflib.crtp.exceptions import WrongUriType
+
+from ns2host import cfapp
+
+PORT_PARAM, PORT_LOG, PORT_MEM, PORT_HL, PORT_PLATFORM, PORT_LINK = 2, 5, 4, 8, 13, 15
+PROTOCOL_VERSION = 12             # crtp.h CRTP_PROTOCOL_VERSION of the pinned firmware
+MEM_TYPE_TRAJ = 0x12
+PARAM_RONLY, LOG_TYPE_MASK = 0x40, 0x0F
+LOG_FMT = {1: "<B", 2: "<H", 3: "<I", 4: "<b", 5: "<h", 6: "<i", 7: "<f"}
+
+ROBOTS: dict[str, "Robot"] = {}   # uri -> robot behind it
+
+
+def param_fmt(typ: int) -> str:
+    """struct format of a PARAM type (param.h: size bits, float bit, unsigned bit)."""
+    size = 1 << (typ & 0x03)
+    if typ & 0x04:
+        return "<f" if size == 4 else "<d"
+    code = {1: "b", 2: "h", 4: "i", 8: "q"}[size]
+    return "<" + (code.upper() if typ & 0x08 else code)
+
+
+class Robot:
+    """A Crazyflie's CRTP services, with the TOCs of a built cf2.elf."""
+
+    def __init__(self, elf, name: str = "cf"):
+        self.name = name
+        self.params = cfapp.param_entries(elf)
+        self.logs = cfapp.log_entries(elf)
+        im = cfapp.Image(elf)
+        try:
+            self.values = [self._start_value(im, typ, addr) for _, _, typ, _, addr in self.params]
+            self.traj_size = im.symbols["trajectories_memory"]["st_size"]
+        finally:
+            im.close()
+        self.traj = bytearray(self.traj_size)
+        self.log_values = {f"{g}.{n}": 0 for g, n, *_ in self.logs}
+        self.sent: list[tuple[int, int, bytes]] = []      # (port, channel, data) cflib sent
+        self.hl: list[bytes] = []                          # high-level commander packets
+        self.param_writes: list[tuple[str, object]] = []   # in the order they arrived
+        self.out: queue.Queue = queue.Queue()
+        self.blocks: dict[int, tuple[list[int], int]] = {}  # log block id -> (variable ids, period ms)
+        self.running: dict[int, float] = {}
+        self.alive = True
+        self.driver = None
+        self._t0 = time.monotonic()
+
+    @staticmethod
+    def _start_value(im, typ, addr):
+        fmt = param_fmt(typ)
+        try:
+            return struct.unpack(fmt, im.read(addr, struct.calcsize(fmt)))[0]
+        except (ValueError, struct.error):   # .bss: zero at start-up
+            return 0
+
+    def index(self, full: str) -> int:
+        g, n = full.split(".")
+        return next(i for i, (gg, nn, *_) in enumerate(self.params) if (gg, nn) == (g, n))
+
+    def value(self, full: str):
+        return self.values[self.index(full)]
+
+    def hl_commands(self) -> list[int]:
+        return [d[0] for d in self.hl]
+
+    # -- the link
+    def answer(self, port: int, channel: int, data: bytes) -> None:
+        pk = CRTPPacket()
+        pk.set_header(port, channel)
+        pk.data = bytes(data)
+        self.out.put(pk)
+
+    def lose(self) -> None:
+        """The radio link breaks: cflib is told through its link error callback."""
+        self.alive = False
+        if self.driver is not None and self.driver.link_error_callback is not None:
+            self.driver.link_error_callback("Too many packets lost")
+
+    def receive(self, pk) -> None:
+        data = bytes(pk.data)
+        self.sent.append((pk.port, pk.channel, data))
+        if not self.alive:
+            return
+        handler = {PORT_LINK: self._link, PORT_PLATFORM: self._platform, PORT_PARAM: self._param,
+                   PORT_LOG: self._log, PORT_MEM: self._mem, PORT_HL: self._hl}.get(pk.port)
+        if handler is not None:
+            handler(pk.channel, data)
+
+    def _link(self, ch, data):
+        if ch == 1:  # source: the magic string tells cflib the firmware speaks protocol versions
+            self.answer(PORT_LINK, 1, b"Bitcraze Crazyflie" + bytes(12))
+
+    def _platform(self, ch, data):
+        if ch == 1 and data[:1] == b"\x00":
+            self.answer(PORT_PLATFORM, 1, bytes([0, PROTOCOL_VERSION]))
+
+    def _toc(self, port, entries, data, type_of):
+        if data[0] == 3:      # info v2: count, crc (log.c adds max blocks and ops)
+            crc = zlib.crc32(repr(entries).encode())
+            extra = bytes([16, 128]) if port == PORT_LOG else b""
+            self.answer(port, 0, struct.pack("<BHI", 3, len(entries), crc) + extra)
+        elif data[0] == 2:    # item v2
+            i = struct.unpack_from("<H", data, 1)[0]
+            g, n = entries[i][0], entries[i][1]
+            self.answer(port, 0, struct.pack("<BHB", 2, i, type_of(entries[i])) + g.encode() + b"\0" + n.encode()
+                        + b"\0")
+
+    def _param(self, ch, data):
+        if ch == 0:
+            self._toc(PORT_PARAM, self.params, data, lambda e: e[2])
+        elif ch == 1:         # read: id, status 0, value
+            i = struct.unpack_from("<H", data)[0]
+            fmt = param_fmt(self.params[i][2])
+            self.answer(PORT_PARAM, 1, struct.pack("<HB", i, 0) + struct.pack(fmt, self.values[i]))
+        elif ch == 2:         # write: the firmware ignores read-only ones, else echoes the packet
+            i = struct.unpack_from("<H", data)[0]
+            g, n, typ, _, _ = self.params[i]
+            if typ & PARAM_RONLY:
+                return
+            self.values[i] = struct.unpack_from(param_fmt(typ), data, 2)[0]
+            self.param_writes.append((f"{g}.{n}", self.values[i]))
+            self.answer(PORT_PARAM, 2, data)
+        elif ch == 3 and data[0] == 7:   # extended type v2
+            i = struct.unpack_from("<H", data, 1)[0]
+            self.answer(PORT_PARAM, 3, data[:3] + bytes([0, self.params[i][3]]))
+
+    def _log(self, ch, data):
+        if ch == 0:
+            self._toc(PORT_LOG, self.logs, data, lambda e: e[2] & LOG_TYPE_MASK)  # log.c logGetType
+        elif ch == 1:
+            cmd, block = data[0], data[1] if len(data) > 1 else 0
+            if cmd == 6:      # create block v2: (type, id16) per variable
+                ids = [struct.unpack_from("<BH", data, o)[1] for o in range(2, len(data), 3)]
+                self.blocks[block] = (ids, 0)
+                self.answer(PORT_LOG, 1, bytes([cmd, block, 0]))
+            elif cmd == 3:    # start: period in 10 ms
+                self.blocks[block] = (self.blocks[block][0], data[2] * 10)
+                self.running[block] = 0.0
+                self.answer(PORT_LOG, 1, bytes([cmd, block, 0]))
+            elif cmd in (2, 4):  # delete, stop
+                self.running.pop(block, None)
+                self.answer(PORT_LOG, 1, bytes([cmd, block, 0]))
+            elif cmd == 5:    # reset
+                self.blocks.clear()
+                self.running.clear()
+                self.answer(PORT_LOG, 1, bytes([cmd, 0, 0]))
+
+    def _mem(self, ch, data):
+        if ch == 0 and data[0] == 1:
+            self.answer(PORT_MEM, 0, bytes([1, 1]))
+        elif ch == 0 and data[0] == 2:
+            self.answer(PORT_MEM, 0, struct.pack("<BBBI", 2, 0, MEM_TYPE_TRAJ, self.traj_size) + bytes(8))
+        elif ch == 2:         # write: id, address, bytes -> id, address, status
+            mid, addr = struct.unpack_from("<BI", data)
+            payload = data[5:]
+            ok = addr + len(payload) <= self.traj_size
+            if ok:
+                self.traj[addr:addr + len(payload)] = payload
+            self.answer(PORT_MEM, 2, struct.pack("<BIB", mid, addr, 0 if ok else 8))
+        elif ch == 1:         # read
+            mid, addr, n = struct.unpack_from("<BIB", data)
+            self.answer(PORT_MEM, 1, struct.pack("<BIB", mid, addr, 0) + bytes(self.traj[addr:addr + n]))
+
+    def _hl(self, ch, data):
+        self.hl.append(data)
+
+    def poll_logs(self) -> None:
+        """Send the data of every started log block that is due."""
+        now = (time.monotonic() - self._t0) * 1000.0
+        for block, last in list(self.running.items()):
+            ids, period = self.blocks[block]
+            if self.alive and now - last >= period:
+                self.running[block] = now
+                body = b"".join(struct.pack(LOG_FMT[self.logs[i][2] & LOG_TYPE_MASK],
+                                            self.log_values[f"{self.logs[i][0]}.{self.logs[i][1]}"]) for i in ids)
+                self.answer(PORT_LOG, 2, bytes([block]) + struct.pack("<I", int(now))[:3] + body)
+
+
+class RecordingDriver(CRTPDriver):
+    """cflib link driver to the ``Robot`` registered for a uri in ``ROBOTS``."""
+
+    def __init__(self):
+        super().__init__()
+        self.needs_resending = False
+        self.robot = None
+        self.link_error_callback = None
+
+    def connect(self, uri, radio_link_statistics_callback, link_error_callback):
+        if uri not in ROBOTS:
+            raise WrongUriType(f"no test robot at {uri}")
+        self.robot = ROBOTS[uri]
+        self.robot.driver = self
+        self.link_error_callback = link_error_callback
+
+    def send_packet(self, pk):
+        self.robot.receive(pk)
+
+    def receive_packet(self, wait=0):
+        self.robot.poll_logs()
+        try:
+            return self.robot.out.get(timeout=min(wait, 0.01) if wait and wait > 0 else 0.01)
+        except queue.Empty:
+            return None
+
+    def get_status(self):
+        return "test link"
+
+    def get_name(self):
+        return "test"
+
+    def scan_interface(self, address=None):
+        return []
+
+    def close(self):
+        pass
+
+
+def install(robots: dict[str, Robot]):
+    """Only this driver in cflib (no radio, no USB), robots at their uris."""
+    import cflib.crtp
+
+    cflib.crtp.CLASSES[:] = [RecordingDriver]
+    ROBOTS.clear()
+    ROBOTS.update(robots)
+

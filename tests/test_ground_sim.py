@@ -1,0 +1,88 @@
+"""`ns2 fly --sim`: the paper's swap (a small and a large robot exchanging places, one
+passing under the other) from a Crazyswarm2 swarm file, through the same mission code
+as a real flight, flown in the C-in-the-loop simulator; its radio log has what the
+real one has, and `ns2 logs-to-data` reads the uSD logs it writes."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+from click.testing import CliRunner
+
+from conftest import FIRMWARE, needs
+from ns2cli import main
+from ns2plan.output import poly4d_bytes
+
+pytestmark = needs(FIRMWARE)   # the simulator's EKF and controller come from the firmware
+
+SWARM = """\
+# Crazyswarm2 layout; ns2 types through robot_types
+robots:
+  cf3:
+    enabled: true
+    uri: radio://0/80/2M/E7E7E7E703
+    initial_position: [0.0, -0.5, 0.0]
+    type: cf21
+  cf4:
+    enabled: true
+    uri: radio://0/80/2M/E7E7E7E704
+    initial_position: [0.0, 0.5, 0.0]
+    type: big
+  cf5:
+    enabled: false
+    uri: radio://0/80/2M/E7E7E7E705
+    initial_position: [1.0, 0.0, 0.0]
+    type: cf21
+robot_types:
+  cf21: {ns2_type: small}
+  big: {ns2_type: large}
+"""
+SWAP_S = 3.0
+
+
+def _swap_piece(a, b, duration):
+    """One poly4d piece from rest at a to rest at b (7th-degree rest-to-rest profile)."""
+    prof = np.array([0, 0, 0, 0, 35.0, -84.0, 70.0, -20.0]) / duration ** np.arange(8)
+    c = np.zeros((4, 8))
+    for ax in range(3):
+        c[ax] = (b[ax] - a[ax]) * prof
+        c[ax, 0] = a[ax]
+    return duration, c
+
+
+def test_fly_sim_flies_the_swap_and_writes_both_logs(exported, tmp_path):
+    (tmp_path / "crazyflies.yaml").write_text(SWARM)
+    plan = tmp_path / "plan"
+    plan.mkdir()
+    small_a, small_b = (0.0, -0.5, 0.4), (0.0, 0.5, 0.4)     # the small robot passes under the large one
+    large_a, large_b = (0.0, 0.5, 0.8), (0.0, -0.5, 0.8)
+    (plan / "robot0_small.bin").write_bytes(poly4d_bytes([_swap_piece(small_a, small_b, SWAP_S)]))
+    (plan / "robot1_large.bin").write_bytes(poly4d_bytes([_swap_piece(large_a, large_b, SWAP_S)]))
+    log = tmp_path / "flight.jsonl"
+    r = CliRunner().invoke(main, ["fly", str(exported.gen_dir), str(tmp_path / "crazyflies.yaml"), "--plan", str(plan),
+                                  "--log", str(log), "--sim", "--takeoff-s", "1", "--land-s", "1.5", "--json"])
+    assert r.exit_code == 0, r.output
+    rep = json.loads(r.output)
+    assert rep["pieces"] == {"cf3": 1, "cf4": 1} and rep["simulated_s"] > SWAP_S + 1.0
+    lines = [json.loads(x) for x in log.read_text().splitlines()]
+    by = {n: [x for x in lines if x["robot"] == n] for n in ("cf3", "cf4")}
+    assert all(len(v) > 60 for v in by.values())
+    for name, a, b in (("cf3", small_a, small_b), ("cf4", large_a, large_b)):
+        rows = by[name]
+        t = np.array([x["t_ms"] for x in rows]) / 1000.0
+        p = np.array([[x["stateEstimate.x"], x["stateEstimate.y"], x["stateEstimate.z"]] for x in rows])
+        assert np.all(np.diff(t) > 0)
+        assert np.abs(p[0] - a).max() < 0.1, (name, p[0])                 # hovering at the start
+        i_end = np.searchsorted(t, t[0] + SWAP_S - 0.05)                  # the other side, before landing
+        assert np.abs(p[i_end, :2] - b[:2]).max() < 0.1, (name, p[i_end])
+        assert p[-1, 2] < 0.15 and np.abs(p[-1, :2] - b[:2]).max() < 0.1     # landed there
+        e = np.array([[x["ns2.ex"], x["ns2.ey"], x["ns2.ez"]] for x in rows])
+        assert np.abs(e).max() < 0.2 and all(x["pm.vbat"] > 3.0 for x in rows)
+    # the small robot under the large one feels its downwash, and the model predicts it (g)
+    fa_small = np.array([x["ns2.faHat"] for x in by["cf3"]])
+    assert fa_small.min() < -1.0, fa_small.min()
+    # what the uSD cards would hold goes through the real-flight path
+    out = tmp_path / "data.npz"
+    r = CliRunner().invoke(main, ["logs-to-data", rep["usd"], "--out", str(out), "--json"])
+    assert r.exit_code == 0, r.output
+    assert json.loads(r.output)["samples"] > 100
