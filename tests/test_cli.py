@@ -136,6 +136,7 @@ def _missing_input_calls(tmp_path):
         ("real", "report"): ["--dir", nope, "--checkpoint", nope / "m.pt", "--unpack-dir", nope],
         ("real", "import-authors"): [nope, "--out", tmp_path / "authors.pt"],
         ("real", "authors-faz"): [nope / "authors.pt", "--data", nope, "--out", tmp_path / "faz.json"],
+        ("real", "score"): ["--checkpoint", nope / "m.pt", "--data-dir", nope],
         ("swarm-params",): [nope, nope / "crazyflies.yaml"],
         ("fly",): [nope, nope / "crazyflies.yaml", "--plan", nope, "--log", tmp_path / "f.jsonl"],
         ("flash",): [nope / "cf2.bin", "--uri", "radio://0/80/2M/E7E7E7E701"],
