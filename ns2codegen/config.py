@@ -231,7 +231,8 @@ def dump_toml(data: dict, comment: str = "") -> str:
 
 
 def _number(x) -> bool:
-    return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
+    """A finite number (an int of any size is finite; math.isfinite would overflow)."""
+    return isinstance(x, (int, float)) and not isinstance(x, bool) and (isinstance(x, int) or math.isfinite(x))
 
 
 # parameters that must be > 0 for the controller (B0 and the motor model divide by them)
@@ -296,7 +297,8 @@ def _keys(d, field: str, known, required=()) -> dict:
 
 
 def _number(x) -> bool:
-    return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
+    """A finite number (an int of any size is finite; math.isfinite would overflow)."""
+    return isinstance(x, (int, float)) and not isinstance(x, bool) and (isinstance(x, int) or math.isfinite(x))
 
 
 def _integer(d: dict, key: str, field: str, lo: int, hi: int) -> None:
@@ -312,12 +314,17 @@ def _real(d: dict, key: str, field: str, lo: float, hi: float) -> None:
         raise ConfigError(f"{field}.{key} must be a number in ({lo:g}, {hi:g}], got {brief(v)}")
 
 
+BOX_MAX = 1e6  # largest magnitude of a box or volume bound (m, m/s)
+
+
 def _range_list(value, n: int, field: str) -> None:
     if not (isinstance(value, list) and len(value) == n):
         raise ConfigError(f"{field}: expected {n} [lo, hi] pairs, got {brief(value)}")
     for r in value:
-        if not (isinstance(r, list) and len(r) == 2 and all(_number(x) for x in r) and r[0] < r[1]):
-            raise ConfigError(f"{field}: expected [lo, hi] finite numbers with lo < hi, got {brief(r)}")
+        if not (isinstance(r, list) and len(r) == 2 and all(_number(x) and abs(x) <= BOX_MAX for x in r)
+                and r[0] < r[1]):
+            raise ConfigError(f"{field}: expected [lo, hi] numbers of magnitude at most {BOX_MAX:g} with lo < hi, "
+                              f"got {brief(r)}")
 
 
 # parameters that must be > 0 for the controller (B0 and the motor model divide by them)

@@ -8,8 +8,11 @@ into a hostile value and runs the command in-process."""
 import copy
 import json
 import math
+import shutil
 import struct
+import subprocess
 import tempfile
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -20,7 +23,10 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from ns2cli import main
-from ns2codegen.config import Config, dump_toml
+from ns2codegen.checkpoint import CheckpointError, LegacyCheckpointWarning, load_checkpoint, save_checkpoint
+from ns2codegen.config import NAME_MAX, Config, ConfigError, check_name, dump_toml
+from ns2codegen.export import CONFIG_FILE, export_config
+from ns2codegen.logs.manifest import ManifestError, load_manifest
 from ns2codegen.data.analytic import downwash_dataset
 from ns2codegen.logs.align import PWM_FULL, VARIABLES
 from ns2codegen.logs.usdlog import UsdLogWriter
@@ -404,3 +410,115 @@ def test_missing_or_mixed_export_folder(exported, onboard, tmp_path, cmd):
     assert_refused(r, gen)
     r = run([a.format(d=tmp_path) for a in cmd] + ["--gen", tmp_path / "nothing"])
     assert_refused(r, tmp_path / "nothing")
+
+
+# ================================================================== issue 28
+# The six cases that got through, as regression tests, and a hypothesis strategy per
+# file kind (configs through their three ways in, checkpoints, flight manifests).
+
+INJECTION = "env */ int injected = 1; /*"
+
+
+def _tamper_checkpoint(src: Path, dst: Path, fn) -> Path:
+    """``src`` loaded, ``fn(obj, meta)`` applied, saved again under ``dst`` (as an
+    attacker or a hand edit would: a valid archive, new CRCs)."""
+    obj = torch.load(src, weights_only=True)
+    meta = json.loads(obj["meta_json"])
+    fn(obj, meta)
+    obj["meta_json"] = json.dumps(meta)
+    torch.save(obj, dst)
+    return dst
+
+
+def _replace_section(raw, path, value):
+    """``raw`` with the value at ``path`` (keys and list indices) replaced."""
+    raw = copy.deepcopy(raw)
+    _set(raw, path, value)
+    return raw
+
+
+# -- 1. names become C code; 2. a name ending in '*'
+@pytest.mark.parametrize("path,name", [(("environment", "name"), INJECTION), (("robot_types", 0, "name"), INJECTION),
+                                       (("robot_types", 1, "name"), "large*"), (("environment", "name"), "a\\"),
+                                       (("robot_types", 0, "name"), "sm??/all"), (("robot_types", 0, "name"), "a.b"),
+                                       (("robot_types", 0, "name"), "x" * (NAME_MAX + 1))])
+def test_28_1_2_names_refused_on_every_way_in(cfg, exported, tmp_path, path, name):
+    raw = _replace_section(cfg.raw, path, name)
+    raw["interaction_volume"] = {"default": raw["interaction_volume"]["default"]}
+    field = ".".join(path[:1]) + (f"[{path[1]}]" if len(path) == 3 else "") + ".name"
+    # a --config TOML (gen-data, train, ...)
+    toml_file = tmp_path / "c.toml"
+    toml_file.write_text(dump_toml(raw))
+    r = run(["gen-data", "--config", toml_file, "--samples-per-scenario", "1", "--out", tmp_path / "d.npz"])
+    assert_refused(r, toml_file, field)
+    # a checkpoint's metadata (export, plan)
+    ck = _tamper_checkpoint(exported.checkpoint, tmp_path / "m.pt", lambda o, m: m.update(config=raw))
+    out = tmp_path / "gen"
+    out.mkdir()
+    (out / "ns2_model_config.h").write_bytes(SENTINEL)
+    assert_refused(run(["export", ck, "--out", out]), ck, field, out / "ns2_model_config.h")
+    (tmp_path / "p.json").write_text(json.dumps(PROBLEM))
+    assert_refused(run(["plan", "--checkpoint", ck, "--problem", tmp_path / "p.json", "--out", tmp_path / "o"]),
+                   ck, field)
+    # an export folder's ns2_config.toml (sim, hil)
+    gen = tmp_path / "gen2"
+    shutil.copytree(exported.gen_dir, gen)
+    (gen / CONFIG_FILE).write_text(dump_toml(raw))
+    assert_refused(run(["hil", "--port", "/dev/null", "--gen", gen]), gen / CONFIG_FILE, field)
+    assert not (tmp_path / "d.npz").exists() and not (tmp_path / "o").exists()
+
+
+@settings(derandomize=True, max_examples=300, deadline=None, database=None)
+@given(name=st.text(min_size=0, max_size=NAME_MAX + 4) | st.from_regex(r"[A-Za-z][A-Za-z0-9_ \-*/\\?.]{0,33}",
+                                                                         fullmatch=True))
+def test_28_admitted_names_are_inert_in_c(name):
+    """Every admitted name is at most NAME_MAX characters that can neither end nor
+    open a C comment, splice a line, form a trigraph nor break a TOML/JSON string."""
+    try:
+        check_name(name, "robot_types[0].name")
+    except ConfigError as e:
+        assert str(e).startswith("robot_types[0].name must be") and "\n" not in str(e)
+        return
+    assert 1 <= len(name) <= NAME_MAX and name.isascii() and name[0].isalpha() and not name.endswith(" ")
+    assert not set(name) - set("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_- ")
+
+
+WORST_NAMES = ["A- -_ -- __  - -_- ---  _ -  -Z9",   # the longest, of every admitted character but letters
+               "int", "Static"]                       # C keywords (robot types); the environment gets "Float"
+
+
+def test_28_templates_with_the_worst_admitted_names_compile_with_werror(cfg, tmp_path):
+    """Every template rendered with the worst names the validator admits (the longest,
+    runs of '-', ' ' and '_', C keywords, capitals) gives headers that compile alone and
+    together, and the whole library against them, with the strict flags (-Werror)."""
+    from ns2host.cbuild import HOST_SOURCES, REPO, compile_objects, flags, host_cc
+    from conftest import train_and_export
+
+    assert len(WORST_NAMES[0]) == NAME_MAX
+    raw = copy.deepcopy(cfg.raw)
+    raw["robot_types"] = [dict(raw["robot_types"][i % 2], name=n) for i, n in enumerate(WORST_NAMES)]
+    raw["environment"]["name"] = "Float"
+    raw["interaction_volume"] = {"default": raw["interaction_volume"]["default"],
+                                 f"{WORST_NAMES[0]}.int": raw["interaction_volume"]["large.small"]}
+    worst = Config.from_dict(raw)
+    ex = train_and_export(worst, tmp_path, samples=60, epochs=1)
+    texts = {h: (ex.gen_dir / h).read_text() for h in ("ns2_model_config.h", "ns2_model_float.h",
+                                                         "ns2_model_fixed.h", "ns2_vehicles.h")}
+    assert f"/* robot {WORST_NAMES[0]} */" in texts["ns2_model_config.h"]
+    assert "#define NS2_TYPE_A_Z9 0" in texts["ns2_model_config.h"]
+    assert "#define NS2_TYPE_INT_ 1" in texts["ns2_model_config.h"]
+    assert "#define NS2_TYPE_FLOAT_ 3" in texts["ns2_model_config.h"]
+    assert f"/* {WORST_NAMES[0]} */ \\" in texts["ns2_vehicles.h"]
+    f = flags()
+    src = tmp_path / "all.c"
+    src.write_text("".join(f'#include "{h}"\n' for h in texts) + "int main(void) { return NS2_TYPE_STATIC_ - 2; }\n")
+    for h in [*texts, None]:
+        one = tmp_path / "one.c"
+        one.write_text(f'#include "{h}"\nint main(void) {{ return 0; }}\n' if h else src.read_text())
+        r = subprocess.run([host_cc(), *f["NS2_STD_FLAGS"], *f["NS2_WARN_FLAGS"], "-I", str(ex.gen_dir),
+                            *[f"-I{REPO / i}" for i in f["NS2_INCLUDES"]], "-c", str(one), "-o",
+                            str(tmp_path / "one.o")], capture_output=True, text=True)
+        assert r.returncode == 0, (h, r.stderr)
+    objs = tmp_path / "objs"
+    objs.mkdir()
+    assert len(compile_objects(ex.gen_dir, objs, host_cc(), [], f)) == len(f["NS2_SOURCES"]) + len(HOST_SOURCES)
