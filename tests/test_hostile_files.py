@@ -234,10 +234,12 @@ def test_checkpoint_property(exported, what, value, k):
         else:
             data = bytearray(exported.checkpoint.read_bytes())
             data[k % len(data)] ^= 0xFF
-            ck.write_bytes(bytes(data[: len(data) - 1 - k % 500]))   # the zip directory is damaged
+            ck.write_bytes(bytes(data[: len(data) - 1 - k % 500] if k % 2 else data))   # and cut, or not
         r = run(["export", ck, "--out", out])
-        if r.exit_code == 0:   # a flipped byte that torch's zip reader never reads
-            assert what == "bytes"
+        if r.exit_code == 0:   # a byte no reader uses (a header's time stamp ...): the same model
+            assert what == "bytes" and k % 2 == 0
+            assert json.loads((out / "ns2_model_manifest.json").read_text())["model_hash"] == \
+                exported.manifest["model_hash"]
             return
         assert_refused(r, ck)
         assert (out / "ns2_model_float.h").read_bytes() == SENTINEL and len(list(out.iterdir())) == 1
@@ -522,3 +524,143 @@ def test_28_templates_with_the_worst_admitted_names_compile_with_werror(cfg, tmp
     objs = tmp_path / "objs"
     objs.mkdir()
     assert len(compile_objects(ex.gen_dir, objs, host_cc(), [], f)) == len(f["NS2_SOURCES"]) + len(HOST_SOURCES)
+
+
+# -- 3. checkpoints verified
+def _data_spans(path: Path) -> list[tuple[str, int, int]]:
+    """(member, first byte, end) of the stored data of every tensor in the archive."""
+    data = path.read_bytes()
+    spans = []
+    with zipfile.ZipFile(path) as z:
+        for info in z.infolist():
+            if "/data/" in info.filename and info.compress_size:
+                o = info.header_offset
+                start = o + 30 + struct.unpack("<H", data[o + 26:o + 28])[0] + struct.unpack("<H", data[o + 28:o + 30])[0]
+                spans.append((info.filename, start, start + info.compress_size))
+    return spans
+
+
+@settings(derandomize=True, max_examples=25, deadline=None, database=None,
+          suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(k=st.integers(0, 10 ** 9), bit=st.integers(0, 7))
+def test_28_3_a_flipped_weight_bit_is_refused(exported, k, bit):
+    """Any single-bit flip inside a weight tensor's stored bytes: the export is refused
+    (the archive's CRC-32), where before 23 of 25 exported a different model."""
+    spans = _data_spans(exported.checkpoint)
+    name, a, b = spans[k % len(spans)]
+    data = bytearray(exported.checkpoint.read_bytes())
+    data[a + (k // len(spans)) % (b - a)] ^= 1 << bit
+    with tempfile.TemporaryDirectory() as d:
+        ck, out = Path(d) / "flipped.pt", Path(d) / "gen"
+        ck.write_bytes(bytes(data))
+        r = run(["export", ck, "--out", out])
+        assert_refused(r, ck, "CRC-32")
+        assert not out.exists()
+
+
+@pytest.mark.parametrize("change", ["one ulp of a weight", "a vehicle parameter", "the recorded hash"])
+def test_28_3_a_resaved_checkpoint_must_match_its_hash(exported, tmp_path, change):
+    """Edited and saved again (a valid archive with fresh CRCs): the recomputed model
+    hash differs from the recorded one."""
+    def fn(obj, meta):
+        if change == "one ulp of a weight":
+            t = obj["state_dict"]["rho.0.layers.1.weight"]
+            t.view(-1)[7] = torch.nextafter(t.view(-1)[7], torch.tensor(math.inf))
+        elif change == "a vehicle parameter":
+            meta["config"]["robot_types"][0]["mass_g"] += 1.0
+        else:
+            obj["model_hash"] = "0" * 64
+    ck = _tamper_checkpoint(exported.checkpoint, tmp_path / "edited.pt", fn)
+    assert_refused(run(["export", ck, "--out", tmp_path / "gen"]), ck, "model_hash")
+    (tmp_path / "p.json").write_text(json.dumps(PROBLEM))
+    assert_refused(run(["plan", "--checkpoint", ck, "--problem", tmp_path / "p.json", "--baseline",
+                        "--out", tmp_path / "o"]), ck, "model_hash")
+    with pytest.raises(CheckpointError, match="model_hash"):
+        load_checkpoint(ck)
+
+
+def test_28_3_the_record_is_the_export_hash_and_old_checkpoints_warn(exported, tmp_path):
+    """The recorded hash is the one the export's manifest and NS2_MODEL_ID derive
+    from; a version 1 checkpoint (no record) exports the same model with one warning."""
+    obj = torch.load(exported.checkpoint, weights_only=True)
+    assert obj["version"] == 2 and obj["model_hash"] == exported.manifest["model_hash"]
+    assert f"#define NS2_MODEL_ID 0x{obj['model_hash'][:15]}" in (exported.gen_dir / "ns2_model_config.h").read_text()
+    del obj["model_hash"]
+    obj["version"] = 1
+    old = tmp_path / "v1.pt"
+    torch.save(obj, old)
+    with pytest.warns(LegacyCheckpointWarning, match="no integrity record"):
+        load_checkpoint(old)
+    r = run(["export", old, "--out", tmp_path / "gen", "--json"])
+    assert r.exit_code == 0, r.output
+    warning, = r.stderr.strip().splitlines()
+    assert warning.startswith("Warning: checkpoint ") and str(old) in warning and "save it again" in warning
+    assert json.loads(r.stdout)["model_hash"] == exported.manifest["model_hash"]
+    for bad in (0, 3, True, "2"):   # versions this ns2codegen does not read
+        obj["version"] = bad
+        torch.save(obj, old)
+        assert_refused(run(["export", old, "--out", tmp_path / "gen"]), old, "version")
+
+
+# -- 4. config sections of the wrong type
+WRONG_TYPES = [(("robot_types", 0), "small", "robot_types[0]"), (("environment",), "env", "environment"),
+               (("model",), [1, 2], "model"), (("neighbors",), 3, "neighbors"),
+               (("interaction_volume", "default"), 3, "interaction_volume.default"),
+               (("robot_types",), {"name": "small"}, "robot_types"), (("train",), "fast", "train"),
+               (("robot_types", 0, "mas_g"), 34.0, "mas_g"), (("model", "widht"), 40, "widht"),
+               (("sim",), {"dt": 0.01}, "[sim]")]
+
+
+@pytest.mark.parametrize("path,value,field", WRONG_TYPES, ids=[w[2] for w in WRONG_TYPES])
+def test_28_4_6_wrong_section_types_and_unknown_keys_name_the_field(cfg, exported, tmp_path, path, value, field):
+    """A section of the wrong type (and a key the config does not know: a typo such as
+    mas_g) is refused naming file and field, in a checkpoint (export, plan) as in a TOML."""
+    raw = _replace_section(cfg.raw, path, value)
+    ck = _tamper_checkpoint(exported.checkpoint, tmp_path / "m.pt", lambda o, m: m.update(config=raw))
+    r = run(["export", ck, "--out", tmp_path / "gen"])
+    assert_refused(r, ck, field)
+    assert "Error(" not in r.stderr and "malformed" not in r.stderr
+    (tmp_path / "p.json").write_text(json.dumps(PROBLEM))
+    assert_refused(run(["plan", "--checkpoint", ck, "--problem", tmp_path / "p.json", "--out", tmp_path / "o"]),
+                   ck, field)
+    toml_file = tmp_path / "c.toml"
+    toml_file.write_text(_toml(raw))
+    r = run(["gen-data", "--config", toml_file, "--samples-per-scenario", "1", "--out", tmp_path / "d.npz"])
+    assert_refused(r, toml_file, field)
+    assert "Error(" not in r.stderr and "malformed" not in r.stderr
+    if field in ("mas_g", "widht", "[sim]"):
+        assert "known: " in r.stderr
+
+
+# -- 6. refusals name the file; torch's errors in our words
+def test_28_6_export_refusals_name_the_checkpoint(exported, cfg, tmp_path):
+    heavy = copy.deepcopy(cfg.raw)
+    heavy["robot_types"][0]["mass_g"] = 1e5   # fa_max 30 kg: beyond any int16 output range
+    ck = tmp_path / "heavy.pt"
+    save_checkpoint(ck, exported.model, Config.from_dict(heavy), {"seed": 0})
+    assert_refused(run(["export", ck, "--out", tmp_path / "gen"]), ck, "fa_max")
+    big = copy.deepcopy(exported.model)
+    with torch.no_grad():
+        for p in big.parameters():
+            p.mul_(1e8)           # finite weights whose activations exceed the float limit
+    ck = tmp_path / "big.pt"
+    save_checkpoint(ck, big, cfg, {"seed": 0})
+    assert_refused(run(["export", ck, "--out", tmp_path / "gen"]), ck, "float activations")
+
+
+def test_28_6_torch_errors_are_summarized(exported, tmp_path):
+    import argparse
+
+    data = exported.checkpoint.read_bytes()
+    pickled = tmp_path / "object.pt"
+    torch.save({"format": "ns2codegen-checkpoint", "x": argparse.Namespace(a=1)}, pickled)
+    cases = {"truncated.pt": data[:len(data) // 2], "garbage.pt": bytes(range(256)) * 8, "empty.pt": b"",
+             "one_byte_short.pt": data[:-1]}
+    for name, blob in cases.items():
+        (tmp_path / name).write_bytes(blob)
+    for ck in [tmp_path / n for n in cases] + [pickled]:
+        r = run(["export", ck, "--out", tmp_path / "gen"])
+        assert_refused(r, ck)
+        line = r.stderr.strip()
+        assert len(line) < 250 and "weights_only" not in line and not line.endswith(":"), line
+        assert ("corrupt or truncated" in line) if ck != pickled else ("not an ns2codegen checkpoint" in line)
