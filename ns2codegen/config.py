@@ -197,8 +197,11 @@ def dump_toml(data: dict, comment: str = "") -> str:
     """TOML text of plain data: numbers, strings, booleans, lists of them, tables and
     arrays of tables whose values are those or lists of inline tables; ``comment``
     lines go first."""
+    def string(s: str) -> str:  # a TOML basic string: JSON's escapes, but \uXXXX never a surrogate
+        return json.dumps(s, ensure_ascii=False).replace("\x7f", "\\u007f")
+
     def key(k: str) -> str:
-        return k if re.fullmatch(r"[A-Za-z0-9_-]+", k) else json.dumps(k)
+        return k if re.fullmatch(r"[A-Za-z0-9_-]+", k) else string(k)
 
     def val(v) -> str:
         if isinstance(v, bool):
@@ -208,7 +211,7 @@ def dump_toml(data: dict, comment: str = "") -> str:
                 raise ValueError(f"cannot write the non-finite number {v} to TOML")
             return repr(v)
         if isinstance(v, str):
-            return json.dumps(v)
+            return string(v)
         if isinstance(v, dict):
             return "{" + ", ".join(f"{key(k)} = {val(x)}" for k, x in v.items()) + "}"
         if isinstance(v, (list, tuple)):

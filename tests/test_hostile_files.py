@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 import torch
 from click.testing import CliRunner
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
 from ns2cli import main
@@ -664,3 +664,163 @@ def test_28_6_torch_errors_are_summarized(exported, tmp_path):
         line = r.stderr.strip()
         assert len(line) < 250 and "weights_only" not in line and not line.endswith(":"), line
         assert ("corrupt or truncated" in line) if ck != pickled else ("not an ns2codegen checkpoint" in line)
+
+
+# -- 5. flight manifests
+def _manifest_folder(log_folder: Path, d: Path, text: str) -> Path:
+    """``d/m`` with ``a.usd`` and ``flights.toml`` = ``text``; ``d/a.usd`` outside it."""
+    m = d / "m"
+    m.mkdir()
+    (m / "a.usd").write_bytes((log_folder / "a.usd").read_bytes())
+    (d / "a.usd").write_bytes((log_folder / "a.usd").read_bytes())
+    (m / "flights.toml").write_text(text)
+    return m
+
+
+@pytest.mark.parametrize("robots,field", [
+    ("flight = [1, 2]", "flight[0]"),
+    ('[[flight]]\nrobots = [{file = "a.usd", type = "small"}, {file = "./a.usd", type = "large"}]', "robots[1].file"),
+    ('[[flight]]\nrobots = [{file = "../a.usd", type = "small"}]', "outside"),
+    ('[[flight]]\nrobots = [{file = "sub/../../a.usd", type = "small"}]', "outside"),
+    ('[[flight]]\nrobots = [{file = "ABS", type = "small"}]', "outside"),
+    ('[[flight]]\nrobots = [{file = "link.usd", type = "small"}]', "outside"),
+    ('[[flight]]\nrobots = [{file = "a.usd", typ = "small"}]', "robots[0].typ"),
+    ('[[flight]]\nnmae = "x"\nrobots = [{file = "a.usd", type = "small"}]', "flight[0].nmae"),
+    ('[[flight]]\nrobots = "a.usd"', "flight[0].robots"),
+    ('[[flight]]\nrobots = [[1]]', "robots[0]"),
+    ('rate = 100\n[[flight]]\nrobots = [{file = "a.usd", type = "small"}]', "rate"),
+    ('flight = "hover"', "flight"), ('[flight]\nrobots = []', "flight")])
+def test_28_5_flight_manifest_structure(log_folder, tmp_path, robots, field):
+    """flight = [1, 2], one log named for two robots of a flight, paths out of the
+    folder ('..', absolute, a link), unknown keys: one line naming flights.toml and the
+    field, nothing written.  --allow-outside-paths reads a log outside."""
+    m = _manifest_folder(log_folder, tmp_path, robots.replace("ABS", str(tmp_path / "a.usd")))
+    (m / "link.usd").symlink_to(tmp_path / "a.usd")
+    out = tmp_path / "d.npz"
+    out.write_bytes(SENTINEL)
+    r = run(["logs-to-data", m, "--out", out])
+    assert_refused(r, m / "flights.toml", field, out)
+    if field == "outside":
+        r = run(["logs-to-data", m, "--out", tmp_path / "ok.npz", "--allow-outside-paths"])
+        assert r.exit_code == 0, r.output
+
+
+_ANY = st.one_of(st.booleans(), st.integers(-5, 2000), st.floats(), st.text(max_size=8),
+                 st.lists(st.integers(0, 3), max_size=2), st.dictionaries(st.sampled_from(["file", "type", "x"]),
+                                                                           st.text(max_size=4), max_size=2))
+_FILES = st.sampled_from(["a.usd", "./a.usd", "../a.usd", "ABS", "sub/../a.usd", "sub/../../a.usd", "link.usd", "",
+                          "b.usd", "a\u0000.usd", "a\n.usd"])
+_ROBOT = st.fixed_dictionaries({"file": _FILES, "type": st.sampled_from(["small", "large", "", "giant"])},
+                               optional={"x": st.integers(0, 1)}) | _ANY
+_FLIGHT = st.fixed_dictionaries({"robots": st.lists(_ROBOT, max_size=3) | _ANY},
+                                optional={"name": st.text(max_size=5) | _ANY, "extra": st.integers(0, 1)}) | _ANY
+_NEAR_VALID = st.fixed_dictionaries(   # mostly well formed: one flaw at most, often none
+    {"flight": st.lists(st.fixed_dictionaries(
+        {"robots": st.lists(st.fixed_dictionaries({"file": st.sampled_from(["a.usd", "sub/../a.usd", "b.usd",
+                                                                            "../a.usd", "link.usd"]),
+                                                   "type": st.just("small")}), min_size=1, max_size=2)},
+        optional={"name": st.text(max_size=5)}), min_size=1, max_size=2)},
+    optional={"rate_hz": st.sampled_from([100, 50.5, 1000, 0, 1e9])})
+MANIFESTS = _NEAR_VALID | st.fixed_dictionaries({}, optional={
+    "rate_hz": st.floats() | st.integers(-10, 2000) | _ANY, "flight": st.lists(_FLIGHT, min_size=0, max_size=3) | _ANY,
+    "flights": st.integers(0, 1)})
+
+
+@settings(derandomize=True, max_examples=300, deadline=None, database=None)
+@given(man=MANIFESTS)
+def test_28_5_manifest_property(man):
+    """load_manifest on any structure: a ManifestError of one line naming flights.toml,
+    or a manifest whose every flight has robots, one file each, all inside the folder."""
+    with tempfile.TemporaryDirectory() as d:
+        d = Path(d)
+        m = d / "m"
+        (m / "sub").mkdir(parents=True)
+        (m / "link.usd").symlink_to(d / "a.usd")
+        text = _toml(man).replace('"ABS"', json.dumps(str(d / "a.usd")))
+        (m / "flights.toml").write_text(text)
+        try:
+            got = load_manifest(m)
+        except ManifestError as e:
+            msg = str(e)
+            assert str(m / "flights.toml") in msg and "\n" not in msg and len(msg) < 400, msg
+            event("manifest refused")
+            return
+        event("manifest accepted")
+        assert 0 < got["rate_hz"] <= 1000 and got["flight"]
+        for fl in got["flight"]:
+            paths = [r["path"] for r in fl["robots"]]
+            assert paths and len(set(paths)) == len(paths)
+            assert all(p.is_relative_to(m.resolve()) for p in paths)
+
+
+# -- a config through its three ways in: a --config TOML, a checkpoint, an export folder
+def _paths(d, prefix=()) -> list[tuple]:
+    out = [prefix] if prefix else []
+    items = d.items() if isinstance(d, dict) else enumerate(d) if isinstance(d, list) else ()
+    for k, v in items:
+        out += _paths(v, prefix + (k,))
+    return out
+
+
+_VALUES = st.one_of(st.booleans(), st.integers(-2 ** 63, 2 ** 63 - 1), st.floats(), st.text(max_size=12),
+                    st.sampled_from([INJECTION, "small*", "a.b", "x" * 40, "", "Small", "env", "large", "a\\"]),
+                    st.lists(st.floats(-5, 5), max_size=4), st.lists(st.lists(st.integers(-3, 3), max_size=3),
+                                                                     max_size=3),
+                    st.dictionaries(st.text(max_size=4), st.integers(), max_size=2),
+                    st.just({"lo": [0, 0, 0], "hi": [1, 1, 1]}), st.just([]), st.just({}))
+
+
+@st.composite
+def mutated_configs(draw, raw):
+    """The default config with one to three fields replaced, removed or added."""
+    raw = copy.deepcopy(raw)
+    for _ in range(draw(st.integers(1, 3))):
+        path = draw(st.sampled_from(_paths(raw) or [("model",)]))
+        parent = raw
+        for k in path[:-1]:
+            parent = parent[k]
+        op = draw(st.sampled_from(["replace", "replace", "delete", "add"]))
+        if op == "replace":
+            parent[path[-1]] = draw(_VALUES)
+        elif op == "delete":
+            del parent[path[-1]]
+        elif isinstance(parent, dict):
+            parent[draw(st.sampled_from(["mas_g", "extra", "Name", "name", "default"]))] = draw(_VALUES)
+    return raw
+
+
+@settings(derandomize=True, max_examples=60, deadline=None, database=None,
+          suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
+@given(data=st.data())
+def test_28_config_property_on_every_way_in(cfg, exported, data):
+    """A structurally mutated config: the TOML and the export folder's ns2_config.toml
+    give a Config or a one-line ConfigError naming the file; a checkpoint carrying it
+    is refused naming the checkpoint (a valid change no longer matches its model_hash)."""
+    raw = data.draw(mutated_configs(cfg.raw))
+    with tempfile.TemporaryDirectory() as d:
+        d = Path(d)
+        text = _toml(raw)
+        (d / CONFIG_FILE).write_text(text)
+        for load, path in ((Config.load, d / CONFIG_FILE), (export_config, d)):
+            try:
+                got = load(path)
+            except ConfigError as e:
+                msg = str(e)
+                assert msg.startswith(f"config file {d / CONFIG_FILE}: ") and "\n" not in msg, msg
+                assert len(msg) < 400 and "Error(" not in msg, msg
+                event("config refused")
+                continue
+            event("config accepted")
+            for n in got.neighbor_types:
+                check_name(n, "name")
+            got.phi_dims(), got.rho_dims()
+            [got.volume(r, t) for r in range(got.num_robot_types) for t in range(got.num_robot_types)]
+            [got.input_box(t) for t in range(len(got.neighbor_types))]
+        ck = _tamper_checkpoint(exported.checkpoint, d / "m.pt", lambda o, m: m.update(config=raw))
+        try:
+            load_checkpoint(ck)
+        except CheckpointError as e:
+            msg = str(e)
+            assert str(ck) in msg and "\n" not in msg and len(msg) < 400, msg
+        else:   # only a mutation that changed nothing keeps the recorded hash
+            assert Config.from_dict(raw).to_json() == cfg.to_json()

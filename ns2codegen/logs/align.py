@@ -308,7 +308,7 @@ def logs_to_flights(cfg: Config, folder: str | Path, allow_truncated: bool = Fal
                            f"config {cfg.robot_types}")
         robots, notes = [], []
         for r in fl["robots"]:
-            log = read(folder / r["file"], allow_truncated=allow_truncated)
+            log = read(r["path"], allow_truncated=allow_truncated)
             if log.note:
                 notes.append(f"{r['file']}: {log.note}")
             try:
