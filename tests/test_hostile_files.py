@@ -689,7 +689,12 @@ def _manifest_folder(log_folder: Path, d: Path, text: str) -> Path:
     ('[[flight]]\nrobots = "a.usd"', "flight[0].robots"),
     ('[[flight]]\nrobots = [[1]]', "robots[0]"),
     ('rate = 100\n[[flight]]\nrobots = [{file = "a.usd", type = "small"}]', "rate"),
-    ('flight = "hover"', "flight"), ('[flight]\nrobots = []', "flight")])
+    ('flight = "hover"', "flight"), ('[flight]\nrobots = []', "flight"),
+    ('ground_plane_m = 0.05\n[[flight]]\nrobots = [{file = "a.usd", type = "small"}]', "ground_plane_m"),
+    ('[ground_plane_m]\nsmall = nan\n[[flight]]\nrobots = [{file = "a.usd", type = "small"}]', "ground_plane_m.small"),
+    ('[[flight]]\nrobots = [{file = "a.usd", type = "small", label = "no"}]', "robots[0].label"),
+    ('[[flight]]\nrobots = [{file = "a.usd", type = "small", id = "cf1"}, {file = "b.usd", type = "small", id = "cf1"}]',
+     "cf1")])
 def test_28_5_flight_manifest_structure(log_folder, tmp_path, robots, field):
     """flight = [1, 2], one log named for two robots of a flight, paths out of the
     folder ('..', absolute, a link), unknown keys: one line naming flights.toml and the
