@@ -4,13 +4,14 @@ from __future__ import annotations
 
 import json
 import sys
+import warnings
 from contextlib import contextmanager
 from pathlib import Path
 
 import click
 
 from ns2codegen.config import Config
-from ns2codegen.errors import Ns2Error
+from ns2codegen.errors import Ns2Error, Ns2Warning
 
 # the extra that installs a module the core does not need (pyproject.toml)
 _EXTRAS = {"scipy": "sysid", "matplotlib": "sim", "cffi": "target", "unicorn": "target", "capstone": "target",
@@ -24,8 +25,18 @@ class _Errors(click.Group):
     does a missing optional dependency (it names the extra to install)."""
 
     def invoke(self, ctx):
+        shown = warnings.showwarning
+
+        def show(message, category, *args, **kw):  # our warnings: one line, like errors
+            if issubclass(category, Ns2Warning):
+                click.echo(f"Warning: {' '.join(str(message).split())}", err=True)
+            else:
+                shown(message, category, *args, **kw)
+
         try:
-            return super().invoke(ctx)
+            with warnings.catch_warnings():
+                warnings.showwarning = show
+                return super().invoke(ctx)
         except Ns2Error as e:
             raise click.ClickException(" ".join(str(e).split())) from e  # one line
         except ModuleNotFoundError as e:

@@ -42,15 +42,18 @@ def sysid(type_name, static_csv, step_csv, mass_g, out, as_json):
               help="use logs without a valid CRC (power loss): keep their complete entries")
 @click.option("--z-min", type=float, default=0.02, show_default=True,
               help="samples below this height (m) count as on the ground and are not used")
+@click.option("--allow-outside-paths", is_flag=True,
+              help="let flights.toml name log files outside FOLDER (absolute paths, '..', links)")
 @_json_option
-def logs_to_data(folder, out, config_path, vehicle_files, allow_truncated, z_min, as_json):
+def logs_to_data(folder, out, config_path, vehicle_files, allow_truncated, z_min, allow_outside_paths, as_json):
     """Crazyflie uSD logs of FOLDER (listed in FOLDER/flights.toml) -> data set (.npz):
     clock alignment, common time base, labels f_a,z, neighbours by the interaction volume."""
     from ns2codegen.logs.align import logs_to_dataset
 
     cfg = _config(config_path, vehicle_files)
     _parent_ok(out)
-    ds, reports = logs_to_dataset(cfg, folder, allow_truncated=allow_truncated, z_min=z_min)
+    ds, reports = logs_to_dataset(cfg, folder, allow_truncated=allow_truncated, z_min=z_min,
+                                  allow_outside=allow_outside_paths)
     ds.save(out)
     _emit(as_json, {"out": out, "samples": len(ds), "scenarios": ds.scenario_names, "flights": reports},
           f"wrote {out}: {len(ds)} samples from {len(reports)} flights, scenarios {ds.scenario_names}")

@@ -24,10 +24,10 @@ import numpy as np
 
 from . import __version__
 from .checkpoint import load_checkpoint
-from .config import VEHICLE_KEYS, Config, ConfigError, c_identifier, dump_toml
+from .config import VEHICLE_KEYS, Config, ConfigError, c_identifier, check_name, dump_toml
 from .fileio import write_folder_set
 from .queries import random_queries
-from .quantize import ExportModel, from_checkpoint, pad4
+from .quantize import ExportModel, QuantizationError, from_checkpoint, pad4
 from .vehicle import G, default_gains, has_rigid_body, vehicle
 
 TEMPLATES = Path(__file__).resolve().parent / "templates"  # package data
@@ -98,6 +98,9 @@ def _env() -> jinja2.Environment:
     env.filters["cfloats"] = lambda xs: ", ".join(cfloat(x) for x in np.ravel(xs))
     env.filters["cfloat_block"] = lambda a: _block([cfloat(x) for x in np.ravel(a)], 6)
     env.filters["int_block"] = lambda a: _block([str(int(x)) for x in np.ravel(a)], 12)
+    # a type name inside a C comment: the config admits only names that cannot end
+    # the comment or splice a line (config.check_name); checked again here
+    env.filters["c_comment"] = lambda name: check_name(name, "type name in a generated header")
     return env
 
 
@@ -135,8 +138,6 @@ def check_output_range(m: ExportModel) -> None:
     """The controller limits the learned force to fa_max_N per robot type; that limit
     must lie inside the fixed-point output range, so that a saturated output is
     always clamped by the controller to the same value the float output would be."""
-    from .quantize import QuantizationError
-
     lo, hi = output_range_g(m)
     for t in m.cfg.robot_types:
         if not has_rigid_body(m.cfg, t):
@@ -236,8 +237,11 @@ def manifest(m: ExportModel, errors: dict) -> dict:
 
 def export(checkpoint: str | Path, out_dir: str | Path) -> dict:
     """Export ``checkpoint`` into ``out_dir``; returns the manifest."""
-    m = from_checkpoint(load_checkpoint(checkpoint))
-    check_output_range(m)
+    try:
+        m = from_checkpoint(load_checkpoint(checkpoint))
+        check_output_range(m)
+    except QuantizationError as e:   # the weights or the vehicle limits: name the checkpoint
+        raise QuantizationError(f"checkpoint {checkpoint}: {e}") from None
     files = render(m)
     man = manifest(m, measure_errors(m))
     files[MANIFEST] = json.dumps(man, indent=2, sort_keys=True) + "\n"

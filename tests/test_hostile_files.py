@@ -8,19 +8,25 @@ into a hostile value and runs the command in-process."""
 import copy
 import json
 import math
+import shutil
 import struct
+import subprocess
 import tempfile
+import zipfile
 from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
 from click.testing import CliRunner
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
 from ns2cli import main
-from ns2codegen.config import Config, dump_toml
+from ns2codegen.checkpoint import CheckpointError, LegacyCheckpointWarning, load_checkpoint, save_checkpoint
+from ns2codegen.config import NAME_MAX, Config, ConfigError, check_name, dump_toml
+from ns2codegen.export import CONFIG_FILE, export_config
+from ns2codegen.logs.manifest import ManifestError, load_manifest
 from ns2codegen.data.analytic import downwash_dataset
 from ns2codegen.logs.align import PWM_FULL, VARIABLES
 from ns2codegen.logs.usdlog import UsdLogWriter
@@ -228,10 +234,12 @@ def test_checkpoint_property(exported, what, value, k):
         else:
             data = bytearray(exported.checkpoint.read_bytes())
             data[k % len(data)] ^= 0xFF
-            ck.write_bytes(bytes(data[: len(data) - 1 - k % 500]))   # the zip directory is damaged
+            ck.write_bytes(bytes(data[: len(data) - 1 - k % 500] if k % 2 else data))   # and cut, or not
         r = run(["export", ck, "--out", out])
-        if r.exit_code == 0:   # a flipped byte that torch's zip reader never reads
-            assert what == "bytes"
+        if r.exit_code == 0:   # a byte no reader uses (a header's time stamp ...): the same model
+            assert what == "bytes" and k % 2 == 0
+            assert json.loads((out / "ns2_model_manifest.json").read_text())["model_hash"] == \
+                exported.manifest["model_hash"]
             return
         assert_refused(r, ck)
         assert (out / "ns2_model_float.h").read_bytes() == SENTINEL and len(list(out.iterdir())) == 1
@@ -404,3 +412,420 @@ def test_missing_or_mixed_export_folder(exported, onboard, tmp_path, cmd):
     assert_refused(r, gen)
     r = run([a.format(d=tmp_path) for a in cmd] + ["--gen", tmp_path / "nothing"])
     assert_refused(r, tmp_path / "nothing")
+
+
+# ================================================================== issue 28
+# The six cases that got through, as regression tests, and a hypothesis strategy per
+# file kind (configs through their three ways in, checkpoints, flight manifests).
+
+INJECTION = "env */ int injected = 1; /*"
+
+
+def _tamper_checkpoint(src: Path, dst: Path, fn) -> Path:
+    """``src`` loaded, ``fn(obj, meta)`` applied, saved again under ``dst`` (as an
+    attacker or a hand edit would: a valid archive, new CRCs)."""
+    obj = torch.load(src, weights_only=True)
+    meta = json.loads(obj["meta_json"])
+    fn(obj, meta)
+    obj["meta_json"] = json.dumps(meta)
+    torch.save(obj, dst)
+    return dst
+
+
+def _replace_section(raw, path, value):
+    """``raw`` with the value at ``path`` (keys and list indices) replaced."""
+    raw = copy.deepcopy(raw)
+    _set(raw, path, value)
+    return raw
+
+
+# -- 1. names become C code; 2. a name ending in '*'
+@pytest.mark.parametrize("path,name", [(("environment", "name"), INJECTION), (("robot_types", 0, "name"), INJECTION),
+                                       (("robot_types", 1, "name"), "large*"), (("environment", "name"), "a\\"),
+                                       (("robot_types", 0, "name"), "sm??/all"), (("robot_types", 0, "name"), "a.b"),
+                                       (("robot_types", 0, "name"), "x" * (NAME_MAX + 1))])
+def test_28_1_2_names_refused_on_every_way_in(cfg, exported, tmp_path, path, name):
+    raw = _replace_section(cfg.raw, path, name)
+    raw["interaction_volume"] = {"default": raw["interaction_volume"]["default"]}
+    field = ".".join(path[:1]) + (f"[{path[1]}]" if len(path) == 3 else "") + ".name"
+    # a --config TOML (gen-data, train, ...)
+    toml_file = tmp_path / "c.toml"
+    toml_file.write_text(dump_toml(raw))
+    r = run(["gen-data", "--config", toml_file, "--samples-per-scenario", "1", "--out", tmp_path / "d.npz"])
+    assert_refused(r, toml_file, field)
+    # a checkpoint's metadata (export, plan)
+    ck = _tamper_checkpoint(exported.checkpoint, tmp_path / "m.pt", lambda o, m: m.update(config=raw))
+    out = tmp_path / "gen"
+    out.mkdir()
+    (out / "ns2_model_config.h").write_bytes(SENTINEL)
+    assert_refused(run(["export", ck, "--out", out]), ck, field, out / "ns2_model_config.h")
+    (tmp_path / "p.json").write_text(json.dumps(PROBLEM))
+    assert_refused(run(["plan", "--checkpoint", ck, "--problem", tmp_path / "p.json", "--out", tmp_path / "o"]),
+                   ck, field)
+    # an export folder's ns2_config.toml (sim, hil)
+    gen = tmp_path / "gen2"
+    shutil.copytree(exported.gen_dir, gen)
+    (gen / CONFIG_FILE).write_text(dump_toml(raw))
+    assert_refused(run(["hil", "--port", "/dev/null", "--gen", gen]), gen / CONFIG_FILE, field)
+    assert not (tmp_path / "d.npz").exists() and not (tmp_path / "o").exists()
+
+
+@settings(derandomize=True, max_examples=300, deadline=None, database=None)
+@given(name=st.text(min_size=0, max_size=NAME_MAX + 4) | st.from_regex(r"[A-Za-z][A-Za-z0-9_ \-*/\\?.]{0,33}",
+                                                                         fullmatch=True))
+def test_28_admitted_names_are_inert_in_c(name):
+    """Every admitted name is at most NAME_MAX characters that can neither end nor
+    open a C comment, splice a line, form a trigraph nor break a TOML/JSON string."""
+    try:
+        check_name(name, "robot_types[0].name")
+    except ConfigError as e:
+        assert str(e).startswith("robot_types[0].name must be") and "\n" not in str(e)
+        return
+    assert 1 <= len(name) <= NAME_MAX and name.isascii() and name[0].isalpha() and not name.endswith(" ")
+    assert not set(name) - set("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_- ")
+
+
+WORST_NAMES = ["A- -_ -- __  - -_- ---  _ -  -Z9",   # the longest, of every admitted character but letters
+               "int", "Static"]                       # C keywords (robot types); the environment gets "Float"
+
+
+def test_28_templates_with_the_worst_admitted_names_compile_with_werror(cfg, tmp_path):
+    """Every template rendered with the worst names the validator admits (the longest,
+    runs of '-', ' ' and '_', C keywords, capitals) gives headers that compile alone and
+    together, and the whole library against them, with the strict flags (-Werror)."""
+    from ns2host.cbuild import HOST_SOURCES, REPO, compile_objects, flags, host_cc
+    from conftest import train_and_export
+
+    assert len(WORST_NAMES[0]) == NAME_MAX
+    raw = copy.deepcopy(cfg.raw)
+    raw["robot_types"] = [dict(raw["robot_types"][i % 2], name=n) for i, n in enumerate(WORST_NAMES)]
+    raw["environment"]["name"] = "Float"
+    raw["interaction_volume"] = {"default": raw["interaction_volume"]["default"],
+                                 f"{WORST_NAMES[0]}.int": raw["interaction_volume"]["large.small"]}
+    worst = Config.from_dict(raw)
+    ex = train_and_export(worst, tmp_path, samples=60, epochs=1)
+    texts = {h: (ex.gen_dir / h).read_text() for h in ("ns2_model_config.h", "ns2_model_float.h",
+                                                         "ns2_model_fixed.h", "ns2_vehicles.h")}
+    assert f"/* robot {WORST_NAMES[0]} */" in texts["ns2_model_config.h"]
+    assert "#define NS2_TYPE_A_Z9 0" in texts["ns2_model_config.h"]
+    assert "#define NS2_TYPE_INT_ 1" in texts["ns2_model_config.h"]
+    assert "#define NS2_TYPE_FLOAT_ 3" in texts["ns2_model_config.h"]
+    assert f"/* {WORST_NAMES[0]} */ \\" in texts["ns2_vehicles.h"]
+    f = flags()
+    src = tmp_path / "all.c"
+    src.write_text("".join(f'#include "{h}"\n' for h in texts) + "int main(void) { return NS2_TYPE_STATIC_ - 2; }\n")
+    for h in [*texts, None]:
+        one = tmp_path / "one.c"
+        one.write_text(f'#include "{h}"\nint main(void) {{ return 0; }}\n' if h else src.read_text())
+        r = subprocess.run([host_cc(), *f["NS2_STD_FLAGS"], *f["NS2_WARN_FLAGS"], "-I", str(ex.gen_dir),
+                            *[f"-I{REPO / i}" for i in f["NS2_INCLUDES"]], "-c", str(one), "-o",
+                            str(tmp_path / "one.o")], capture_output=True, text=True)
+        assert r.returncode == 0, (h, r.stderr)
+    objs = tmp_path / "objs"
+    objs.mkdir()
+    assert len(compile_objects(ex.gen_dir, objs, host_cc(), [], f)) == len(f["NS2_SOURCES"]) + len(HOST_SOURCES)
+
+
+# -- 3. checkpoints verified
+def _data_spans(path: Path) -> list[tuple[str, int, int]]:
+    """(member, first byte, end) of the stored data of every tensor in the archive."""
+    data = path.read_bytes()
+    spans = []
+    with zipfile.ZipFile(path) as z:
+        for info in z.infolist():
+            if "/data/" in info.filename and info.compress_size:
+                o = info.header_offset
+                start = o + 30 + struct.unpack("<H", data[o + 26:o + 28])[0] + struct.unpack("<H", data[o + 28:o + 30])[0]
+                spans.append((info.filename, start, start + info.compress_size))
+    return spans
+
+
+@settings(derandomize=True, max_examples=25, deadline=None, database=None,
+          suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(k=st.integers(0, 10 ** 9), bit=st.integers(0, 7))
+def test_28_3_a_flipped_weight_bit_is_refused(exported, k, bit):
+    """Any single-bit flip inside a weight tensor's stored bytes: the export is refused
+    (the archive's CRC-32), where before 23 of 25 exported a different model."""
+    spans = _data_spans(exported.checkpoint)
+    name, a, b = spans[k % len(spans)]
+    data = bytearray(exported.checkpoint.read_bytes())
+    data[a + (k // len(spans)) % (b - a)] ^= 1 << bit
+    with tempfile.TemporaryDirectory() as d:
+        ck, out = Path(d) / "flipped.pt", Path(d) / "gen"
+        ck.write_bytes(bytes(data))
+        r = run(["export", ck, "--out", out])
+        assert_refused(r, ck, "CRC-32")
+        assert not out.exists()
+
+
+@pytest.mark.parametrize("change", ["one ulp of a weight", "a vehicle parameter", "the recorded hash"])
+def test_28_3_a_resaved_checkpoint_must_match_its_hash(exported, tmp_path, change):
+    """Edited and saved again (a valid archive with fresh CRCs): the recomputed model
+    hash differs from the recorded one."""
+    def fn(obj, meta):
+        if change == "one ulp of a weight":
+            t = obj["state_dict"]["rho.0.layers.1.weight"]
+            t.view(-1)[7] = torch.nextafter(t.view(-1)[7], torch.tensor(math.inf))
+        elif change == "a vehicle parameter":
+            meta["config"]["robot_types"][0]["mass_g"] += 1.0
+        else:
+            obj["model_hash"] = "0" * 64
+    ck = _tamper_checkpoint(exported.checkpoint, tmp_path / "edited.pt", fn)
+    assert_refused(run(["export", ck, "--out", tmp_path / "gen"]), ck, "model_hash")
+    (tmp_path / "p.json").write_text(json.dumps(PROBLEM))
+    assert_refused(run(["plan", "--checkpoint", ck, "--problem", tmp_path / "p.json", "--baseline",
+                        "--out", tmp_path / "o"]), ck, "model_hash")
+    with pytest.raises(CheckpointError, match="model_hash"):
+        load_checkpoint(ck)
+
+
+def test_28_3_the_record_is_the_export_hash_and_old_checkpoints_warn(exported, tmp_path):
+    """The recorded hash is the one the export's manifest and NS2_MODEL_ID derive
+    from; a version 1 checkpoint (no record) exports the same model with one warning."""
+    obj = torch.load(exported.checkpoint, weights_only=True)
+    assert obj["version"] == 2 and obj["model_hash"] == exported.manifest["model_hash"]
+    assert f"#define NS2_MODEL_ID 0x{obj['model_hash'][:15]}" in (exported.gen_dir / "ns2_model_config.h").read_text()
+    del obj["model_hash"]
+    obj["version"] = 1
+    old = tmp_path / "v1.pt"
+    torch.save(obj, old)
+    with pytest.warns(LegacyCheckpointWarning, match="no integrity record"):
+        load_checkpoint(old)
+    r = run(["export", old, "--out", tmp_path / "gen", "--json"])
+    assert r.exit_code == 0, r.output
+    warning, = r.stderr.strip().splitlines()
+    assert warning.startswith("Warning: checkpoint ") and str(old) in warning and "save it again" in warning
+    assert json.loads(r.stdout)["model_hash"] == exported.manifest["model_hash"]
+    for bad in (0, 3, True, "2"):   # versions this ns2codegen does not read
+        obj["version"] = bad
+        torch.save(obj, old)
+        assert_refused(run(["export", old, "--out", tmp_path / "gen"]), old, "version")
+
+
+# -- 4. config sections of the wrong type
+WRONG_TYPES = [(("robot_types", 0), "small", "robot_types[0]"), (("environment",), "env", "environment"),
+               (("model",), [1, 2], "model"), (("neighbors",), 3, "neighbors"),
+               (("interaction_volume", "default"), 3, "interaction_volume.default"),
+               (("robot_types",), {"name": "small"}, "robot_types"), (("train",), "fast", "train"),
+               (("robot_types", 0, "mas_g"), 34.0, "mas_g"), (("model", "widht"), 40, "widht"),
+               (("sim",), {"dt": 0.01}, "[sim]")]
+
+
+@pytest.mark.parametrize("path,value,field", WRONG_TYPES, ids=[w[2] for w in WRONG_TYPES])
+def test_28_4_6_wrong_section_types_and_unknown_keys_name_the_field(cfg, exported, tmp_path, path, value, field):
+    """A section of the wrong type (and a key the config does not know: a typo such as
+    mas_g) is refused naming file and field, in a checkpoint (export, plan) as in a TOML."""
+    raw = _replace_section(cfg.raw, path, value)
+    ck = _tamper_checkpoint(exported.checkpoint, tmp_path / "m.pt", lambda o, m: m.update(config=raw))
+    r = run(["export", ck, "--out", tmp_path / "gen"])
+    assert_refused(r, ck, field)
+    assert "Error(" not in r.stderr and "malformed" not in r.stderr
+    (tmp_path / "p.json").write_text(json.dumps(PROBLEM))
+    assert_refused(run(["plan", "--checkpoint", ck, "--problem", tmp_path / "p.json", "--out", tmp_path / "o"]),
+                   ck, field)
+    toml_file = tmp_path / "c.toml"
+    toml_file.write_text(_toml(raw))
+    r = run(["gen-data", "--config", toml_file, "--samples-per-scenario", "1", "--out", tmp_path / "d.npz"])
+    assert_refused(r, toml_file, field)
+    assert "Error(" not in r.stderr and "malformed" not in r.stderr
+    if field in ("mas_g", "widht", "[sim]"):
+        assert "known: " in r.stderr
+
+
+# -- 6. refusals name the file; torch's errors in our words
+def test_28_6_export_refusals_name_the_checkpoint(exported, cfg, tmp_path):
+    heavy = copy.deepcopy(cfg.raw)
+    heavy["robot_types"][0]["mass_g"] = 1e5   # fa_max 30 kg: beyond any int16 output range
+    ck = tmp_path / "heavy.pt"
+    save_checkpoint(ck, exported.model, Config.from_dict(heavy), {"seed": 0})
+    assert_refused(run(["export", ck, "--out", tmp_path / "gen"]), ck, "fa_max")
+    big = copy.deepcopy(exported.model)
+    with torch.no_grad():
+        for p in big.parameters():
+            p.mul_(1e8)           # finite weights whose activations exceed the float limit
+    ck = tmp_path / "big.pt"
+    save_checkpoint(ck, big, cfg, {"seed": 0})
+    assert_refused(run(["export", ck, "--out", tmp_path / "gen"]), ck, "float activations")
+
+
+def test_28_6_torch_errors_are_summarized(exported, tmp_path):
+    import argparse
+
+    data = exported.checkpoint.read_bytes()
+    pickled = tmp_path / "object.pt"
+    torch.save({"format": "ns2codegen-checkpoint", "x": argparse.Namespace(a=1)}, pickled)
+    cases = {"truncated.pt": data[:len(data) // 2], "garbage.pt": bytes(range(256)) * 8, "empty.pt": b"",
+             "one_byte_short.pt": data[:-1]}
+    for name, blob in cases.items():
+        (tmp_path / name).write_bytes(blob)
+    for ck in [tmp_path / n for n in cases] + [pickled]:
+        r = run(["export", ck, "--out", tmp_path / "gen"])
+        assert_refused(r, ck)
+        line = r.stderr.strip()
+        assert len(line) < 250 and "weights_only" not in line and not line.endswith(":"), line
+        assert ("corrupt or truncated" in line) if ck != pickled else ("not an ns2codegen checkpoint" in line)
+
+
+# -- 5. flight manifests
+def _manifest_folder(log_folder: Path, d: Path, text: str) -> Path:
+    """``d/m`` with ``a.usd`` and ``flights.toml`` = ``text``; ``d/a.usd`` outside it."""
+    m = d / "m"
+    m.mkdir()
+    (m / "a.usd").write_bytes((log_folder / "a.usd").read_bytes())
+    (d / "a.usd").write_bytes((log_folder / "a.usd").read_bytes())
+    (m / "flights.toml").write_text(text)
+    return m
+
+
+@pytest.mark.parametrize("robots,field", [
+    ("flight = [1, 2]", "flight[0]"),
+    ('[[flight]]\nrobots = [{file = "a.usd", type = "small"}, {file = "./a.usd", type = "large"}]', "robots[1].file"),
+    ('[[flight]]\nrobots = [{file = "../a.usd", type = "small"}]', "outside"),
+    ('[[flight]]\nrobots = [{file = "sub/../../a.usd", type = "small"}]', "outside"),
+    ('[[flight]]\nrobots = [{file = "ABS", type = "small"}]', "outside"),
+    ('[[flight]]\nrobots = [{file = "link.usd", type = "small"}]', "outside"),
+    ('[[flight]]\nrobots = [{file = "a.usd", typ = "small"}]', "robots[0].typ"),
+    ('[[flight]]\nnmae = "x"\nrobots = [{file = "a.usd", type = "small"}]', "flight[0].nmae"),
+    ('[[flight]]\nrobots = "a.usd"', "flight[0].robots"),
+    ('[[flight]]\nrobots = [[1]]', "robots[0]"),
+    ('rate = 100\n[[flight]]\nrobots = [{file = "a.usd", type = "small"}]', "rate"),
+    ('flight = "hover"', "flight"), ('[flight]\nrobots = []', "flight"),
+    ('ground_plane_m = 0.05\n[[flight]]\nrobots = [{file = "a.usd", type = "small"}]', "ground_plane_m"),
+    ('[ground_plane_m]\nsmall = nan\n[[flight]]\nrobots = [{file = "a.usd", type = "small"}]', "ground_plane_m.small"),
+    ('[[flight]]\nrobots = [{file = "a.usd", type = "small", label = "no"}]', "robots[0].label"),
+    ('[[flight]]\nrobots = [{file = "a.usd", type = "small", id = "cf1"}, {file = "b.usd", type = "small", id = "cf1"}]',
+     "cf1")])
+def test_28_5_flight_manifest_structure(log_folder, tmp_path, robots, field):
+    """flight = [1, 2], one log named for two robots of a flight, paths out of the
+    folder ('..', absolute, a link), unknown keys: one line naming flights.toml and the
+    field, nothing written.  --allow-outside-paths reads a log outside."""
+    m = _manifest_folder(log_folder, tmp_path, robots.replace("ABS", str(tmp_path / "a.usd")))
+    (m / "link.usd").symlink_to(tmp_path / "a.usd")
+    out = tmp_path / "d.npz"
+    out.write_bytes(SENTINEL)
+    r = run(["logs-to-data", m, "--out", out])
+    assert_refused(r, m / "flights.toml", field, out)
+    if field == "outside":
+        r = run(["logs-to-data", m, "--out", tmp_path / "ok.npz", "--allow-outside-paths"])
+        assert r.exit_code == 0, r.output
+
+
+_ANY = st.one_of(st.booleans(), st.integers(-5, 2000), st.floats(), st.text(max_size=8),
+                 st.lists(st.integers(0, 3), max_size=2), st.dictionaries(st.sampled_from(["file", "type", "x"]),
+                                                                           st.text(max_size=4), max_size=2))
+_FILES = st.sampled_from(["a.usd", "./a.usd", "../a.usd", "ABS", "sub/../a.usd", "sub/../../a.usd", "link.usd", "",
+                          "b.usd", "a\u0000.usd", "a\n.usd"])
+_ROBOT = st.fixed_dictionaries({"file": _FILES, "type": st.sampled_from(["small", "large", "", "giant"])},
+                               optional={"x": st.integers(0, 1)}) | _ANY
+_FLIGHT = st.fixed_dictionaries({"robots": st.lists(_ROBOT, max_size=3) | _ANY},
+                                optional={"name": st.text(max_size=5) | _ANY, "extra": st.integers(0, 1)}) | _ANY
+_NEAR_VALID = st.fixed_dictionaries(   # mostly well formed: one flaw at most, often none
+    {"flight": st.lists(st.fixed_dictionaries(
+        {"robots": st.lists(st.fixed_dictionaries({"file": st.sampled_from(["a.usd", "sub/../a.usd", "b.usd",
+                                                                            "../a.usd", "link.usd"]),
+                                                   "type": st.just("small")}), min_size=1, max_size=2)},
+        optional={"name": st.text(max_size=5)}), min_size=1, max_size=2)},
+    optional={"rate_hz": st.sampled_from([100, 50.5, 1000, 0, 1e9])})
+MANIFESTS = _NEAR_VALID | st.fixed_dictionaries({}, optional={
+    "rate_hz": st.floats() | st.integers(-10, 2000) | _ANY, "flight": st.lists(_FLIGHT, min_size=0, max_size=3) | _ANY,
+    "flights": st.integers(0, 1)})
+
+
+@settings(derandomize=True, max_examples=300, deadline=None, database=None)
+@given(man=MANIFESTS)
+def test_28_5_manifest_property(man):
+    """load_manifest on any structure: a ManifestError of one line naming flights.toml,
+    or a manifest whose every flight has robots, one file each, all inside the folder."""
+    with tempfile.TemporaryDirectory() as d:
+        d = Path(d)
+        m = d / "m"
+        (m / "sub").mkdir(parents=True)
+        (m / "link.usd").symlink_to(d / "a.usd")
+        text = _toml(man).replace('"ABS"', json.dumps(str(d / "a.usd")))
+        (m / "flights.toml").write_text(text)
+        try:
+            got = load_manifest(m)
+        except ManifestError as e:
+            msg = str(e)
+            assert str(m / "flights.toml") in msg and "\n" not in msg and len(msg) < 400, msg
+            event("manifest refused")
+            return
+        event("manifest accepted")
+        assert 0 < got["rate_hz"] <= 1000 and got["flight"]
+        for fl in got["flight"]:
+            paths = [r["path"] for r in fl["robots"]]
+            assert paths and len(set(paths)) == len(paths)
+            assert all(p.is_relative_to(m.resolve()) for p in paths)
+
+
+# -- a config through its three ways in: a --config TOML, a checkpoint, an export folder
+def _paths(d, prefix=()) -> list[tuple]:
+    out = [prefix] if prefix else []
+    items = d.items() if isinstance(d, dict) else enumerate(d) if isinstance(d, list) else ()
+    for k, v in items:
+        out += _paths(v, prefix + (k,))
+    return out
+
+
+_VALUES = st.one_of(st.booleans(), st.integers(-2 ** 63, 2 ** 63 - 1), st.floats(), st.text(max_size=12),
+                    st.sampled_from([INJECTION, "small*", "a.b", "x" * 40, "", "Small", "env", "large", "a\\"]),
+                    st.lists(st.floats(-5, 5), max_size=4), st.lists(st.lists(st.integers(-3, 3), max_size=3),
+                                                                     max_size=3),
+                    st.dictionaries(st.text(max_size=4), st.integers(), max_size=2),
+                    st.just({"lo": [0, 0, 0], "hi": [1, 1, 1]}), st.just([]), st.just({}))
+
+
+@st.composite
+def mutated_configs(draw, raw):
+    """The default config with one to three fields replaced, removed or added."""
+    raw = copy.deepcopy(raw)
+    for _ in range(draw(st.integers(1, 3))):
+        path = draw(st.sampled_from(_paths(raw) or [("model",)]))
+        parent = raw
+        for k in path[:-1]:
+            parent = parent[k]
+        op = draw(st.sampled_from(["replace", "replace", "delete", "add"]))
+        if op == "replace":
+            parent[path[-1]] = draw(_VALUES)
+        elif op == "delete":
+            del parent[path[-1]]
+        elif isinstance(parent, dict):
+            parent[draw(st.sampled_from(["mas_g", "extra", "Name", "name", "default"]))] = draw(_VALUES)
+    return raw
+
+
+@settings(derandomize=True, max_examples=60, deadline=None, database=None,
+          suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
+@given(data=st.data())
+def test_28_config_property_on_every_way_in(cfg, exported, data):
+    """A structurally mutated config: the TOML and the export folder's ns2_config.toml
+    give a Config or a one-line ConfigError naming the file; a checkpoint carrying it
+    is refused naming the checkpoint (a valid change no longer matches its model_hash)."""
+    raw = data.draw(mutated_configs(cfg.raw))
+    with tempfile.TemporaryDirectory() as d:
+        d = Path(d)
+        text = _toml(raw)
+        (d / CONFIG_FILE).write_text(text)
+        for load, path in ((Config.load, d / CONFIG_FILE), (export_config, d)):
+            try:
+                got = load(path)
+            except ConfigError as e:
+                msg = str(e)
+                assert msg.startswith(f"config file {d / CONFIG_FILE}: ") and "\n" not in msg, msg
+                assert len(msg) < 400 and "Error(" not in msg, msg
+                event("config refused")
+                continue
+            event("config accepted")
+            for n in got.neighbor_types:
+                check_name(n, "name")
+            got.phi_dims(), got.rho_dims()
+            [got.volume(r, t) for r in range(got.num_robot_types) for t in range(got.num_robot_types)]
+            [got.input_box(t) for t in range(len(got.neighbor_types))]
+        ck = _tamper_checkpoint(exported.checkpoint, d / "m.pt", lambda o, m: m.update(config=raw))
+        try:
+            load_checkpoint(ck)
+        except CheckpointError as e:
+            msg = str(e)
+            assert str(ck) in msg and "\n" not in msg and len(msg) < 400, msg
+        else:   # only a mutation that changed nothing keeps the recorded hash
+            assert Config.from_dict(raw).to_json() == cfg.to_json()

@@ -38,10 +38,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ..config import Config, read_toml
+from ..config import Config
 from ..data.dataset import Dataset, DatasetError
 from ..data.from_logs import Flight, flights_to_dataset
 from .compressed import state_si
+from .manifest import load_manifest
 from .usdlog import FIXED_FREQUENCY_NAME, UsdLog, UsdLogError, read
 from ..errors import Ns2Error
 
@@ -60,7 +61,6 @@ MIN_PIECE = 20         # samples
 # (a z of 3e38 m, an all-zero quaternion or a battery at 0 V give absurd labels)
 PLAUSIBLE = {"p": (-100.0, 100.0), "v": (-50.0, 50.0), "pwm": (0.0, 1.0), "battery_V": (2.0, 5.0)}
 QUAT_NORM = (0.9, 1.1)
-MAX_RATE_HZ = 1000.0
 MAX_UPSAMPLE = 20      # grid points per log sample at most (a corrupt timestamp would span ages)
 
 
@@ -294,33 +294,16 @@ def align(types: list[str], robots: list[RobotLog], rate_hz: float = 100.0, max_
     return flights, report
 
 
-def load_manifest(folder: str | Path) -> dict:
-    path = Path(folder) / "flights.toml"
-    man = read_toml(path, "flight list (the flights and each robot's log file and type)", LogError)
-    flights = man.get("flight")
-    if not isinstance(flights, list) or not flights:
-        raise LogError(f"{path}: no [[flight]] entries")
-    for k, fl in enumerate(flights):
-        robots = fl.get("robots")
-        if not isinstance(robots, list) or not robots or not all(
-                isinstance(r, dict) and isinstance(r.get("file"), str) and isinstance(r.get("type"), str)
-                for r in robots):
-            raise LogError(f"{path}: flight {k} needs robots = [{{file = ..., type = ...}}, ...]")
-    return man
-
-
 def logs_to_flights(cfg: Config, folder: str | Path, allow_truncated: bool = False, z_min: float = 0.02,
-                    max_gap_s: float = 0.05) -> tuple[list[Flight], list[dict]]:
-    """Every flight of ``folder/flights.toml`` -> its usable pieces; per-flight reports."""
+                    max_gap_s: float = 0.05, allow_outside: bool = False) -> tuple[list[Flight], list[dict]]:
+    """Every flight of ``folder/flights.toml`` -> its usable pieces; per-flight reports.
+    ``allow_outside``: the manifest may name logs outside ``folder`` (manifest.py)."""
     folder = Path(folder)
-    man = load_manifest(folder)
-    rate = man.get("rate_hz", 100.0)
-    if not (isinstance(rate, (int, float)) and not isinstance(rate, bool) and 0 < rate <= MAX_RATE_HZ):
-        raise LogError(f"{folder / 'flights.toml'}: rate_hz must be a number in (0, {MAX_RATE_HZ:g}] Hz, got {rate!r}")
-    rate = float(rate)
+    man = load_manifest(folder, allow_outside)
+    rate = man["rate_hz"]
     flights, reports = [], []
     for k, fl in enumerate(man["flight"]):
-        name = fl.get("name", f"flight {k}")
+        name = fl["name"]
         types = [r["type"] for r in fl["robots"]]
         unknown = [t for t in types if t not in cfg.robot_types]
         if unknown:
@@ -328,7 +311,7 @@ def logs_to_flights(cfg: Config, folder: str | Path, allow_truncated: bool = Fal
                            f"config {cfg.robot_types}")
         robots, notes = [], []
         for r in fl["robots"]:
-            log = read(folder / r["file"], allow_truncated=allow_truncated)
+            log = read(r["path"], allow_truncated=allow_truncated)
             if log.note:
                 notes.append(f"{r['file']}: {log.note}")
             try:
