@@ -3,7 +3,9 @@
  * the one code path of the drone (firmware/app/src/ns2_app.c) and of the
  * simulator (host/ns2_fly.c).  No firmware headers, no dynamic memory.
  *
- * Per 500 Hz tick (ns2_pilot_tick), in the app's order and at its rates:
+ * Per 500 Hz tick (ns2_pilot_tick, the simulator's call; the app calls
+ * ns2_pilot_step every 1 ms, which spreads the same work and gives the same motor
+ * commands):
  *  - at each 100 Hz position tick: finish the running prediction (rho) into
  *    fa_hat (limited to +-fa_limit_g), take the neighbour list from the peer
  *    table (ns2_peers: positions recorded with ns2_pilot_peer, velocities by

@@ -130,13 +130,10 @@ void ns2_pilot_tick(ns2_pilot_t *pl, const ns2_ctrl_state_t *s, const ns2_setpoi
     ns2_pilot_attitude(pl, s, battery_V);
 }
 
-/* The 100 Hz period in 1 ms steps, k = tick % 10 (see ns2_pilot.h):
- *   k = 0      begin the next prediction, position loop, attitude loop
- *   k = 1..8   half a slice (phi_per_tick / 2 phi, rounded up at odd k); attitude at even k
- *   k = 9      finish the prediction (the phi left, rho) into fa_hat
- * ns2_pilot_tick at the even ticks gives the same motor commands: the prediction
- * begun at k = 0 is finished before the next k = 0 either way, and the slicing
- * does not change its result (ns2_deepset.h). */
+/* k = tick % 10: 0 begin + position, 1..8 half a slice (rounded up at odd k), 9 finish;
+ * attitude at even k.  Same motor commands as ns2_pilot_tick: the prediction begun at
+ * k = 0 is finished before the next k = 0 either way, and slicing does not change its
+ * result (ns2_deepset.h). */
 void ns2_pilot_step(ns2_pilot_t *pl, const ns2_ctrl_state_t *s, const ns2_setpoint_t *sp, uint32_t tick,
                     uint8_t self_id, uint32_t now_ms, float battery_V)
 {
