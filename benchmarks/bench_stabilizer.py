@@ -30,8 +30,10 @@ def main() -> None:
     args = ap.parse_args()
     if not target.have_toolchain():
         sys.exit("arm-none-eabi-gcc missing: run scripts/install-deps.sh")
-    if not crazyflie.have_firmware():
-        sys.exit(f"{crazyflie.tarball()}: crazyflie-firmware missing (or set CRAZYFLIE_BASE)")
+    try:
+        crazyflie.firmware_dir()
+    except crazyflie.FirmwareMissing as e:
+        sys.exit(str(e))
     with tempfile.TemporaryDirectory() as tmp:
         gen = Path(args.gen) if args.gen else REPO / "firmware" / "generated"
         if not (gen / "ns2_model_config.h").is_file():
