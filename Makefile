@@ -71,7 +71,8 @@ firmware: deps $(GEN)/ns2_model_config.h
 $(GEN)/ns2_model_config.h:
 	$(MAKE) export
 
-# crazyflie-firmware (../shared tarball unpacked under build/, or CRAZYFLIE_BASE=...)
+# crazyflie-firmware (CRAZYFLIE_BASE=..., the ../shared tarball unpacked under build/, or
+# a git fetch of the pinned commit there: host/crazyflie.py)
 # with the app; `make -C firmware/app cload` flashes build/app/cf2.bin
 NS2_INFER ?= fixed
 NS2_TABLES ?= flash

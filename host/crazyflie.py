@@ -101,6 +101,7 @@ def firmware_dir() -> Path:
 def _install(dest: Path, make) -> Path:
     """``make(tmp)`` builds the tree in a temporary folder beside ``dest``, which is
     then moved into place with its marker: an interrupted run leaves nothing half-made."""
+    made = not BUILD.exists()
     BUILD.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=".cf-", dir=BUILD))
     try:
@@ -111,6 +112,8 @@ def _install(dest: Path, make) -> Path:
         root.rename(dest)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
+        if made and not any(BUILD.iterdir()):
+            BUILD.rmdir()
     return dest
 
 

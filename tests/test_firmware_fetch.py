@@ -100,7 +100,7 @@ def test_when_all_fail_one_line_names_the_three_ways(nowhere, tmp_path, monkeypa
         crazyflie.firmware_dir()
     msg = str(e.value)
     assert "CRAZYFLIE_BASE=" in msg and str(crazyflie.tarball()) in msg and "git" in msg and "\n" not in msg
-    assert not (nowhere / "crazyflie-firmware").exists() and not list(nowhere.glob(".cf-*"))
+    assert not nowhere.exists()  # nothing written, not even the build folder
     # the app Makefile's question, from the command line: one line, exit status 1
     env = {**os.environ, "NS2_SHARED_DIR": str(tmp_path / "no-shared"), "NS2_BUILD_DIR": str(nowhere)}
     r = subprocess.run([sys.executable, "-m", "ns2host.crazyflie"], capture_output=True, text=True, env=env)

@@ -13,7 +13,7 @@ from ns2host.sim.scenarios import swap
 from ns2host.sim.sensing import Sensing
 
 pytestmark = pytest.mark.skipif(not have_firmware() and os.environ.get("CI") != "true",
-                                reason="crazyflie-firmware tarball missing")
+                                reason="crazyflie-firmware missing")
 
 
 def f32(x) -> float:
