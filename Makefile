@@ -71,9 +71,10 @@ firmware: deps $(GEN)/ns2_model_config.h
 $(GEN)/ns2_model_config.h:
 	$(MAKE) export
 
-# crazyflie-firmware (../shared tarball unpacked under build/, or CRAZYFLIE_BASE=...)
-# with the app; `make flash URI=radio://...` or `make flash SWARM=crazyflies.yaml` writes
-# build/app/cf2.bin through cflib's bootloader (ns2 flash, docs/flying.md)
+# crazyflie-firmware (CRAZYFLIE_BASE=..., the ../shared tarball unpacked under build/, or
+# a git fetch of the pinned commit there: host/crazyflie.py) with the app; `make flash
+# URI=radio://...` or `make flash SWARM=crazyflies.yaml` writes build/app/cf2.bin through
+# cflib's bootloader (ns2 flash, docs/flying.md)
 NS2_INFER ?= fixed
 NS2_TABLES ?= flash
 app: deps $(GEN)/ns2_model_config.h

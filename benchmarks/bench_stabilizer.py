@@ -1,11 +1,13 @@
 """The app in the Crazyflie's 1 kHz stabilizer loop (JSON on stdout): the worst 1 ms
 iteration of the firmware's own Kalman estimator (kalman_core, 100 Hz prediction and
-a mocap position measurement in the same tick), of its stock PID controller and of the
-ns2 app's out-of-tree controller (its 100 Hz tick: rho, the next job, phi slices,
-position and attitude control), all compiled from the crazyflie-firmware tarball and
-counted on the emulated Cortex-M4 with ns2host/cm4_count.py's cost model (the same as
-bench_target.py).  Fixed point (the default app) and float; 15 peers broadcast by mocap at
-100 Hz, 4 positions per packet and millisecond, all of them in the app's table.
+a mocap position measurement in the same tick) with its stock PID controller and with
+the ns2 app's out-of-tree controller (ns2_pilot_step: begin + position, phi slices,
+finish, attitude, spread over the milliseconds of its 100 Hz period), over every phase
+of the estimator's costly tick against that period; all compiled from the
+crazyflie-firmware tarball and counted on the emulated Cortex-M4 with
+ns2host/cm4_count.py's cost model (the same as bench_target.py), at zero wait states and
+on its memory-system model.  Fixed point (the default app) and float; 15 peers broadcast
+by mocap at 100 Hz, 4 positions per packet and millisecond, all of them in the app's table.
 
     python benchmarks/bench_stabilizer.py [--gen firmware/generated]
 """
@@ -28,8 +30,10 @@ def main() -> None:
     args = ap.parse_args()
     if not target.have_toolchain():
         sys.exit("arm-none-eabi-gcc missing: run scripts/install-deps.sh")
-    if not crazyflie.have_firmware():
-        sys.exit(f"{crazyflie.tarball()}: crazyflie-firmware missing (or set CRAZYFLIE_BASE)")
+    try:
+        crazyflie.firmware_dir()
+    except crazyflie.FirmwareMissing as e:
+        sys.exit(str(e))
     with tempfile.TemporaryDirectory() as tmp:
         gen = Path(args.gen) if args.gen else REPO / "firmware" / "generated"
         if not (gen / "ns2_model_config.h").is_file():
@@ -37,7 +41,8 @@ def main() -> None:
             from bench_target import default_export
 
             gen = default_export(Path(tmp))
-        result = {"cost_model": "ns2host/cm4_count.py (Cortex-M4 TRM cycle counts, no wait states)",
+        result = {"cost_model": "ns2host/cm4_count.py (Cortex-M4 TRM cycle counts; zero_wait: no wait "
+                                "states, memory: STM32F405_168MHZ, flash wait states and ART accelerator)",
                   "loop": "stabilizer at RATE_MAIN_LOOP = 1000 Hz, 168 MHz",
                   **{infer: stabilizer.iteration(gen, 15, infer) for infer in ("fixed", "float")}}
     print(json.dumps(result, indent=2))

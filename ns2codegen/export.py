@@ -15,6 +15,7 @@ The set is written to a new folder and swapped in as a whole
 """
 from __future__ import annotations
 
+import importlib.util
 import json
 import re
 from pathlib import Path
@@ -30,7 +31,19 @@ from .queries import random_queries
 from .quantize import ExportModel, QuantizationError, from_checkpoint, pad4
 from .vehicle import G, default_gains, has_rigid_body, vehicle
 
-TEMPLATES = Path(__file__).resolve().parent / "templates"  # package data
+
+
+def templates_dir() -> Path:
+    """The C header templates: package data of ``ns2codegen.templates``, which
+    pyproject.toml maps to the checkout's top-level ``templates/`` (a wheel has them in
+    ns2codegen/templates, an editable install finds the checkout's folder); an
+    editable install made before that mapping finds the checkout's folder directly."""
+    spec = importlib.util.find_spec("ns2codegen.templates")
+    if spec is not None and spec.submodule_search_locations:
+        return Path(list(spec.submodule_search_locations)[0])
+    return Path(__file__).resolve().parent.parent / "templates"
+
+
 HEADERS = ("ns2_model_config.h", "ns2_model_float.h", "ns2_model_fixed.h", "ns2_vehicles.h")
 MANIFEST = "ns2_model_manifest.json"
 CONFIG_FILE = "ns2_config.toml"
@@ -92,7 +105,7 @@ def _block(items: list[str], per_line: int) -> str:
 
 
 def _env() -> jinja2.Environment:
-    env = jinja2.Environment(loader=jinja2.FileSystemLoader(str(TEMPLATES)), undefined=jinja2.StrictUndefined,
+    env = jinja2.Environment(loader=jinja2.FileSystemLoader(str(templates_dir())), undefined=jinja2.StrictUndefined,
                              trim_blocks=True, lstrip_blocks=True, keep_trailing_newline=True)
     env.filters["cfloat"] = cfloat
     env.filters["cfloats"] = lambda xs: ", ".join(cfloat(x) for x in np.ravel(xs))

@@ -17,7 +17,7 @@ from ns2codegen.train import train
 
 
 # Tools the tests need (``needs``): missing ones skip those tests, or fail them with CI=true.
-ARM, QEMU, FIRMWARE = "arm-none-eabi-gcc", "qemu-system-arm", "crazyflie-firmware tarball"
+ARM, QEMU, FIRMWARE = "arm-none-eabi-gcc", "qemu-system-arm", "crazyflie-firmware"
 REAL_DATA = "neural-swarm-data"   # the paper's authors' flight logs in ../shared
 CI = os.environ.get("CI", "").lower() == "true"
 

@@ -13,7 +13,7 @@ from ns2host.sim.scenarios import swap
 from ns2host.sim.sensing import Sensing
 
 pytestmark = pytest.mark.skipif(not have_firmware() and os.environ.get("CI") != "true",
-                                reason="crazyflie-firmware tarball missing")
+                                reason="crazyflie-firmware missing")
 
 
 def f32(x) -> float:
@@ -125,3 +125,53 @@ def test_swap_results_rows(cfg, exported, tmp_path, monkeypatch):
     by = {r["controller"]: r for r in rows}
     assert by["BL-tuned"]["median_worst_z_error_m"] <= by["BL"]["median_worst_z_error_m"]
     assert "| L2S |" in (tmp_path / "swaps.md").read_text()
+
+
+@pytest.mark.parametrize("fixed", [1, 0])
+@pytest.mark.parametrize("phi_per_tick", [1, 3, 4, 5, 16])
+def test_pilot_step_spreads_the_tick_without_changing_it(exported, fixed, phi_per_tick):
+    """The app's 1 kHz schedule (ns2_pilot_step: begin + position, half slices, finish
+    in the millisecond before the position tick) gives, at every 500 Hz tick, the motor
+    commands, f_a and neighbour count of ns2_pilot_tick, bit for bit: 16 peers of both
+    types moving and reported at random milliseconds (17 phi: some left for the
+    finish), random states, a stretch on the ground."""
+    from ns2host.cbuild import fill_gains, fill_vehicle
+    from ns2host.cfhost import load_fly
+    from ns2host.sim.vehicle import default_gains, vehicle
+
+    ffi, lib = load_fly(exported.gen_dir)
+    veh, gains, pcfg = ffi.new("ns2_vehicle_t *"), ffi.new("ns2_gains_t *"), ffi.new("ns2_pilot_cfg_t *")
+    v = vehicle(exported.cfg, exported.cfg.robot_types[0])
+    fill_vehicle(veh[0], v)
+    fill_gains(gains[0], default_gains(v))
+    lib.ns2_pilot_default_cfg(pcfg, 0)
+    pcfg.fixed, pcfg.phi_per_tick = fixed, phi_per_tick
+    a, b = ffi.new("ns2_pilot_t *"), ffi.new("ns2_pilot_t *")
+    for pl in (a, b):
+        lib.ns2_pilot_init(pl, pcfg, veh, gains)
+    s, sp = ffi.new("ns2_ctrl_state_t *"), ffi.new("ns2_setpoint_t *")
+    rng = np.random.default_rng(phi_per_tick + 10 * fixed)
+    ang = 2 * np.pi * np.arange(16) / 16
+    used, fa = [], []
+    for k in range(400):
+        for j in rng.choice(16, 3, replace=False):  # three peer positions per millisecond
+            p = [f32(0.3 * np.cos(ang[j] + 1e-3 * k)), f32(0.3 * np.sin(ang[j])), f32(1.2 + 0.01 * (j % 3))]
+            for pl in (a, b):
+                lib.ns2_pilot_peer(pl, int(j) + 2, int(j % 2), k, p)
+        if 200 <= k < 230:  # on the ground: the app resets and skips the pilot
+            for pl in (a, b):
+                lib.ns2_pilot_reset(pl, veh)
+            continue
+        s.p = rng.normal([0, 0, 1.0], 0.02).tolist()
+        s.v, s.w = rng.normal(0, 0.05, 3).tolist(), rng.normal(0, 0.2, 3).tolist()
+        q = rng.normal([1, 0, 0, 0], 0.02)
+        s.q = (q / np.linalg.norm(q)).tolist()
+        sp.p = [0.0, 0.0, 1.0]
+        lib.ns2_pilot_step(a, s, sp, k, 1, k, 3.9)
+        if k % 2 == 0:
+            lib.ns2_pilot_tick(b, s, sp, int(k % 10 == 0), 1, k, 3.9)
+            assert bytes(ffi.buffer(a.ctrl.pwm)) == bytes(ffi.buffer(b.ctrl.pwm)), k
+            assert (a.fa_hat_g, a.n_used, a.status) == (b.fa_hat_g, b.n_used, b.status), k
+            used.append(a.n_used)
+            fa.append(a.fa_hat_g)
+    assert max(used) == 16 and np.count_nonzero(fa) > 100  # all 16 peers used, the learned term in use

@@ -2,13 +2,15 @@
 config, declares only the core's dependencies (the heavy parts are extras), and, in a
 fresh virtual environment, `ns2 gen-data`, `ns2 train` and `ns2 export` work from an
 empty folder outside the checkout.  The host side says clearly that it needs a
-checkout.  (The venv borrows torch and numpy from the system site-packages so the test
+checkout.  (The venv borrows torch and numpy from the running interpreter's
+site-packages, whatever it is: a virtualenv, a conda env or a system install, so the test
 downloads nothing heavy; it checks that the package itself comes from the wheel.)"""
 from __future__ import annotations
 
 import json
 import os
 import re
+import site
 import subprocess
 import sys
 import zipfile
@@ -23,6 +25,13 @@ def _run(cmd, cwd, **kw):
     return subprocess.run([str(c) for c in cmd], cwd=cwd, capture_output=True, text=True, env=env, **kw)
 
 
+def borrowed_site_dirs() -> list[str]:
+    """The running interpreter's site directories (``venv --system-site-packages`` would
+    give the base interpreter's, without the packages of an outer virtualenv)."""
+    dirs = site.getsitepackages() + ([site.getusersitepackages()] if site.ENABLE_USER_SITE else [])
+    return [d for d in dict.fromkeys(dirs) if Path(d).is_dir()]
+
+
 def test_wheel_installs_and_runs_the_core_pipeline_outside_the_checkout(tmp_path):
     dist = tmp_path / "dist"
     r = _run([sys.executable, "-m", "pip", "wheel", REPO, "--no-deps", "-q", "-w", dist], cwd=tmp_path)
@@ -31,7 +40,8 @@ def test_wheel_installs_and_runs_the_core_pipeline_outside_the_checkout(tmp_path
     with zipfile.ZipFile(whl) as z:
         names = set(z.namelist())
         meta = z.read(next(n for n in names if n.endswith(".dist-info/METADATA"))).decode()
-    templates = {p.name for p in (REPO / "ns2codegen" / "templates").glob("*.j2")}
+    templates = {p.name for p in (REPO / "templates").glob("*.j2")}  # the checkout's top-level templates/
+    assert len(templates) == 5
     assert {f"ns2codegen/templates/{t}" for t in templates} <= names and "ns2codegen/default.toml" in names
     requires = re.findall(r"^Requires-Dist: ([A-Za-z0-9_.-]+)(.*)$", meta, re.M)
     core = {name.lower() for name, rest in requires if "extra ==" not in rest}
@@ -40,8 +50,13 @@ def test_wheel_installs_and_runs_the_core_pipeline_outside_the_checkout(tmp_path
     assert {"sim", "plan", "target", "sysid", "test", "bench", "all"} <= extras
 
     venv = tmp_path / "venv"
-    assert _run([sys.executable, "-m", "venv", "--system-site-packages", venv], cwd=tmp_path).returncode == 0
+    assert _run([sys.executable, "-m", "venv", venv], cwd=tmp_path).returncode == 0
     py, ns2 = venv / "bin" / "python", venv / "bin" / "ns2"
+    r = _run([py, "-c", "import site; print(site.getsitepackages()[0])"], cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    # a .pth line only extends sys.path: the outer site's own .pth files (an editable
+    # install of this checkout among them) are not run, so ns2codegen must come from the wheel
+    (Path(r.stdout.strip()) / "borrowed-site.pth").write_text("".join(d + "\n" for d in borrowed_site_dirs()))
     r = _run([py, "-m", "pip", "install", "--no-deps", "--no-index", "--ignore-installed", "-q", whl], cwd=tmp_path)
     assert r.returncode == 0, r.stderr
     work = tmp_path / "work"                 # an empty folder outside the checkout

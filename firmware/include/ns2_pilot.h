@@ -3,7 +3,9 @@
  * the one code path of the drone (firmware/app/src/ns2_app.c) and of the
  * simulator (host/ns2_fly.c).  No firmware headers, no dynamic memory.
  *
- * Per 500 Hz tick (ns2_pilot_tick), in the app's order and at its rates:
+ * Per 500 Hz tick (ns2_pilot_tick, the simulator's call; the app calls
+ * ns2_pilot_step every 1 ms, which spreads the same work and gives the same motor
+ * commands):
  *  - at each 100 Hz position tick: finish the running prediction (rho) into
  *    fa_hat (limited to +-fa_limit_g), take the neighbour list from the peer
  *    table (ns2_peers: positions recorded with ns2_pilot_peer, velocities by
@@ -30,6 +32,7 @@ extern "C" {
 
 #define NS2_PILOT_POS_HZ 100u /* position loop and prediction period */
 #define NS2_PILOT_ATT_HZ 500u /* attitude loop and prediction slices */
+#define NS2_PILOT_STEP_HZ 1000u /* ns2_pilot_step: the stabilizer loop (RATE_MAIN_LOOP) */
 
 /* Inference paths compiled in (the app's NS2_INFER: ns2_app_config.h); with both,
  * cfg.fixed picks one at run time. */
@@ -71,10 +74,13 @@ void ns2_pilot_init(ns2_pilot_t *pl, const ns2_pilot_cfg_t *cfg, const ns2_vehic
 void ns2_pilot_reset(ns2_pilot_t *pl, const ns2_vehicle_t *veh);
 /* A position of robot `id` (robot type `type`) received at t_ms: ns2_peers_update. */
 int32_t ns2_pilot_peer(ns2_pilot_t *pl, uint8_t id, uint8_t type, uint32_t t_ms, const float p[3]);
-/* The parts of a tick, for callers that time them (the app's LOG ns2.inferUs):
- * period: finish the running prediction into fa_hat_g, begin the next (100 Hz);
+/* The parts of a tick:
+ * finish: the running prediction (its phi left, rho) into fa_hat_g; begin: the
+ * next one from the peer table and the state; period: finish, then begin (100 Hz);
  * position: ns2_ctrl_position with f_a = [0, 0, fa_hat_g] (100 Hz, after period);
  * slice: phi_per_tick phi evaluations; attitude: ns2_ctrl_attitude (500 Hz). */
+void ns2_pilot_finish(ns2_pilot_t *pl);
+void ns2_pilot_begin(ns2_pilot_t *pl, const ns2_ctrl_state_t *s, uint8_t self_id, uint32_t now_ms);
 void ns2_pilot_period(ns2_pilot_t *pl, const ns2_ctrl_state_t *s, uint8_t self_id, uint32_t now_ms);
 void ns2_pilot_position(ns2_pilot_t *pl, const ns2_ctrl_state_t *s, const ns2_setpoint_t *sp);
 void ns2_pilot_slice(ns2_pilot_t *pl);
@@ -83,6 +89,15 @@ void ns2_pilot_attitude(ns2_pilot_t *pl, const ns2_ctrl_state_t *s, float batter
  * first, then slice and attitude; self_id: own radio id (left out of the
  * neighbours); now_ms: the clock of the peer table. */
 void ns2_pilot_tick(ns2_pilot_t *pl, const ns2_ctrl_state_t *s, const ns2_setpoint_t *sp, int do_pos,
+                    uint8_t self_id, uint32_t now_ms, float battery_V);
+/* One 1 kHz stabilizer tick (the app's schedule): the same motor commands as
+ * ns2_pilot_tick at the even ticks, with the work spread so that no 1 ms step
+ * carries more than two phi evaluations (phi_per_tick = 4), rho, or the begin and
+ * the position loop: k = tick % 10 = 0 begin + position, 1..8 half a slice each,
+ * 9 finish; attitude at even k.  Whatever the phase of the firmware's Kalman
+ * prediction and measurement updates, the app's share of any millisecond stays
+ * small (docs/app.md, "The 1 ms stabilizer iteration"). */
+void ns2_pilot_step(ns2_pilot_t *pl, const ns2_ctrl_state_t *s, const ns2_setpoint_t *sp, uint32_t tick,
                     uint8_t self_id, uint32_t now_ms, float battery_V);
 
 #ifdef __cplusplus

@@ -59,7 +59,7 @@ static float pilot_finish(ns2_pilot_t *pl, ns2_info_t *info)
 #endif
 }
 
-void ns2_pilot_period(ns2_pilot_t *pl, const ns2_ctrl_state_t *s, uint8_t self_id, uint32_t now_ms)
+void ns2_pilot_finish(ns2_pilot_t *pl)
 {
     if (pl->job_begun) {
         ns2_info_t info;
@@ -68,11 +68,22 @@ void ns2_pilot_period(ns2_pilot_t *pl, const ns2_ctrl_state_t *s, uint8_t self_i
         pl->status = info.status;
         pl->n_used = info.n_used;
         pl->fa_hat_g = f > lim ? lim : (f < -lim ? -lim : f);
+        pl->job_begun = 0u;
     }
+}
+
+void ns2_pilot_begin(ns2_pilot_t *pl, const ns2_ctrl_state_t *s, uint8_t self_id, uint32_t now_ms)
+{
     const uint16_t n = ns2_peers_neighbors(&pl->peers, self_id, s->p, s->v, now_ms, pl->cfg.max_age_ms,
                                            pl->nbrs, NS2_PEERS_MAX);
     (void)ns2_job_begin(&pl->job, pl->cfg.self_type, s->p, s->v, pl->nbrs, n);
     pl->job_begun = 1u;
+}
+
+void ns2_pilot_period(ns2_pilot_t *pl, const ns2_ctrl_state_t *s, uint8_t self_id, uint32_t now_ms)
+{
+    ns2_pilot_finish(pl);
+    ns2_pilot_begin(pl, s, self_id, now_ms);
 }
 
 void ns2_pilot_position(ns2_pilot_t *pl, const ns2_ctrl_state_t *s, const ns2_setpoint_t *sp)
@@ -85,17 +96,22 @@ void ns2_pilot_position(ns2_pilot_t *pl, const ns2_ctrl_state_t *s, const ns2_se
     }
 }
 
-void ns2_pilot_slice(ns2_pilot_t *pl)
+static void pilot_step_phi(ns2_pilot_t *pl, uint16_t n)
 {
 #if NS2_PILOT_Q15
     if (pilot_use_fixed(pl)) {
-        (void)ns2_job_step_q15(&pl->job, pl->cfg.phi_per_tick);
+        (void)ns2_job_step_q15(&pl->job, n);
         return;
     }
 #endif
 #if NS2_PILOT_F32
-    (void)ns2_job_step_f32(&pl->job, pl->cfg.phi_per_tick);
+    (void)ns2_job_step_f32(&pl->job, n);
 #endif
+}
+
+void ns2_pilot_slice(ns2_pilot_t *pl)
+{
+    pilot_step_phi(pl, pl->cfg.phi_per_tick);
 }
 
 void ns2_pilot_attitude(ns2_pilot_t *pl, const ns2_ctrl_state_t *s, float battery_V)
@@ -112,4 +128,29 @@ void ns2_pilot_tick(ns2_pilot_t *pl, const ns2_ctrl_state_t *s, const ns2_setpoi
     }
     ns2_pilot_slice(pl);
     ns2_pilot_attitude(pl, s, battery_V);
+}
+
+/* k = tick % 10: 0 begin + position, 1..8 half a slice (rounded up at odd k), 9 finish;
+ * attitude at even k.  Same motor commands as ns2_pilot_tick: the prediction begun at
+ * k = 0 is finished before the next k = 0 either way, and slicing does not change its
+ * result (ns2_deepset.h). */
+void ns2_pilot_step(ns2_pilot_t *pl, const ns2_ctrl_state_t *s, const ns2_setpoint_t *sp, uint32_t tick,
+                    uint8_t self_id, uint32_t now_ms, float battery_V)
+{
+    const uint32_t per_pos = NS2_PILOT_STEP_HZ / NS2_PILOT_POS_HZ, per_att = NS2_PILOT_STEP_HZ / NS2_PILOT_ATT_HZ;
+    const uint32_t k = tick % per_pos;
+    if (k == per_pos - 1u) {
+        ns2_pilot_finish(pl);
+        return;
+    }
+    if (k == 0u) {
+        ns2_pilot_begin(pl, s, self_id, now_ms);
+        ns2_pilot_position(pl, s, sp);
+    } else {
+        const uint16_t half = (uint16_t)(pl->cfg.phi_per_tick / per_att);
+        pilot_step_phi(pl, (uint16_t)(k % per_att ? pl->cfg.phi_per_tick - half : half));
+    }
+    if (k % per_att == 0u) {
+        ns2_pilot_attitude(pl, s, battery_V);
+    }
 }

@@ -11,10 +11,14 @@
  *    slot; see drain_peers), velocity by finite differences (ns2_peers), robot
  *    types from the ns2type parameters; the environment is always included by
  *    the library;
- *  - prediction spread over the 500 Hz ticks (ns2_job_*): begun at each 100 Hz
- *    position tick from the current state and neighbours, ns2.phiPerTick phi
- *    evaluations per 500 Hz tick, finished (rho) at the next position tick,
- *    fixed point or float (ns2.fixed), limited to +-ns2.faLimit grams;
+ *  - prediction spread over the 1 ms stabilizer ticks (ns2_pilot_step, ns2_job_*):
+ *    begun at each 100 Hz position tick from the current state and neighbours,
+ *    ns2.phiPerTick phi evaluations per 500 Hz tick (half in each millisecond),
+ *    finished (rho) in the millisecond before the next position tick, fixed point
+ *    or float (ns2.fixed), limited to +-ns2.faLimit grams; no millisecond carries
+ *    more than one of these parts, so the app's share of the millisecond in which
+ *    the firmware's Kalman filter predicts and fuses mocap stays small whatever
+ *    their phase (docs/app.md);
  *  - control: ns2_ctrl_position at 100 Hz with f_a = [0, 0, f_a,z] (zero when
  *    ns2.enable = 0: the paper's baseline), ns2_ctrl_attitude at 500 Hz (delay
  *    compensation, mixing capped as the firmware caps it, PWM from psi_2 and the battery
@@ -31,8 +35,7 @@
  * event ns2Sync with the written value as seq; ns2codegen.logs.align aligns the
  * robots' clocks on it.
  * PARAM: ns2 (switches, limits, sync, modelId), ns2type (robot types of radio ids), ns2gain.
- * LOG ns2: faHat (g), inferUs (the longest prediction step of the last period, the
- * finish + begin at the position tick or a slice, us),
+ * LOG ns2: faHat (g), inferUs (the app's longest 1 ms step in the last period, us),
  * nUsed, status, ctrlStatus, ex/ey/ez (position error, m).
  */
 #include <math.h>
@@ -96,7 +99,7 @@ static uint8_t ctrlType = 0xFFu; /* robot type the pilot was initialized for */
 
 static float faHat;        /* g */
 static uint32_t inferUs;   /* us */
-static uint32_t sliceUsMax;
+static uint32_t stepUsMax;
 static uint8_t nUsed;
 static int32_t status;
 static uint32_t ctrlStatus;
@@ -222,37 +225,28 @@ void controllerOutOfTree(control_t *control, const setpoint_t *setpoint, const s
         }
         return;
     }
-    if (!RATE_DO_EXECUTE(RATE_500_HZ, tick)) {
-        return; /* the motor commands of the last attitude step stay */
-    }
     ns2_ctrl_state_t s;
+    ns2_setpoint_t sp;
     to_ctrl_state(state, sensors, &s);
+    to_setpoint(setpoint, &sp);
     pilot.cfg = cfg; /* live parameters */
     pilot.cfg.self_type = ctrlType;
     pilot.gains = gains;
-    if (RATE_DO_EXECUTE(RATE_100_HZ, tick)) {
-        /* ns2_pilot_tick's steps, timed: finish + begin the prediction, position loop */
-        ns2_setpoint_t sp;
-        to_setpoint(setpoint, &sp);
-        const uint64_t t0 = usecTimestamp();
-        ns2_pilot_period(&pilot, &s, (uint8_t)(configblockGetRadioAddress() & 0xFFu),
-                         (uint32_t)T2M(xTaskGetTickCount()));
-        const uint32_t us = elapsed_us(t0);
-        inferUs = us > sliceUsMax ? us : sliceUsMax;
-        sliceUsMax = 0;
+    const uint64_t t0 = usecTimestamp();
+    ns2_pilot_step(&pilot, &s, &sp, tick, (uint8_t)(configblockGetRadioAddress() & 0xFFu),
+                   (uint32_t)T2M(xTaskGetTickCount()), pmGetBatteryVoltage());
+    const uint32_t us = elapsed_us(t0);
+    stepUsMax = us > stepUsMax ? us : stepUsMax;
+    if (RATE_DO_EXECUTE(RATE_100_HZ, tick)) { /* the prediction finished at the tick before */
+        inferUs = stepUsMax;
+        stepUsMax = 0;
         status = pilot.status;
         nUsed = (uint8_t)pilot.n_used;
         faHat = pilot.fa_hat_g;
-        ns2_pilot_position(&pilot, &s, &sp);
         ex = pilot.e[0];
         ey = pilot.e[1];
         ez = pilot.e[2];
     }
-    const uint64_t t1 = usecTimestamp();
-    ns2_pilot_slice(&pilot);
-    const uint32_t us = elapsed_us(t1);
-    sliceUsMax = us > sliceUsMax ? us : sliceUsMax;
-    ns2_pilot_attitude(&pilot, &s, pmGetBatteryVoltage());
     ctrlStatus = pilot.ctrl.status;
     for (int m = 0; m < STABILIZER_NR_OF_MOTORS; ++m) {
         control->normalizedForces[m] = pilot.ctrl.pwm[m];
