@@ -312,6 +312,12 @@ def test_force_margin_and_clearance_are_kept(cfg):
 
     res = plan(pb, fm, RRTParams(SearchParams(max_nodes=4000, max_samples=20000), ao_iterations=1, seed=2),
                SCPParams(max_iterations=4))
+    prof = res.profile()          # where the time went: counts that must agree with the result
+    assert prof["scp_iterations"] == res.stage2.iterations >= 1
+    assert prof["convex_solves"] >= prof["scp_iterations"] * pb.n
+    assert prof["force_jacobians"] == 2 * prof["convex_solves"]      # knots and inside-step points per program
+    assert prof["force_queries"] >= prof["force_calls"] > 0
+    assert 0 < prof["cp_solver_s"] <= prof["stage2_s"] and prof["stage1_joint_s"] <= prof["stage1_s"]
     for trajs in (res.stage1.trajs, res.trajs):
         chk = check_solution(pb, fm, trajs)
         for i, rep in enumerate(chk["robots"]):
