@@ -40,8 +40,8 @@ HELD_OUT_SEED = 7
 
 @dataclass
 class FlownStates:
-    """Truth along one flight: types [N], P, V [T, N, 3] (m, m/s), F [T, N] (g, f_a,z)
-    and, for who-moves flights, which robot moved in each row (-1: both or none)."""
+    """Truth along one flight: types [N], P, V [T, N, 3] (m, m/s), F [T, N] (g, f_a,z),
+    the flight's kind (collect.flight_log)."""
     types: list
     P: np.ndarray
     V: np.ndarray
@@ -58,11 +58,9 @@ def held_out_flights(cfg: Config, gen_dir, flights=HELD_OUT, seed: int = HELD_OU
 
     key = json.dumps([cfg.to_json(), list(map(list, flights)), seed, gap_max, pairs])
     if cache is not None and Path(cache).is_file():
-        with np.load(cache, allow_pickle=False) as z:
-            if str(z["key"]) == key:
-                meta = json.loads(str(z["meta"]))
-                return [FlownStates(m["types"], z[f"P{i}"], z[f"V{i}"], z[f"F{i}"], m["kind"])
-                        for i, m in enumerate(meta)]
+        found, stored = load_flights(cache)
+        if stored == key:
+            return found
     out = []
     for k, team in enumerate(pairs or [t for t in teams(cfg, 2) if len(t) == 2]):
         for j, (kind, seconds) in enumerate(flights):
@@ -78,6 +76,14 @@ def held_out_flights(cfg: Config, gen_dir, flights=HELD_OUT, seed: int = HELD_OU
                                                                               for fl in out])), **arrays)
         atomic_write_bytes(Path(cache), buf.getvalue())
     return out
+
+
+def load_flights(path) -> tuple[list[FlownStates], str]:
+    """The flights of a held_out_flights cache and the key they were flown with."""
+    with np.load(path, allow_pickle=False) as z:
+        meta = json.loads(str(z["meta"]))
+        return ([FlownStates(m["types"], z[f"P{i}"], z[f"V{i}"], z[f"F{i}"], m["kind"]) for i, m in enumerate(meta)],
+                str(z["key"]))
 
 
 def in_region(cfg: Config, fl: FlownStates, limits: Limits) -> np.ndarray:
@@ -213,3 +219,48 @@ def margin_table(rep: dict) -> str:
         old = f"{g['gap_old_m']:.2f} m" if g.get("gap_old_m") is not None else "-"
         lines.append(f"| {g['lower']} under {g['upper']} | {g['gap_m']:.2f} m | {old} |")
     return "\n".join(lines)
+
+
+def compare_table(reports: dict) -> str:
+    """Markdown: the error per flight kind and robot type (RMSE / largest one-sided
+    error where |f_model| <= f_a,max) for several models (name -> ``measure`` report)."""
+    names = list(reports)
+    first = reports[names[0]]
+    lines = ["| held-out flights | robot type | states | " + " | ".join(f"{n}: RMSE / max low (g)" for n in names) + " |",
+             "|---|---|---|" + "---|" * len(names)]
+    for kind, per_type in first["errors_by_kind"].items():
+        for t, s in per_type.items():
+            cells = [f"{reports[n]['errors_by_kind'][kind][t].get('rmse_g', float('nan')):.2f} / "
+                     f"{reports[n]['errors_by_kind'][kind][t].get('max_low_g', float('nan')):.2f}" for n in names]
+            lines.append(f"| {kind} | {t} | {s['states']} | " + " | ".join(cells) + " |")
+    lines.append("| margin (g) | | | " + " | ".join(", ".join(f"{t} {m:.1f}" for t, m in reports[n]["margin_g"].items())
+                                             for n in names) + " |")
+    return "\n".join(lines)
+
+
+def main(argv=None) -> None:
+    """python -m ns2exp.margin CHECKPOINT... --flights CACHE.npz...: the margin and the
+    error on the held-out flights per checkpoint (markdown on stdout; --json FILE too)."""
+    import argparse
+
+    from .planning import FA_MARGIN_G, LIMITS_3D
+    from ns2plan.forces import load_force_model
+
+    ap = argparse.ArgumentParser(prog="python -m ns2exp.margin", description=main.__doc__)
+    ap.add_argument("checkpoints", nargs="+")
+    ap.add_argument("--flights", action="append", required=True, help="held_out_flights cache (.npz), repeatable")
+    ap.add_argument("--json", default=None)
+    a = ap.parse_args(argv)
+    cfg = Config.load()
+    flights = [fl for path in a.flights for fl in load_flights(path)[0]]
+    reports = {Path(c).parent.name or c: measure(cfg, load_force_model(cfg, c), flights, LIMITS_3D, FA_MARGIN_G)
+               for c in a.checkpoints}
+    for name, rep in reports.items():
+        print(f"## {name}\n\n{margin_table(rep)}\n")
+    print(compare_table(reports))
+    if a.json:
+        atomic_write_bytes(Path(a.json), (json.dumps(reports, indent=1, default=float) + "\n").encode())
+
+
+if __name__ == "__main__":
+    main()

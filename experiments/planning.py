@@ -282,7 +282,7 @@ def table(results: dict) -> str:
              "trials over | worst f_a large: max (limit 10 g), trials over | Stage 1 / Stage 2 s per robot |",
              "|---|---|---|---|---|---|---|"]
     for key, res in results.items():
-        for mode in ("BL", "NN"):
+        for mode in [m for m in ("BL", "NN") if m in res]:
             s = res[mode]["summary"]
             if not s.get("planned"):
                 lines.append(f"| {key} | {mode} | 0/{s['trials']} | - | - | - | - |")
@@ -381,6 +381,8 @@ def summary_figure(results: dict, path: Path) -> None:
     fig, axes = plt.subplots(3, 1, figsize=(max(6, 1.3 * len(keys)), 8), sharex=True)
     for k, key in enumerate(keys):
         for m, (mode, color) in enumerate((("BL", "tab:red"), ("NN", "tab:blue"))):
+            if mode not in results[key]:
+                continue
             ok = [t for t in results[key][mode]["trials"] if t["error"] is None]
             x = k + (m - 0.5) * 0.3
             axes[0].scatter([x] * len(ok), [100 * max(t["track"]["worst_error_m"]) for t in ok], color=color, s=12,
