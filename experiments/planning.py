@@ -132,8 +132,8 @@ def default_checkpoint(cfg: Config, folder: Path, seconds_per_team: float = 60.0
         return ck
     log(f"no checkpoint given: training the planning model on simulated flights ({seconds_per_team:.0f} s per "
         f"team, {near_field_seconds:.0f} s of close-range passes and {who_moves_seconds:.0f} s of who-moves "
-        f"flights per pair) into {ck}; this takes several minutes (about 4 on one idle core per 1000 s of "
-        f"flights); give --checkpoint to skip")
+        f"flights per pair) into {ck}; this takes a while (about 0.65 CPU-s per simulated second of a pair's "
+        f"flight); give --checkpoint to skip")
     boot = downwash_dataset(cfg, 300, seed=0)       # the controller build needs some exported model
     m0, rep0 = train(cfg, boot, epochs=1)
     save_checkpoint(folder / "boot.pt", m0, cfg, {"seed": 0, "data_hash": boot.content_hash(), "report": rep0})
