@@ -7,6 +7,7 @@ tracking error (eq. metric) and worst true interaction force against the limits
 (5 g small, 10 g large), planning times; figures like the paper's."""
 from __future__ import annotations
 
+import itertools
 import json
 import math
 import time
@@ -43,16 +44,22 @@ SPACING, HEIGHT = 0.8, 1.0
 CHECK_GAPS = (0.15, 0.3, 0.5, 1.0, 1.4)      # m, vertical gaps of downwash_check
 NEAR_FIELD_SECONDS = 600.0              # close-range passes per pair of types in default_checkpoint
 NEAR_GAP_MAX = 1.5                      # m, largest vertical gap of the close-range passes in default_checkpoint
+WHO_MOVES_SECONDS = 300.0               # one robot moving past the other, hovering one, per pair (issue 24)
 
 
-def scenario_problem(cfg: Config, name: str, dims: int) -> Problem:
+def scenario_problem(cfg: Config, name: str, dims: int, fa_margin_g=None) -> Problem:
     """Robots side by side on the y axis at z = 1 m; robot k flies to the place of
-    robot k + 1 (cyclically): a swap for two robots, a rotation for three."""
+    robot k + 1 (cyclically): a swap for two robots, a rotation for three.
+    ``fa_margin_g`` (g, one value or per type; ns2exp.margin measures it) replaces
+    the limits' FA_MARGIN_G."""
     team = SCENARIOS[name]
     n = len(team)
     y = np.linspace(-SPACING / 2, SPACING / 2, n)
     robots = [Robot(t, (0.0, float(y[k]), HEIGHT), (0.0, float(y[(k + 1) % n]), HEIGHT)) for k, t in enumerate(team)]
-    return Problem(cfg, robots, LIMITS_2D if dims == 2 else LIMITS_3D, (1, 2) if dims == 2 else (0, 1, 2))
+    limits = LIMITS_2D if dims == 2 else LIMITS_3D
+    if fa_margin_g is not None:
+        limits = replace(limits, fa_margin_g=fa_margin_g)
+    return Problem(cfg, robots, limits, (1, 2) if dims == 2 else (0, 1, 2))
 
 
 def downwash_check(cfg: Config, fm: ForceModel, gaps=CHECK_GAPS, z: float = HEIGHT) -> list[dict]:
@@ -91,16 +98,30 @@ def downwash_table(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
+def data_path(cfg: Config, folder: Path, flights: str, seed: int) -> Path:
+    """Where default_checkpoint keeps a collected data set: named by its flights, the
+    gaps, the seed and the config."""
+    import hashlib
+
+    tag = hashlib.sha256(cfg.to_json().encode()).hexdigest()[:10]
+    return Path(folder) / f"data_{flights}_gap{NEAR_GAP_MAX:g}_seed{seed}_{tag}.npz"
+
+
 def default_checkpoint(cfg: Config, folder: Path, seconds_per_team: float = 60.0, log=print,
-                       near_field_seconds: float = NEAR_FIELD_SECONDS) -> Path:
+                       near_field_seconds: float = NEAR_FIELD_SECONDS,
+                       who_moves_seconds: float = WHO_MOVES_SECONDS, workers: int = 1) -> Path:
     """A model of the simulator's interactions when none is given (or when the one in
     ``folder`` has another config): baseline flights of every team in the simulator
     (ns2 sim collect) plus close-range passes of every pair of types (the near-field
-    downwash that the planner's plans fly through), then training (ns2 train), with the
-    config's interaction volumes (the one policy for control and planning,
-    host/sim/volumes.py)."""
+    downwash that the planner's plans fly through) and flights of one robot moving
+    under and over the other, hovering one (who moves), then training (ns2 train),
+    with the config's interaction volumes (the one policy for control and planning,
+    host/sim/volumes.py).  The collected data sets are kept in ``folder``
+    (``data_*.npz``, named by their flights and the config) and reused; ``workers``
+    flights are flown at once."""
     from ns2codegen.checkpoint import load_checkpoint, save_checkpoint
     from ns2codegen.data.analytic import downwash_dataset
+    from ns2codegen.data.dataset import Dataset
     from ns2codegen.export import export
     from ns2codegen.train import train
     from ns2host.sim.collect import collect
@@ -110,19 +131,33 @@ def default_checkpoint(cfg: Config, folder: Path, seconds_per_team: float = 60.0
     if ck.is_file() and load_checkpoint(ck).cfg.to_json() == cfg.to_json():
         return ck
     log(f"no checkpoint given: training the planning model on simulated flights ({seconds_per_team:.0f} s per "
-        f"team, {near_field_seconds:.0f} s of close-range passes per pair) into {ck}; this takes several minutes "
-        f"(about 4 on one core); give --checkpoint to skip")
+        f"team, {near_field_seconds:.0f} s of close-range passes and {who_moves_seconds:.0f} s of who-moves "
+        f"flights per pair) into {ck}; this takes a while (about 0.65 CPU-s per simulated second of a pair's "
+        f"flight); give --checkpoint to skip")
     boot = downwash_dataset(cfg, 300, seed=0)       # the controller build needs some exported model
     m0, rep0 = train(cfg, boot, epochs=1)
     save_checkpoint(folder / "boot.pt", m0, cfg, {"seed": 0, "data_hash": boot.content_hash(), "report": rep0})
     export(folder / "boot.pt", folder / "boot_gen")
-    ds = collect(cfg, folder / "boot_gen", seconds_per_team, seed=1, near_field_seconds=near_field_seconds,
-                 near_gap_max=NEAR_GAP_MAX)
+    pairs = list(itertools.combinations_with_replacement(cfg.robot_types, 2))
+    sets = [(data_path(cfg, folder, f"base{seconds_per_team:g}s_near{near_field_seconds:g}s", 1),
+             lambda: collect(cfg, folder / "boot_gen", seconds_per_team, seed=1, workers=workers,
+                             near_field_seconds=near_field_seconds, near_gap_max=NEAR_GAP_MAX))]
+    if who_moves_seconds > 0:
+        sets.append((data_path(cfg, folder, f"who{who_moves_seconds:g}s", 2),
+                     lambda: collect(cfg, folder / "boot_gen", 0.0, seed=2, team_list=pairs, workers=workers,
+                                     who_moves_seconds=who_moves_seconds, near_gap_max=NEAR_GAP_MAX)))
+    parts, names = [], []
+    for path, make in sets:
+        if path.is_file():
+            parts.append(Dataset.load(path, cfg.neighbor_types))
+        else:
+            parts.append(make())
+            parts[-1].save(path)
+        names.append(path.name)
+    ds = Dataset.concat(parts) if len(parts) > 1 else parts[0]
     model, rep = train(cfg, ds)
     save_checkpoint(ck, model, cfg, {"seed": rep["seed"], "data_hash": ds.content_hash(), "report": rep,
-                                     "data_files": [f"sim collect {seconds_per_team} s per team + near field "
-                                                    f"{near_field_seconds} s per pair (gaps up to {NEAR_GAP_MAX} m), "
-                                                    f"seed 1"]})
+                                     "data_files": names})
     return ck
 
 
@@ -167,25 +202,48 @@ def run_trial(pb: Problem, fm: ForceModel, gen_dir, seed: int, rrt: RRTParams, s
            "stage1_promotions": [{"round": r, "robot": i} for r, i in res.stage1.promotions],
            "stage1_joint_round": res.stage1.joint_round, "stage1_joint_samples": res.stage1.joint_samples,
            "scp_iterations": res.stage2.iterations, "scp_converged": res.stage2.converged,
+           "profile": res.profile(),
            "check": {"robots": chk["robots"]},
            "track": {"worst_error_m": tr["worst_error_m"], "worst_fa_g": tr["worst_fa_g"]}}
     return rec, res, tr["log"]
 
 
+def measured_margin(cfg: Config, fm: ForceModel, gen_dir, cache=None, log=print) -> dict:
+    """The planning margin per robot type from the model's error on held-out flights
+    (ns2exp.margin; flown once, kept in ``cache``), with its evidence."""
+    from . import margin
+
+    log(f"measuring the model's error on held-out flights ({', '.join(f'{k} {s:.0f} s' for k, s in margin.HELD_OUT)} "
+        f"per pair of types, seed {margin.HELD_OUT_SEED})")
+    flights = margin.held_out_flights(cfg, gen_dir, gap_max=NEAR_GAP_MAX, cache=cache)
+    return margin.measure(cfg, fm, flights, LIMITS_3D, old_margin_g=FA_MARGIN_G)
+
+
 def planning_experiments(cfg: Config, checkpoint, gen_dir, out_dir, scenarios=None, dims=(2, 3), trials: int = 5,
                          rrt: RRTParams = RRTParams(), scp_params: SCPParams = SCPParams(), log=print,
-                         progress=None) -> dict:
-    """Every scenario in every dimension, ``trials`` seeds with NN and with BL
-    (``progress(1)`` after every trial); writes plan.json, plan.md and the figures."""
+                         progress=None, fa_margin_g=None, modes=("NN", "BL")) -> dict:
+    """Every scenario in every dimension, ``trials`` seeds with NN and with BL (or
+    ``modes``; ``progress(1)`` after every trial); writes plan.json, plan.md and the
+    figures.  ``fa_margin_g`` None: the margin measured on held-out flights
+    (measured_margin), else this one (g, one value or per type)."""
     from ns2plan.output import write_plan
+
+    from .margin import margin_table
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    models = {"NN": load_force_model(cfg, checkpoint), "BL": ForceModel(cfg, None)}
+    models = {m: fm for m, fm in (("NN", load_force_model(cfg, checkpoint)), ("BL", ForceModel(cfg, None)))
+              if m in modes}
+    nn = models.get("NN") or load_force_model(cfg, checkpoint)
+    rep = None
+    if fa_margin_g is None:
+        rep = measured_margin(cfg, nn, gen_dir, cache=out / "held_out_flights.npz", log=log)
+        fa_margin_g = rep["margin_g"]
+        log(f"planning margin (g): {fa_margin_g}")
     results = {}
     for d in dims:
         for name in scenarios or SCENARIOS:
-            pb = scenario_problem(cfg, name, d)
+            pb = scenario_problem(cfg, name, d, fa_margin_g)
             key = f"{d}D {name}"
             results[key] = {}
             examples = {}
@@ -206,11 +264,14 @@ def planning_experiments(cfg: Config, checkpoint, gen_dir, out_dir, scenarios=No
                 results[key][mode] = {"summary": _summary(recs, pb), "trials": recs}
             if d == 2 and len(examples) == 2:
                 example_figure(pb, examples, out / f"plan_{d}d_{name}.png")
-    check = downwash_check(cfg, models["NN"])
+    check = downwash_check(cfg, nn)
     md = ("Model vs simulator, f_a,z (g) of a robot hovering 1 m up directly under another, predicted / true:\n\n"
-          + downwash_table(check) + "\n\n" + table(results) + "\n")
-    atomic_write_files(out, {"plan.json": json.dumps({"model_check": check, "cases": results}, indent=1,
-                                                      default=float) + "\n",
+          + downwash_table(check) + "\n\n"
+          + (f"Planning margin from held-out flights ({rep['source']}):\n\n{margin_table(rep)}\n\n" if rep else
+             f"Planning margin (given): {fa_margin_g} g\n\n")
+          + table(results) + "\n")
+    atomic_write_files(out, {"plan.json": json.dumps({"model_check": check, "margin": rep or {"margin_g": fa_margin_g},
+                                                      "cases": results}, indent=1, default=float) + "\n",
                              "plan.md": md})
     summary_figure(results, out / "plan_summary.png")
     return results
@@ -221,7 +282,7 @@ def table(results: dict) -> str:
              "trials over | worst f_a large: max (limit 10 g), trials over | Stage 1 / Stage 2 s per robot |",
              "|---|---|---|---|---|---|---|"]
     for key, res in results.items():
-        for mode in ("BL", "NN"):
+        for mode in [m for m in ("BL", "NN") if m in res]:
             s = res[mode]["summary"]
             if not s.get("planned"):
                 lines.append(f"| {key} | {mode} | 0/{s['trials']} | - | - | - | - |")
@@ -320,6 +381,8 @@ def summary_figure(results: dict, path: Path) -> None:
     fig, axes = plt.subplots(3, 1, figsize=(max(6, 1.3 * len(keys)), 8), sharex=True)
     for k, key in enumerate(keys):
         for m, (mode, color) in enumerate((("BL", "tab:red"), ("NN", "tab:blue"))):
+            if mode not in results[key]:
+                continue
             ok = [t for t in results[key][mode]["trials"] if t["error"] is None]
             x = k + (m - 0.5) * 0.3
             axes[0].scatter([x] * len(ok), [100 * max(t["track"]["worst_error_m"]) for t in ok], color=color, s=12,
@@ -343,7 +406,7 @@ def summary_figure(results: dict, path: Path) -> None:
 # limits a problem file may set: kind and upper bound; the bounds keep every value
 # physical (a v_max of 1e308 m/s overflows the propagation)
 PROBLEM_LIMITS = {"v_max": ("positive", 100.0), "u_max": ("positive", 1000.0), "b_fa_g": ("positive", 1000.0),
-                  "clearance_m": ("nonneg", 10.0), "fa_margin_g": ("nonneg", 1000.0), "fa_substeps": ("int", 64),
+                  "clearance_m": ("nonneg", 10.0), "fa_margin_g": ("nonneg_or_per_type", 1000.0), "fa_substeps": ("int", 64),
                   "pos_lo": ("point", 1000.0), "pos_hi": ("point", 1000.0), "fa_max_g": ("per_type", 1e4)}
 
 
@@ -365,18 +428,21 @@ def _limit(cfg: Config, key: str, v, where: str):
         if not (isinstance(v, int) and not isinstance(v, bool) and 1 <= v <= hi):
             raise ValueError(f"{where}: must be an integer in [1, {hi:g}], got {v!r}")
         return v
-    if kind == "per_type":
+    if kind == "per_type" or (kind == "nonneg_or_per_type" and isinstance(v, dict)):
+        positive = kind == "per_type"
         if not (isinstance(v, dict) and v):
             raise ValueError(f"{where}: must be a table {{robot type: grams}}, got {v!r}")
         for t, g in v.items():
             if t not in cfg.robot_types:
                 raise ValueError(f"{where}.{t}: unknown robot type (the config has {cfg.robot_types})")
-            if not (_is_number(g) and 0 < g <= hi):
-                raise ValueError(f"{where}.{t}: must be a number in (0, {hi:g}], got {g!r}")
+            if not (_is_number(g) and (g > 0 if positive else g >= 0) and g <= hi):
+                raise ValueError(f"{where}.{t}: must be a number in {'(' if positive else '['}0, {hi:g}], got {g!r}")
         return {t: float(g) for t, g in v.items()}
     ok = _is_number(v) and (v > 0 if kind == "positive" else v >= 0) and v <= hi
     if not ok:
-        raise ValueError(f"{where}: must be a number in {'(' if kind == 'positive' else '['}0, {hi:g}], got {v!r}")
+        extra = " or a table {robot type: grams}" if kind == "nonneg_or_per_type" else ""
+        raise ValueError(f"{where}: must be a number in {'(' if kind == 'positive' else '['}0, {hi:g}]{extra}, "
+                         f"got {v!r}")
     return float(v)
 
 

@@ -157,6 +157,7 @@ class Stage1Result:
     promotions: list = field(default_factory=list)    # (round, robot): relaxed paths that became valid
     joint_round: int | None = None  # the round in which the composite-state search (joint.py) planned the team
     joint_samples: int = 0          # samples drawn by the composite-state search
+    joint_time_s: float = 0.0       # seconds in the composite-state search (part of time_s)
     joint_trajs: list | None = None  # its paths, as it found them (AO iterations may improve them after)
 
 
@@ -407,6 +408,7 @@ class AORRT:
             st.costs[j] = tr.effort()
         for j in range(self.pb.n):
             st.per_robot[j] += (time.perf_counter() - t0) / self.pb.n
+        st.joint_time_s += time.perf_counter() - t0
         st.joint_trajs = None if trajs is None else [tr.copy() for tr in trajs]
         if trajs is not None:
             st.joint_round = st.rounds
@@ -447,7 +449,7 @@ class AORRT:
             accept_history=st.accepts, iterations=st.rounds, time_s=time.perf_counter() - t0,
             time_per_robot_s=st.per_robot, samples_per_robot=st.samples, hit_time_limit=self.hit_time_limit,
             relaxations=st.relaxations, promotions=st.promotions, joint_round=st.joint_round,
-            joint_samples=st.joint_samples, joint_trajs=st.joint_trajs)
+            joint_samples=st.joint_samples, joint_trajs=st.joint_trajs, joint_time_s=st.joint_time_s)
 
     def _round(self, st: "_Stage1State", deadline: float) -> bool:
         """One round: every robot in a random permutation (RandomShuffle), those
@@ -552,6 +554,7 @@ class _Stage1State:
     joint_tried: bool = False
     joint_round: int | None = None
     joint_samples: int = 0
+    joint_time_s: float = 0.0
     joint_trajs: list | None = None
     rounds: int = 0
     ao_iterations: int = 0          # AO iterations since every robot has a valid path

@@ -15,6 +15,7 @@ robot's and the neighbours' states (torch autograd gives the Jacobians of Stage 
 from __future__ import annotations
 
 import contextlib
+import time
 
 import numpy as np
 import torch
@@ -44,6 +45,13 @@ class ForceModel:
         self.nbr_box = torch.tensor(cfg.input_box(0), dtype=torch.float32)   # [6, 2]
         self.env_box = torch.tensor(cfg.input_box(cfg.env_index), dtype=torch.float32)
         self.env = cfg.env_index
+        self.reset_counts()
+
+    def reset_counts(self) -> None:
+        """Force evaluations since the last reset (``plan`` reports them per plan):
+        model calls, robot queries in them, seconds in the forward passes and in the
+        Jacobians' backward passes."""
+        self.counts = {"calls": 0, "queries": 0, "forward_s": 0.0, "jacobians": 0, "backward_s": 0.0}
 
     @property
     def is_zero(self) -> bool:
@@ -55,6 +63,15 @@ class ForceModel:
         b = p.shape[0]
         if self.net is None:
             return p.new_zeros(b) + 0.0 * (p.sum(1) + v.sum(1))   # keeps the graph for autograd
+        t0 = time.perf_counter()
+        out = self._query(rtype, p, v, ntype, np_, nv, nmask)
+        self.counts["calls"] += 1
+        self.counts["queries"] += b
+        self.counts["forward_s"] += time.perf_counter() - t0
+        return out
+
+    def _query(self, rtype, p, v, ntype, np_, nv, nmask) -> torch.Tensor:
+        b = p.shape[0]
         rel = torch.cat([np_ - p[:, None, :], nv - v[:, None, :]], dim=2)    # x_ij [B, S, 6]
         if ntype.shape[1]:
             vol = self.vol[rtype[:, None].expand_as(ntype), ntype]          # [B, S, 2, 3]
@@ -112,10 +129,13 @@ class ForceModel:
         dP = np.zeros((n, P.shape[0], 3))
         dV = np.zeros((n, P.shape[0], 3))
         if not self.is_zero:
+            t0 = time.perf_counter()
+            self.counts["jacobians"] += 1
             for j in range(n):
                 gp, gv = torch.autograd.grad(F[:, j].sum(), (pi, vi), retain_graph=j + 1 < n, allow_unused=True)
                 dP[j] = 0.0 if gp is None else gp.double().numpy()
                 dV[j] = 0.0 if gv is None else gv.double().numpy()
+            self.counts["backward_s"] += time.perf_counter() - t0
         return F.detach().double().numpy(), dP, dV
 
 

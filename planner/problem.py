@@ -60,21 +60,32 @@ class Limits:
     b_fa_g: float = 3.0                      # trust region on a neighbour's force change
     fa_substeps: int = 4                     # force limits also checked at dt/4, dt/2, 3dt/4 of every step
     clearance_m: float = 0.0                 # added to the tight collision distance of every pair (see r_pair)
-    fa_margin_g: float = 0.0                 # g of f_a,max the planner keeps free for model error (see fa_plan)
+    fa_margin_g: float | dict = 0.0          # g of f_a,max kept free for model error, one value or per type (fa_plan)
 
     def __post_init__(self):
         if not all(isinstance(x, (int, float)) and x > 0 for x in (self.v_max, self.u_max, self.b_fa_g)):
             raise PlanningError(f"infeasible limits: v_max, u_max and b_fa_g must be positive, got "
                                 f"{self.v_max!r}, {self.u_max!r}, {self.b_fa_g!r}")
-        _require("limit", self, ints=("fa_substeps",), nonneg=("clearance_m", "fa_margin_g"))
+        _require("limit", self, ints=("fa_substeps",), nonneg=("clearance_m",))
+        margins = self.fa_margin_g.items() if isinstance(self.fa_margin_g, dict) else [(None, self.fa_margin_g)]
+        for t, m in margins:
+            if not (isinstance(m, (int, float)) and not isinstance(m, bool) and math.isfinite(m) and m >= 0):
+                raise PlanningError(f"limit parameter fa_margin_g{'' if t is None else f'[{t}]'} must be a finite "
+                                    f"number >= 0, got {m!r}")
         if not (len(self.pos_lo) == 3 and len(self.pos_hi) == 3):
             raise PlanningError(f"the state box needs 3-D pos_lo and pos_hi, got {self.pos_lo} .. {self.pos_hi}")
         bad = {t: f for t, f in self.fa_max_g.items() if not (isinstance(f, (int, float)) and f > 0)}
         if bad:
             raise PlanningError(f"infeasible limits: f_a,max must be positive, got {bad}")
-        tight = {t: f - self.fa_margin_g for t, f in self.fa_max_g.items() if f - self.fa_margin_g <= 0}
+        tight = {t: f - self.margin(t) for t, f in self.fa_max_g.items() if f - self.margin(t) <= 0}
         if tight:
             raise PlanningError(f"infeasible limits: f_a,max - fa_margin_g must be positive, got {tight}")
+
+
+    def margin(self, robot_type: str) -> float:
+        """fa_margin_g of a robot type (0 for a type a per-type table leaves out)."""
+        m = self.fa_margin_g
+        return float(m.get(robot_type, 0.0)) if isinstance(m, dict) else float(m)
 
 
 MAX_SAMPLES = 40000
@@ -208,10 +219,10 @@ class Problem:
             raise PlanningError(f"no interaction force limit f_a,max for robot type {e}") from e
 
     def fa_plan(self) -> np.ndarray:
-        """The force bound the planner enforces: f_a,max - fa_margin_g, so that a model
-        that reads low by up to that margin still keeps the flight within f_a,max (the
-        limit every result is reported against)."""
-        return self.fa_max() - self.limits.fa_margin_g
+        """The force bound the planner enforces: f_a,max - fa_margin_g (per type), so that
+        a model that reads low by up to that margin still keeps the flight within f_a,max
+        (the limit every result is reported against; ns2exp.margin measures it)."""
+        return self.fa_max() - np.array([self.limits.margin(r.type) for r in self.robots])
 
     def starts(self) -> np.ndarray:
         return np.array([r.start for r in self.robots], float)

@@ -26,7 +26,7 @@ stop when it decreases by less than ``tol`` (relative), or at the limits.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import cvxpy as cp
 import numpy as np
@@ -46,6 +46,7 @@ class SCPResult:
     time_s: float
     time_per_robot_s: list
     max_defect: float           # max nonlinear dynamics defect of the result (m or m/s)
+    profile: dict = field(default_factory=dict)   # convex solves and where their time went (solve_cp)
 
 
 def _team_arrays(trajs: list) -> tuple[np.ndarray, np.ndarray]:
@@ -84,8 +85,12 @@ def merit(pb: Problem, fm: ForceModel, trajs: list, par: SCPParams) -> tuple[flo
 
 
 def solve_cp(pb: Problem, fm: ForceModel, trajs: list, i: int, par: SCPParams, rho: float,
-             time_limit: float) -> Trajectory | None:
-    """SolveCP: eq. (scp) for robot i around the current team solution."""
+             time_limit: float, profile: dict | None = None) -> Trajectory | None:
+    """SolveCP: eq. (scp) for robot i around the current team solution.  ``profile``
+    accumulates the solves and their seconds: building the program (linearization
+    included), cvxpy's canonicalization and the solver's own time."""
+    profile = {} if profile is None else profile
+    t0 = time.perf_counter()
     prog = _Program(pb, fm, trajs, i, par, rho)
     cons = prog.own_constraints()
     for j in range(pb.n):
@@ -95,11 +100,19 @@ def solve_cp(pb: Problem, fm: ForceModel, trajs: list, i: int, par: SCPParams, r
     goal = cp.hstack([prog.p[T] - pb.goals()[i, ax], prog.v[T]])
     obj = cp.sum_squares(prog.u) + par.lambda_goal * cp.norm(goal, "inf") + par.lambda_box * prog.delta
     problem = cp.Problem(cp.Minimize(obj), cons)
+    t1 = time.perf_counter()
     try:
         kw = {"time_limit": max(time_limit, 0.1)} if par.solver == "CLARABEL" else {}
         problem.solve(solver=par.solver, **kw)
     except cp.error.SolverError:
         return None
+    finally:
+        t2 = time.perf_counter()
+        stats = getattr(problem, "_solver_stats", None)
+        solver_s = float(stats.solve_time or 0.0) if stats is not None and stats.solve_time is not None else 0.0
+        for key, val in (("solves", 1), ("build_s", t1 - t0), ("solver_s", solver_s),
+                         ("canon_s", max(t2 - t1 - solver_s, 0.0))):
+            profile[key] = profile.get(key, 0) + val
     if problem.status not in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE) or prog.p.value is None:
         return None
     out = trajs[i].copy()
@@ -231,6 +244,7 @@ def scp(pb: Problem, fm: ForceModel, trajs: list, par: SCPParams = SCPParams()) 
     history = [J]
     rho = np.ones(pb.n)
     per_robot = [0.0] * pb.n
+    profile: dict = {}
     converged = False
     it = 0
     while it < par.max_iterations and time.perf_counter() < deadline:
@@ -239,7 +253,7 @@ def scp(pb: Problem, fm: ForceModel, trajs: list, par: SCPParams = SCPParams()) 
             for _ in range(par.max_shrinks + 1):
                 if time.perf_counter() >= deadline:
                     break
-                cand = solve_cp(pb, fm, trajs, int(i), par, rho[i], deadline - time.perf_counter())
+                cand = solve_cp(pb, fm, trajs, int(i), par, rho[i], deadline - time.perf_counter(), profile)
                 if cand is not None:
                     trial = list(trajs)
                     trial[i] = cand
@@ -258,4 +272,4 @@ def scp(pb: Problem, fm: ForceModel, trajs: list, par: SCPParams = SCPParams()) 
     F = parts["forces"]
     for i, tr in enumerate(trajs):
         tr.fa = F[:, i].copy()
-    return SCPResult(trajs, history, it, converged, time.perf_counter() - t0, per_robot, parts["max_defect"])
+    return SCPResult(trajs, history, it, converged, time.perf_counter() - t0, per_robot, parts["max_defect"], profile)

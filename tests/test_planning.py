@@ -312,6 +312,12 @@ def test_force_margin_and_clearance_are_kept(cfg):
 
     res = plan(pb, fm, RRTParams(SearchParams(max_nodes=4000, max_samples=20000), ao_iterations=1, seed=2),
                SCPParams(max_iterations=4))
+    prof = res.profile()          # where the time went: counts that must agree with the result
+    assert prof["scp_iterations"] == res.stage2.iterations >= 1
+    assert prof["convex_solves"] >= prof["scp_iterations"] * pb.n
+    assert prof["force_jacobians"] == 2 * prof["convex_solves"]      # knots and inside-step points per program
+    assert prof["force_queries"] >= prof["force_calls"] > 0
+    assert 0 < prof["cp_solver_s"] <= prof["stage2_s"] and prof["stage1_joint_s"] <= prof["stage1_s"]
     for trajs in (res.stage1.trajs, res.trajs):
         chk = check_solution(pb, fm, trajs)
         for i, rep in enumerate(chk["robots"]):
@@ -438,3 +444,7 @@ def test_cli_plan_problem_file(cfg, exported, tmp_path):
     r = CliRunner().invoke(main, ["plan", "--problem", str(f), "--checkpoint", str(exported.checkpoint),
                                   "--out", str(tmp_path / "out3")])
     assert r.exit_code != 0 and "outside the state box" in r.output, r.output
+    for bad in ("abc", "-1", "nan"):                 # the experiments' margin: grams or 'measured'
+        r = CliRunner().invoke(main, ["plan", "--checkpoint", str(exported.checkpoint), "--out", str(tmp_path / "o4"),
+                                      "--fa-margin", bad])
+        assert r.exit_code == 2 and "--fa-margin" in r.output and not (tmp_path / "o4").exists(), r.output

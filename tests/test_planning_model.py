@@ -63,3 +63,159 @@ def test_near_field_flights_teach_close_range_downwash(cfg, exported):
         fly(cfg, ("small", "small", "large"), exported.gen_dir, "near", 5.0, seed=0)
     with pytest.raises(ValueError, match="unknown flight kind"):
         fly(cfg, ("small",), exported.gen_dir, "hover", 5.0, seed=0)
+
+
+# --- who moves (issue 24): one robot moves under and over the other, hovering one ----------------
+
+@pytest.mark.parametrize("diameters", [(0.12, 0.12), (0.12, 0.19), (0.19, 0.19)])
+def test_who_moves_scenario_geometry(diameters):
+    from ns2host.sim.scenarios import WHO_MOVES_ROLES, who_moves
+
+    sp, start, T, movers = who_moves(diameters, 300.0, seed=5)
+    assert len(movers) == len(T) - 1 and T[-1] >= 300.0
+    t = np.arange(0.0, T[-1], 0.01)
+    P = np.array([sp(x).p for x in t])
+    V = np.array([sp(x).v for x in t])
+    A = np.array([sp(x).a for x in t])
+    assert np.allclose(P[0], start)
+    g_min = sum(diameters) / 2
+    assert np.linalg.norm(P[:, 0] - P[:, 1], axis=1).min() >= g_min - 1e-9     # never inside the tight spheres
+    assert P[..., 2].min() >= 0.3 - 1e-9 and P[..., 2].max() <= 2.0 + 1e-9
+    assert np.abs(V).max() < 1.45 and np.abs(A).max() <= 2.5 + 1e-6         # flyable, the planner's action box
+    seg = np.clip(np.searchsorted(T, t, side="right") - 1, 0, len(movers) - 1)
+    speed = np.linalg.norm(V, axis=2)
+    for m in (0, 1):                               # in a mover's segment the other robot is still
+        assert speed[movers[seg] == m, 1 - m].max() == 0.0
+    lateral = np.linalg.norm(P[:, 0, :2] - P[:, 1, :2], axis=1)
+    for m, where in WHO_MOVES_ROLES:               # every role: passes under (or over) in both directions,
+        above = P[:, m, 2] > P[:, 1 - m, 2]        # and climbs and descents right under (over) the still robot
+        at = (movers[seg] == m) & (lateral < 0.07) & (above == (where == "above"))
+        vh = V[at, m, :2]
+        fast = vh[np.linalg.norm(vh, axis=1) > 0.5]
+        assert len(fast), (m, where)
+        u = fast / np.linalg.norm(fast, axis=1, keepdims=True)
+        assert (u @ u.T).min() < -0.9, (m, where)   # opposite directions
+        assert V[at, m, 2].max() > 0.3 and V[at, m, 2].min() < -0.3, (m, where)
+        gap = np.abs(P[at, 0, 2] - P[at, 1, 2])
+        assert gap.min() < g_min + 0.1 and gap.max() > 0.7, (m, where)
+    with pytest.raises(ValueError, match="gap range"):
+        who_moves((1.5, 1.5), 10.0)
+    with pytest.raises(ValueError, match="duration"):
+        who_moves((0.12, 0.12), 0.0)
+
+
+def test_who_moves_flights_collect_the_same_in_parallel(cfg, exported, tmp_path):
+    """``who`` flights enter the data set; workers fly the same flights (same data);
+    the held-out flights of the margin are cached and read back unchanged."""
+    from ns2exp.margin import held_out_flights
+
+    kw = dict(team_list=[("small", "large")], who_moves_seconds=6.0, near_field_seconds=3.0, near_gap_max=1.5)
+    one = collect(cfg, exported.gen_dir, 0.0, seed=3, **kw)
+    two = collect(cfg, exported.gen_dir, 0.0, seed=3, workers=2, **kw)
+    assert len(one) > 500 and one.content_hash() == two.content_hash()
+    near_only = collect(cfg, exported.gen_dir, 0.0, seed=3, **{**kw, "who_moves_seconds": 0.0})
+    assert len(one) > len(near_only) + 400                   # the who flight added its samples
+    with pytest.raises(ValueError, match="pairs of robots"):
+        fly(cfg, ("small", "small", "large"), exported.gen_dir, "who", 5.0, seed=0)
+    cache = tmp_path / "held.npz"
+    fl = held_out_flights(cfg, exported.gen_dir, flights=(("who", 3.0),), pairs=[("small", "large")], cache=cache)
+    again = held_out_flights(cfg, exported.gen_dir, flights=(("who", 3.0),), pairs=[("small", "large")], cache=cache)
+    assert fl[0].kind == again[0].kind == "who" and fl[0].types == again[0].types == ["small", "large"]
+    for k in ("P", "V", "F"):
+        assert np.array_equal(getattr(fl[0], k), getattr(again[0], k)) and len(getattr(fl[0], k)) == 300
+
+
+# --- the planning margin from measured model error (issue 24) -------------------------------------
+
+def _flight(P, V, F, types=("small", "large")):
+    from ns2exp.margin import FlownStates
+
+    return FlownStates(list(types), np.asarray(P, float), np.asarray(V, float), np.asarray(F, float), "who")
+
+
+def test_margin_is_the_largest_low_error_where_the_planner_may_go(cfg):
+    from ns2exp.margin import error_stats, errors, in_region, margin_from_errors
+    from ns2plan.problem import Limits
+
+    lim = Limits(pos_lo=(-1, -1, 0.3), pos_hi=(1, 1, 2.0), clearance_m=0.15, fa_max_g={"small": 5.0, "large": 10.0})
+    # one-sided: the model reading low counts; states whose prediction is over the limit do not
+    true = np.array([-4.0, -6.0, -2.5, -1.0])
+    pred = np.array([-3.0, -6.5, -1.04, -3.0])
+    s = error_stats(true, pred, 5.0)
+    assert s["states"] == 3 and s["max_low_g"] == pytest.approx(1.46) and s["max_abs_g"] == pytest.approx(2.0)
+    err = {"small": {"true": true, "pred": pred}, "large": {"true": np.array([-9.0]), "pred": np.array([-9.5])}}
+    assert margin_from_errors(err, {"small": 5.0, "large": 10.0}) == {"small": pytest.approx(1.5), "large": 0.0}
+    with pytest.raises(ValueError, match="no held-out states of robot type 'large'"):
+        margin_from_errors({**err, "large": {"true": np.zeros(0), "pred": np.zeros(0)}}, {"small": 5.0, "large": 10.0})
+    # the planning region: box (z), speed, separation (tight spheres + clearance)
+    P = np.array([[[0, 0, 1.0], [0, 0, 1.5]],       # fine
+                  [[0, 0, 0.2], [0, 0, 1.5]],       # robot 0 below the box
+                  [[0, 0, 1.0], [0, 0, 1.2]],       # 0.2 m apart < 0.155 + 0.15
+                  [[0, 0, 1.0], [0, 0, 1.5]]])      # too fast
+    V = np.zeros_like(P)
+    V[3, 1, 0] = 1.2
+    F = np.array([[-3.0, 0.0], [-20.0, 0.0], [-30.0, 0.0], [-40.0, 0.0]])
+    fl = _flight(P, V, F)
+    assert in_region(cfg, fl, lim)[:, 0].tolist() == [True, False, False, False]
+    from ns2plan.forces import ForceModel
+
+    e = errors(cfg, ForceModel(cfg, None), [fl], lim)     # f_a = 0: the error is the truth itself
+    assert e["small"]["true"].tolist() == [-3.0] and margin_from_errors(e, lim.fa_max_g)["small"] == pytest.approx(3.0)
+
+
+def test_lipschitz_bound_and_closest_gap(cfg, exported):
+    from test_planning import StrongDownwash
+
+    from ns2exp.margin import closest_gap, lipschitz
+
+    fm = ForceModel(cfg, exported.model)
+    L = lipschitz(fm)
+    assert set(L) == {f"{a}|{b}" for a in cfg.robot_types for b in cfg.robot_types}
+    gamma = float(cfg.model["gamma"])
+    for v in L.values():                            # each net spectrally normalized to gamma (eq. sn)
+        assert 0 < v <= gamma ** 2 * (1 + 1e-6)
+    # the bound holds: one neighbour's input moved, the output moves by at most L ||dx||
+    rng = np.random.default_rng(0)
+    types = [0, 1]
+    P = np.zeros((200, 2, 3))
+    P[:, 1] = rng.uniform([-0.3, -0.3, 0.2], [0.3, 0.3, 1.0], (200, 3))
+    P[:, 0, 2] = P[:, 1, 2] = 1.0 + P[:, 1, 2] - 1.0
+    P[:, 0] = [0, 0, 1.0]
+    Q = P.copy()
+    Q[:, 1] += rng.normal(0, 0.05, (200, 3))
+    dx = np.linalg.norm(Q[:, 1] - P[:, 1], axis=1)
+    df = np.abs(fm.team_np(types, Q, np.zeros_like(Q))[:, 0] - fm.team_np(types, P, np.zeros_like(P))[:, 0])
+    assert (df <= L[f"{cfg.robot_types[0]}|{cfg.robot_types[1]}"] * dx + 1e-4).all()
+    # closest hovering gap for a force bound: analytic downwash fading with the gap (8 g exp(-dz / 0.5))
+    strong = ForceModel(cfg, StrongDownwash(cfg, small_g=8.0, decay=0.5))
+    gap = closest_gap(cfg, strong, "small", "small", 3.0)
+    assert gap == pytest.approx(0.5 * np.log(8.0 / 3.0), abs=0.01)
+    assert closest_gap(cfg, strong, "small", "small", 4.0) < gap    # a smaller margin: closer
+    assert closest_gap(cfg, strong, "small", "large", 1e-6) == float("inf")   # never within a bound of ~0
+
+
+def test_per_type_margin_in_limits_and_problem_files(cfg, tmp_path):
+    import json
+
+    from ns2exp.planning import load_problem
+    from ns2plan.problem import Limits, PlanningError, Problem, Robot
+
+    lim = Limits(fa_margin_g={"small": 1.2, "large": 2.5})
+    pb = Problem(cfg, [Robot("small", (0, -0.4, 1.0), (0, 0.4, 1.0)), Robot("large", (0, 0.4, 1.0), (0, -0.4, 1.0))],
+                 lim)
+    np.testing.assert_allclose(pb.fa_plan(), [5.0 - 1.2, 10.0 - 2.5])
+    assert Limits(fa_margin_g={"small": 1.0}).margin("large") == 0.0
+    for bad, msg in (({"small": -1.0}, r"fa_margin_g\[small\]"), ({"large": 10.0}, "must be positive"),
+                     ({"small": float("nan")}, r"fa_margin_g\[small\]")):
+        with pytest.raises(PlanningError, match=msg):
+            Limits(fa_margin_g=bad)
+    f = tmp_path / "p.json"
+    base = {"robots": [{"type": "small", "start": [0, -0.4, 1.0], "goal": [0, 0.4, 1.0]}], "axes": "yz"}
+    f.write_text(json.dumps({**base, "limits": {"fa_margin_g": {"small": 1.5}}}))
+    assert load_problem(cfg, f).fa_plan().tolist() == [3.5]
+    f.write_text(json.dumps({**base, "limits": {"fa_margin_g": {"tiny": 1.5}}}))
+    with pytest.raises(PlanningError, match=r"limits.fa_margin_g.tiny: unknown robot type"):
+        load_problem(cfg, f)
+    f.write_text(json.dumps({**base, "limits": {"fa_margin_g": "2"}}))
+    with pytest.raises(PlanningError, match=r"limits.fa_margin_g: must be a number in \[0, 1000\] or a table"):
+        load_problem(cfg, f)

@@ -2,7 +2,9 @@
 type mix fly random walks (with ground contact height included) and swaps, and
 optionally every pair of robot types flies close-range passes (``near_field``:
 one robot slowly under the other at vertical gaps from the collision distance to
-1.2 m, the near-field downwash that swaps only cross in a tenth of a second); the
+1.2 m, the near-field downwash that swaps only cross in a tenth of a second) and
+flights in which one robot of the pair moves under and over the other, hovering
+one (``who``: the truth depends on each robot's own velocity); the
 drones' logs (their EKF's estimates, from noisy sensors) become a training set through the same path as
 real logs (ns2codegen.data.from_logs), never through the ground truth."""
 from __future__ import annotations
@@ -18,7 +20,7 @@ from ns2codegen.data.dataset import Dataset
 from ns2codegen.data.from_logs import Flight, flights_to_dataset
 
 from .cloop import CLoopSwarm
-from .scenarios import near_field, random_walk, swap
+from .scenarios import near_field, random_walk, swap, who_moves
 from .usdlogs import write_flight, write_manifest
 
 
@@ -31,29 +33,41 @@ def teams(cfg: Config, max_size: int = 3) -> list[tuple[str, ...]]:
     return out
 
 
-def fly(cfg: Config, team, gen_dir, kind: str, duration: float, seed: int, learned=None,
-        near_gap_max: float = 1.2) -> Flight:
+def flight_log(cfg: Config, team, gen_dir, kind: str, duration: float, seed: int, learned=None,
+               near_gap_max: float = 1.2) -> dict:
+    """Fly one scenario of ``kind`` with ``team``; the simulator's log (CLoopSwarm.run: the
+    drones' estimates and, apart, the ground truth), cut before a crash (crash_cut)."""
     n = len(team)
     if kind == "swap":
         heights = 0.4 + 0.25 * np.arange(n)
         sp, start = swap(n, heights, radius=0.4, duration=2.5, rest=0.5, seed=seed)
-    elif kind == "near":
+    elif kind in ("near", "who"):
         if n != 2:
-            raise ValueError(f"near-field flights are for pairs of robots, got a team of {n}")
-        sp, start, _ = near_field(list(team), [cfg.vehicle(t).get("diameter_m", 0.12) for t in team], duration,
-                                  gap_max=near_gap_max, seed=seed)
+            raise ValueError(f"{kind} flights are for pairs of robots, got a team of {n}")
+        diameters = [cfg.vehicle(t).get("diameter_m", 0.12) for t in team]
+        if kind == "near":
+            sp, start, _ = near_field(list(team), diameters, duration, gap_max=near_gap_max, seed=seed)
+        else:
+            sp, start, _, _ = who_moves(diameters, duration, gap_max=near_gap_max, seed=seed)
     elif kind == "random":
         sp, start = random_walk(n, seed=seed)
     else:
-        raise ValueError(f"unknown flight kind {kind!r}: random, swap or near")
+        raise ValueError(f"unknown flight kind {kind!r}: random, swap, near or who")
     sw = CLoopSwarm(cfg, list(team), gen_dir, start, aero=True, learned=learned, seed=seed)
     log = sw.run(duration, sp)
     n_keep = crash_cut(log["t"], log["truth_p"])
     if n_keep < len(log["t"]):
         warnings.warn(f"{kind} flight of {'+'.join(team)} (seed {seed}): a robot crashed "
                       f"{CRASH_MARGIN_S:.0f} s after t = {log['t'][n_keep]:.2f} s; the log is cut there")
-    # what the drones log: the EKF's estimate (labels from estimated states, as on the real drone)
-    return Flight(list(team), *(np.asarray(log[k])[:n_keep] for k in ("t", "p", "v", "q", "pwm", "battery_V")))
+    return {k: np.asarray(v)[:n_keep] if k != "trace" else v for k, v in log.items()}
+
+
+def fly(cfg: Config, team, gen_dir, kind: str, duration: float, seed: int, learned=None,
+        near_gap_max: float = 1.2) -> Flight:
+    """``flight_log`` as the drones log it: the EKF's estimates (labels from estimated
+    states, as on the real drone)."""
+    log = flight_log(cfg, team, gen_dir, kind, duration, seed, learned, near_gap_max)
+    return Flight(list(team), *(log[k] for k in ("t", "p", "v", "q", "pwm", "battery_V")))
 
 
 CRASH_MARGIN_S = 1.0  # s of log dropped before a crash (the loss of control before it)
@@ -72,26 +86,43 @@ def crash_cut(t, truth_p) -> int:
 
 def collect(cfg: Config, gen_dir, seconds_per_team: float, seed: int = 0, learned=None,
             team_list=None, usd_dir=None, near_field_seconds: float = 0.0, near_gap_max: float = 1.2,
-            progress=None) -> Dataset:
+            who_moves_seconds: float = 0.0, progress=None, workers: int = 1) -> Dataset:
     """Half random walk, half swaps per team (single robots only random walk), plus
     ``near_field_seconds`` of close-range passes per pair of robots (vertical gaps up
-    to ``near_gap_max``); with
+    to ``near_gap_max``) and ``who_moves_seconds`` of one robot moving past the
+    other, hovering one (same gaps); with
     ``usd_dir`` the (noisy) logs are also written there as Crazyflie uSD files with a
-    flights.toml, the input of ``ns2 logs-to-data``.  ``progress(1)`` after every flight."""
-    flights, entries = [], []
+    flights.toml, the input of ``ns2 logs-to-data``.  ``progress(1)`` after every flight.
+    ``workers`` > 1 flies that many flights at once in forked processes (same flights,
+    same seeds, same data set)."""
+    jobs = []
     for k, team in enumerate(team_list or teams(cfg)):
         kinds = ["random"] if len(team) == 1 else ["random", "swap"]
         plan = [(kind, seconds_per_team / len(kinds)) for kind in kinds if seconds_per_team > 0]
-        if len(team) == 2 and near_field_seconds > 0:
-            plan.append(("near", near_field_seconds))
-        for j, (kind, seconds) in enumerate(plan):
-            s = seed * 1000 + 10 * k + j
-            flights.append(fly(cfg, team, gen_dir, kind, seconds, seed=s, learned=learned, near_gap_max=near_gap_max))
-            if usd_dir is not None:
-                entries.append(write_flight(Path(usd_dir), f"{''.join(t[0] for t in team)}_{kind}_{s}",
-                                            list(team), flights[-1].__dict__, seed=s))
-            if progress is not None:
-                progress(1)
+        if len(team) == 2:
+            plan += [(kind, sec) for kind, sec in (("near", near_field_seconds), ("who", who_moves_seconds)) if sec > 0]
+        jobs += [(team, kind, seconds, seed * 1000 + 10 * k + j) for j, (kind, seconds) in enumerate(plan)]
+    if workers > 1 and len(jobs) > 1:
+        import multiprocessing
+        from concurrent.futures import ProcessPoolExecutor
+
+        from ..cfhost import load_fly
+        load_fly(gen_dir)                             # build once, before the workers load it
+        with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("fork")) as ex:
+            futures = [ex.submit(fly, cfg, team, gen_dir, kind, sec, s, learned, near_gap_max)
+                       for team, kind, sec, s in jobs]
+            flights = [_done(f.result(), progress) for f in futures]
+    else:
+        flights = [_done(fly(cfg, team, gen_dir, kind, sec, seed=s, learned=learned, near_gap_max=near_gap_max),
+                         progress) for team, kind, sec, s in jobs]
     if usd_dir is not None:
+        entries = [write_flight(Path(usd_dir), f"{''.join(t[0] for t in team)}_{kind}_{s}", list(team),
+                                fl.__dict__, seed=s) for (team, kind, _, s), fl in zip(jobs, flights)]
         write_manifest(Path(usd_dir), entries)
     return flights_to_dataset(cfg, flights)
+
+
+def _done(flight: Flight, progress) -> Flight:
+    if progress is not None:
+        progress(1)
+    return flight

@@ -8,6 +8,9 @@
   limited; the cube reaches down to the ground (ground-effect data).
 * ``intertwined_rings``: the paper's 5- and 16-robot ring experiments (vertical
   rings of S* robots linked with a horizontal ring).
+* ``near_field``: a pair at close range, one under the other (both move).
+* ``who_moves``: a pair in which one robot moves under and over the other,
+  hovering one (the truth depends on each robot's own velocity).
 Setpoint functions take (t, state) and return cloop.Setpoints.
 """
 from __future__ import annotations
@@ -140,6 +143,36 @@ def intertwined_rings(robots: int):
     return types, sp, sp(0.0).p, vertical
 
 
+def _cosine_setpoints(W, T):
+    """Setpoints along waypoints W [w, n, 3] at times T [w], joined by cosine
+    profiles (rest at every waypoint)."""
+    n = W.shape[1]
+
+    def sp(t, state=None):
+        k = int(np.clip(np.searchsorted(T, t, side="right") - 1, 0, len(T) - 2))
+        d = T[k + 1] - T[k]
+        s = min(max((t - T[k]) / d, 0.0), 1.0)
+        delta = W[k + 1] - W[k]
+        p = W[k] + delta * (1.0 - np.cos(np.pi * s)) / 2.0
+        inside = 0.0 < s < 1.0
+        v = delta * (np.pi / (2.0 * d)) * np.sin(np.pi * s) if inside else np.zeros((n, 3))
+        a = delta * (np.pi ** 2 / (2.0 * d * d)) * np.cos(np.pi * s) if inside else np.zeros((n, 3))
+        return Setpoints(p, v, a, np.zeros(n))
+
+    return sp
+
+
+def _pair_gap(diameters, gap_max: float, duration: float, who: str) -> float:
+    """The tight collision distance r = (D_0 + D_1) / 2 of a pair; a clear error for an
+    empty gap range r..gap_max or a non-positive duration."""
+    g_min = (float(diameters[0]) + float(diameters[1])) / 2.0
+    if not 0.0 < g_min < gap_max:
+        raise ValueError(f"{who}: gap range {g_min:.3f}..{gap_max:.3f} m is empty")
+    if duration <= 0:
+        raise ValueError(f"{who}: duration must be positive")
+    return g_min
+
+
 def near_field(types, diameters, duration: float, z_low=(0.5, 1.0), gap_max: float = 1.2, reach: float = 0.35,
                offset: float = 0.06, center: float = 0.2, t_cross=(2.0, 4.0), t_sweep=(2.0, 4.0),
                t_pass=(1.25, 5.0), pass_reach: float = 0.8, pass_gap=(0.03, 0.6), passes: int = 3,
@@ -170,11 +203,7 @@ def near_field(types, diameters, duration: float, z_low=(0.5, 1.0), gap_max: flo
     Waypoints are joined by cosine profiles (rest at every waypoint).  Returns
     (setpoints, start positions, waypoint times)."""
     rng = np.random.default_rng(seed)
-    g_min = (float(diameters[0]) + float(diameters[1])) / 2.0
-    if not 0.0 < g_min < gap_max:
-        raise ValueError(f"near_field: gap range {g_min:.3f}..{gap_max:.3f} m is empty")
-    if duration <= 0:
-        raise ValueError("near_field: duration must be positive")
+    g_min = _pair_gap(diameters, gap_max, duration, "near_field")
     mean_block = t_move + (t_cross[0] + t_cross[1] + t_sweep[0] + t_sweep[1]) / 2 + \
         passes * (t_move_pass + np.sqrt(t_pass[0] * t_pass[1]))
     blocks = max(2, int(np.ceil(duration / mean_block)) + 1)
@@ -221,16 +250,94 @@ def near_field(types, diameters, duration: float, z_low=(0.5, 1.0), gap_max: flo
         phi += np.pi + rng.uniform(-np.pi / 3, np.pi / 3)      # start near where this segment ended
     W = np.stack(pts)                                 # [w, 2, 3]
     T = np.array(times)
+    return _cosine_setpoints(W, T), W[0].copy(), T
 
-    def sp(t, state=None):
-        k = int(np.clip(np.searchsorted(T, t, side="right") - 1, 0, len(T) - 2))
-        d = T[k + 1] - T[k]
-        s = min(max((t - T[k]) / d, 0.0), 1.0)
-        delta = W[k + 1] - W[k]
-        p = W[k] + delta * (1.0 - np.cos(np.pi * s)) / 2.0
-        inside = 0.0 < s < 1.0
-        v = delta * (np.pi / (2.0 * d)) * np.sin(np.pi * s) if inside else np.zeros((2, 3))
-        a = delta * (np.pi ** 2 / (2.0 * d * d)) * np.cos(np.pi * s) if inside else np.zeros((2, 3))
-        return Setpoints(p, v, a, np.zeros(2))
 
-    return sp, W[0].copy(), T
+WHO_MOVES_ROLES = ((0, "below"), (0, "above"), (1, "below"), (1, "above"))   # (moving robot, where it moves)
+
+
+def who_moves(diameters, duration: float, gap_max: float = 1.5, reach: float = 0.7, offset: float = 0.06,
+              z_range=(0.3, 2.0), v_peak=(0.3, 1.4), a_max: float = 2.5, passes: int = 4, seed: int = 0):
+    """A pair in which only one robot moves at a time (data that separates who
+    moves: the truth depends on each robot's own velocity, host/sim/aero.py, the
+    model sees the relative one).  In blocks, one per role of WHO_MOVES_ROLES in
+    turn (each robot moves, under and over the other): the still robot comes to
+    the centre and hovers there; the moving robot flies ``passes`` times from
+    ``reach`` m on one side to ``reach`` m on the other and back (both
+    directions), under (or over) the hovering one at a vertical gap drawn
+    log-uniformly from the tight collision distance r = (D_0 + D_1) / 2 to
+    ``gap_max`` (and the room within ``z_range``) at each end of the pass (so it climbs or descends as it crosses),
+    ``offset`` m at most sideways; every other pass stops under the hovering robot
+    and changes the gap there (a pure climb or descent under it).  Peak speeds
+    drawn in ``v_peak`` (m/s, at most ``a_max`` m/s^2), heights within
+    ``z_range``.  Between blocks both robots rest on opposite
+    sides, ``reach`` m from the centre, and turn the pair's direction by up to 90
+    degrees (never closer than sqrt(2) ``reach``).  Returns (setpoints, start
+    positions, waypoint times, the moving robot per segment (-1: both or none))."""
+    rng = np.random.default_rng(seed)
+    g_min = _pair_gap(diameters, gap_max, duration, "who_moves")
+    if z_range[1] - z_range[0] < 0.5 + g_min:
+        raise ValueError(f"who_moves: height range {z_range} leaves no room for the gaps")
+    phi = rng.uniform(0, 2 * np.pi)
+    pts, times, movers = [], [], []
+
+    def add(p, mover, dist=None):
+        """Append waypoint p [2, 3]; the segment's time from its length and a drawn peak speed."""
+        dist = float(np.abs(p - pts[-1]).max()) if dist is None else dist
+        vp = rng.uniform(*v_peak)
+        t = max(np.pi / 2 * dist / vp, np.pi * np.sqrt(dist / (2 * a_max)), 0.2)
+        pts.append(p)
+        times.append(times[-1] + t)
+        movers.append(mover)
+
+    def log_gap(hi):
+        return g_min * (hi / g_min) ** rng.uniform()
+
+    e = np.array([np.cos(phi), np.sin(phi), 0.0])
+    z0 = np.mean(z_range)
+    pts.append(np.array([-reach * e + [0, 0, z0], reach * e + [0, 0, z0]]))   # robot 0 on -e, robot 1 on +e
+    times.append(0.0)
+    k = 0
+    while times[-1] < duration:
+        mover, where = WHO_MOVES_ROLES[k % len(WHO_MOVES_ROLES)]
+        still = 1 - mover
+        k += 1
+        # the still robot's height, at least 0.5 m from the side of z_range the mover flies in
+        zs = rng.uniform(z_range[0] + 0.5, z_range[1]) if where == "below" else \
+            rng.uniform(z_range[0], z_range[1] - 0.5)
+        sign = -1.0 if where == "below" else 1.0
+        room = min(gap_max, zs - z_range[0] if where == "below" else z_range[1] - zs)
+        # turn the pair (both robots, opposite sides) and set the heights: robot 0 at -e, robot 1 at +e
+        phi += rng.uniform(-np.pi / 2, np.pi / 2)
+        e = np.array([np.cos(phi), np.sin(phi), 0.0])
+        n = np.array([-e[1], e[0], 0.0])
+        side = np.array([-1.0, 1.0])
+        p = np.array([side[0] * reach * e, side[1] * reach * e])
+        p[still, 2] = zs
+        p[mover, 2] = zs + sign * log_gap(room)
+        add(p, -1)
+        p = p.copy()
+        p[still, :2] = 0.0                              # the still robot to the centre (the other waits aside)
+        add(p, still)
+        s = side[mover]
+        for j in range(passes):
+            across = rng.uniform(-offset, offset) * n
+            g2 = log_gap(room)
+            q = p.copy()
+            if j % 2:                                   # in under it, change the gap there, out
+                q[mover] = across + [0, 0, p[mover, 2]]
+                add(q.copy(), mover)
+                q[mover, 2] = zs + sign * g2
+                add(q.copy(), mover)
+            s = -s
+            q[mover] = s * reach * e + across + [0, 0, zs + sign * g2]
+            add(q, mover)
+            p = q
+        p = p.copy()
+        p[still] = -s * reach * e + [0, 0, zs]          # the still robot back to the far side
+        add(p, still)
+        if s != side[mover]:                            # the robots ended on swapped sides: keep robot 0 on -e
+            phi += np.pi
+    W = np.stack(pts)
+    T = np.array(times)
+    return _cosine_setpoints(W, T), W[0].copy(), T, np.array(movers)

@@ -1,0 +1,266 @@
+"""The planner's model-error margin, measured (issue 24).
+
+The planner keeps f_a,z-hat within f_a,max - m (``Limits.fa_margin_g``) so that a
+model that reads low by up to m still keeps the flight within f_a,max.  m is chosen
+per robot type from held-out simulated flights (seeds never trained on): at every
+logged state the model is evaluated at the *true* state (P, V) and compared with the
+simulator's true f_a,z (host/sim/aero.py), over the planning region:
+
+* every robot inside the planning box (z in [0.3, 2.0] m), every velocity component
+  within v_max, every pair at least r = (D_i + D_j) / 2 + clearance apart (the
+  planner's collision distance), and
+* the model's |f_a,z-hat| within f_a,max: the states the planner may accept.
+
+The margin is the largest one-sided error there, e = |f_true| - |f_model| (the model
+reading low), rounded up to 0.1 g: with |f_model| <= f_a,max - m <= f_a,max every
+held-out state then has |f_true| <= f_a,max.  Beside it the spectral-norm bound
+(eq. sn, ``ns2codegen.model.lipschitz_bound``): the model's output moves by at most
+L ||dx|| between two logged states, which bounds the model's part of the error
+between the samples; it is reported, and is not tighter for these networks (see
+docs/planning.md)."""
+from __future__ import annotations
+
+import io
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ns2codegen.config import Config
+from ns2codegen.fileio import atomic_write_bytes
+from ns2plan.forces import ForceModel
+from ns2plan.problem import GRAMS_TO_N, Limits
+
+# held-out flights per pair of types (kind, seconds); seed HELD_OUT_SEED, never a training seed
+HELD_OUT = (("who", 120.0), ("near", 120.0))
+HELD_OUT_SEED = 7
+
+
+@dataclass
+class FlownStates:
+    """Truth along one flight: types [N], P, V [T, N, 3] (m, m/s), F [T, N] (g, f_a,z),
+    the flight's kind (collect.flight_log)."""
+    types: list
+    P: np.ndarray
+    V: np.ndarray
+    F: np.ndarray
+    kind: str
+
+
+def held_out_flights(cfg: Config, gen_dir, flights=HELD_OUT, seed: int = HELD_OUT_SEED, gap_max: float = 1.5,
+                     pairs=None, progress=None, cache=None) -> list[FlownStates]:
+    """Fly every pair of types (or ``pairs``) in each (kind, seconds) of ``flights``;
+    with ``cache`` (an .npz path) the flights are kept there and read back when it
+    holds these flights."""
+    from ns2host.sim.collect import flight_log, teams
+
+    key = json.dumps([cfg.to_json(), list(map(list, flights)), seed, gap_max, pairs])
+    if cache is not None and Path(cache).is_file():
+        found, stored = load_flights(cache)
+        if stored == key:
+            return found
+    out = []
+    for k, team in enumerate(pairs or [t for t in teams(cfg, 2) if len(t) == 2]):
+        for j, (kind, seconds) in enumerate(flights):
+            log = flight_log(cfg, team, gen_dir, kind, seconds, seed=seed * 1000 + 10 * k + j, near_gap_max=gap_max)
+            out.append(FlownStates(list(team), log["truth_p"], log["truth_v"], log["truth_fa"][..., 2] / GRAMS_TO_N,
+                                   kind))
+            if progress is not None:
+                progress(1)
+    if cache is not None:
+        buf = io.BytesIO()
+        arrays = {f"{k}{i}": getattr(fl, k) for i, fl in enumerate(out) for k in ("P", "V", "F")}
+        np.savez_compressed(buf, key=np.array(key), meta=np.array(json.dumps([{"types": fl.types, "kind": fl.kind}
+                                                                              for fl in out])), **arrays)
+        atomic_write_bytes(Path(cache), buf.getvalue())
+    return out
+
+
+def load_flights(path) -> tuple[list[FlownStates], str]:
+    """The flights of a held_out_flights cache and the key they were flown with."""
+    with np.load(path, allow_pickle=False) as z:
+        meta = json.loads(str(z["meta"]))
+        return ([FlownStates(m["types"], z[f"P{i}"], z[f"V{i}"], z[f"F{i}"], m["kind"]) for i, m in enumerate(meta)],
+                str(z["key"]))
+
+
+def in_region(cfg: Config, fl: FlownStates, limits: Limits) -> np.ndarray:
+    """[T, N] bool: the state is one the planner may fly (box, speed, separation)."""
+    lo, hi = np.array(limits.pos_lo, float), np.array(limits.pos_hi, float)
+    z_ok = (fl.P[..., 2] >= lo[2]) & (fl.P[..., 2] <= hi[2])
+    v_ok = (np.abs(fl.V) <= limits.v_max).all(2)
+    rad = np.array([float(cfg.vehicle(t).get("diameter_m", 0.12)) / 2 for t in fl.types])
+    r = rad[:, None] + rad[None, :] + limits.clearance_m
+    d = np.linalg.norm(fl.P[:, :, None] - fl.P[:, None], axis=3) + np.eye(len(fl.types)) * 1e9
+    sep = (d >= r).all(2)
+    row = (z_ok & v_ok & sep).all(1)
+    return np.repeat(row[:, None], len(fl.types), 1)
+
+
+def errors(cfg: Config, fm: ForceModel, flights: list, limits: Limits) -> dict:
+    """Per robot type: the true and predicted f_a,z (g) at the held-out states in the
+    planning region, and whether the model's force is within the type's limit."""
+    out = {t: {"true": [], "pred": []} for t in cfg.robot_types}
+    for fl in flights:
+        pred = fm.team_np([cfg.robot_types.index(t) for t in fl.types], fl.P, fl.V)
+        mask = in_region(cfg, fl, limits)
+        for i, t in enumerate(fl.types):
+            out[t]["true"].append(fl.F[mask[:, i], i])
+            out[t]["pred"].append(pred[mask[:, i], i])
+    return {t: {k: np.concatenate(v) if v else np.zeros(0) for k, v in d.items()} for t, d in out.items()}
+
+
+def error_stats(true: np.ndarray, pred: np.ndarray, fa_max: float | None = None) -> dict:
+    """RMSE, the largest |error| and the largest one-sided error |true| - |pred| (the
+    model reading low), optionally only where |pred| <= fa_max."""
+    keep = np.ones(len(true), bool) if fa_max is None else np.abs(pred) <= fa_max
+    t, p = true[keep], pred[keep]
+    if not len(t):
+        return {"states": 0}
+    e = t - p
+    return {"states": int(len(t)), "rmse_g": float(np.sqrt(np.mean(e * e))), "max_abs_g": float(np.abs(e).max()),
+            "max_low_g": float((np.abs(t) - np.abs(p)).max()), "p99_low_g": float(np.percentile(np.abs(t) - np.abs(p), 99))}
+
+
+def margin_from_errors(err: dict, fa_max_g: dict, step: float = 0.1) -> dict:
+    """Per robot type the margin m: the largest one-sided error at the held-out states
+    whose predicted |f_a,z| is within f_a,max (never below 0), rounded up to ``step``."""
+    out = {}
+    for t, lim in fa_max_g.items():
+        s = error_stats(err[t]["true"], err[t]["pred"], lim)
+        if not s["states"]:
+            raise ValueError(f"no held-out states of robot type {t!r} in the planning region: cannot measure its margin")
+        out[t] = max(0.0, math.ceil(s["max_low_g"] / step - 1e-9) * step)
+    return out
+
+
+def lipschitz(fm: ForceModel) -> dict:
+    """Spectral-norm bound of the model's output per (robot type, neighbour type) on one
+    neighbour's input x_ij = [p_j - p_i; v_j - v_i]: L(rho_i) L(phi_j) (g per unit of
+    ||x_ij||_2; the input clamp is 1-Lipschitz)."""
+    from ns2codegen.model import lipschitz_bound
+
+    net, cfg = fm.net, fm.cfg
+    out = {}
+    for r, rt in enumerate(cfg.robot_types):
+        for j, nt in enumerate(cfg.robot_types):
+            w_rho = [m.weight.detach() for m in net.rho[r].layers]
+            w_phi = [m.weight.detach() for m in net.phi[j].layers]
+            out[f"{rt}|{nt}"] = lipschitz_bound(w_rho) * lipschitz_bound(w_phi)
+    return out
+
+
+def sample_spacing(flights: list) -> float:
+    """The largest change of a neighbour input ||x_ij|| between two consecutive logged
+    states of the held-out flights (m and m/s together, as the model sees them)."""
+    worst = 0.0
+    for fl in flights:
+        rel = np.concatenate([fl.P[:, 1] - fl.P[:, 0], fl.V[:, 1] - fl.V[:, 0]], 1) if len(fl.types) == 2 else None
+        if rel is not None and len(rel) > 1:
+            worst = max(worst, float(np.linalg.norm(np.diff(rel, axis=0), axis=1).max()))
+    return worst
+
+
+def closest_gap(cfg: Config, fm: ForceModel, lower: str, upper: str, bound_g: float, z: float = 1.0,
+                gaps=np.arange(0.1, 2.0, 0.005)) -> float:
+    """The smallest vertical gap (m, on the grid ``gaps``) from which on ``lower`` may
+    hover under a hovering ``upper`` with the model's |f_a,z-hat| within ``bound_g``
+    at every larger gap of the grid (inf: nowhere)."""
+    types = [cfg.robot_types.index(lower), cfg.robot_types.index(upper)]
+    P = np.zeros((len(gaps), 2, 3))
+    P[:, 0, 2], P[:, 1, 2] = z, z + gaps
+    over = np.abs(fm.team_np(types, P, np.zeros_like(P))[:, 0]) > bound_g
+    if over[-1]:
+        return float("inf")
+    return float(gaps[np.flatnonzero(over)[-1] + 1]) if over.any() else float(gaps[0])
+
+
+def measure(cfg: Config, fm: ForceModel, flights: list, limits: Limits, old_margin_g: float | None = None) -> dict:
+    """The margin per robot type and its evidence (plan.json's ``margin``): error
+    statistics per type and flight kind, the spectral-norm bound and what it gives over
+    the logs' sample spacing, and the closest hovering gaps per type pair with this
+    margin (and with ``old_margin_g``)."""
+    err = errors(cfg, fm, flights, limits)
+    m = margin_from_errors(err, limits.fa_max_g)
+    stats = {}
+    for kind in sorted({fl.kind for fl in flights}):
+        e = errors(cfg, fm, [fl for fl in flights if fl.kind == kind], limits)
+        stats[kind] = {t: error_stats(e[t]["true"], e[t]["pred"], limits.fa_max_g[t]) for t in cfg.robot_types}
+    lip = lipschitz(fm) if fm.net is not None else {}
+    h = sample_spacing(flights)
+    gaps = []
+    for lower in cfg.robot_types:
+        for upper in cfg.robot_types:
+            row = {"lower": lower, "upper": upper,
+                   "gap_m": closest_gap(cfg, fm, lower, upper, limits.fa_max_g[lower] - m[lower])}
+            if old_margin_g is not None:
+                row["gap_old_m"] = closest_gap(cfg, fm, lower, upper, limits.fa_max_g[lower] - old_margin_g)
+            gaps.append(row)
+    return {"margin_g": m, "source": "largest |f_true| - |f_model| at held-out states in the planning region "
+            "with |f_model| <= f_a,max", "errors": {t: error_stats(err[t]["true"], err[t]["pred"], limits.fa_max_g[t])
+                                                   for t in cfg.robot_types},
+            "errors_by_kind": stats, "lipschitz_g_per_unit": lip, "sample_spacing": h,
+            "lipschitz_between_samples_g": {k: v * h / 2 for k, v in lip.items()}, "closest_gaps": gaps,
+            "old_margin_g": old_margin_g}
+
+
+def margin_table(rep: dict) -> str:
+    """Markdown: per robot type the margin and the error statistics behind it."""
+    lines = ["| robot type | states | RMSE (g) | max \\|error\\| (g) | max one-sided (model low, g) | margin (g) |",
+             "|---|---|---|---|---|---|"]
+    for t, s in rep["errors"].items():
+        lines.append(f"| {t} | {s['states']} | {s['rmse_g']:.2f} | {s['max_abs_g']:.2f} | {s['max_low_g']:.2f} | "
+                     f"{rep['margin_g'][t]:.1f} |")
+    lines += ["", "| lower under upper (hovering) | closest gap, measured margin | closest gap, old margin |",
+              "|---|---|---|"]
+    for g in rep["closest_gaps"]:
+        old = f"{g['gap_old_m']:.2f} m" if g.get("gap_old_m") is not None else "-"
+        lines.append(f"| {g['lower']} under {g['upper']} | {g['gap_m']:.2f} m | {old} |")
+    return "\n".join(lines)
+
+
+def compare_table(reports: dict) -> str:
+    """Markdown: the error per flight kind and robot type (RMSE / largest one-sided
+    error where |f_model| <= f_a,max) for several models (name -> ``measure`` report)."""
+    names = list(reports)
+    first = reports[names[0]]
+    lines = ["| held-out flights | robot type | states | " + " | ".join(f"{n}: RMSE / max low (g)" for n in names) + " |",
+             "|---|---|---|" + "---|" * len(names)]
+    for kind, per_type in first["errors_by_kind"].items():
+        for t, s in per_type.items():
+            cells = [f"{reports[n]['errors_by_kind'][kind][t].get('rmse_g', float('nan')):.2f} / "
+                     f"{reports[n]['errors_by_kind'][kind][t].get('max_low_g', float('nan')):.2f}" for n in names]
+            lines.append(f"| {kind} | {t} | {s['states']} | " + " | ".join(cells) + " |")
+    lines.append("| margin (g) | | | " + " | ".join(", ".join(f"{t} {m:.1f}" for t, m in reports[n]["margin_g"].items())
+                                             for n in names) + " |")
+    return "\n".join(lines)
+
+
+def main(argv=None) -> None:
+    """python -m ns2exp.margin CHECKPOINT... --flights CACHE.npz...: the margin and the
+    error on the held-out flights per checkpoint (markdown on stdout; --json FILE too)."""
+    import argparse
+
+    from .planning import FA_MARGIN_G, LIMITS_3D
+    from ns2plan.forces import load_force_model
+
+    ap = argparse.ArgumentParser(prog="python -m ns2exp.margin", description=main.__doc__)
+    ap.add_argument("checkpoints", nargs="+")
+    ap.add_argument("--flights", action="append", required=True, help="held_out_flights cache (.npz), repeatable")
+    ap.add_argument("--json", default=None)
+    a = ap.parse_args(argv)
+    cfg = Config.load()
+    flights = [fl for path in a.flights for fl in load_flights(path)[0]]
+    reports = {Path(c).parent.name or c: measure(cfg, load_force_model(cfg, c), flights, LIMITS_3D, FA_MARGIN_G)
+               for c in a.checkpoints}
+    for name, rep in reports.items():
+        print(f"## {name}\n\n{margin_table(rep)}\n")
+    print(compare_table(reports))
+    if a.json:
+        atomic_write_bytes(Path(a.json), (json.dumps(reports, indent=1, default=float) + "\n").encode())
+
+
+if __name__ == "__main__":
+    main()
