@@ -24,8 +24,8 @@ from pathlib import Path
 import numpy as np
 
 from ns2codegen.config import Config, dump_toml
-from ns2codegen.data.from_logs import Flight, flight_queries, flights_to_dataset
-from ns2codegen.data.labels import motor_forces, residual_force
+from ns2codegen.data.from_logs import Flight, flight_queries, flights_to_dataset, labelled_steps
+from ns2codegen.data.labels import motor_forces
 from ns2codegen.errors import Ns2Error
 from ns2codegen.fileio import atomic_write_bytes
 from ns2codegen.logs.align import logs_to_flights
@@ -132,19 +132,13 @@ def label_report(cfg: Config, flights: list[Flight]) -> dict:
     from ns2codegen.data.dataset import scenario_name
 
     acc: dict = {}
-    for fl in flights:
-        for i, ty in enumerate(fl.types):
-            if fl.labelled is not None and not fl.labelled[i]:
-                continue
-            veh = cfg.vehicle(ty)
-            fa = residual_force(fl.t, fl.v[:, i], fl.q[:, i], fl.pwm[:, i], fl.battery_V[:, i], veh["mass_g"] / 1e3,
-                                veh["psi1"], veh["lambda"])[:, 2] * 1e3 / G
-            ok = ~np.isnan(fa)
-            sc = scenario_name(cfg.robot_types, ty, [fl.types[j] for j in range(len(fl.types)) if j != i])
-            for key in (("type", ty), ("scenario", sc)):
-                a = acc.setdefault(key, {"label": [], "onboard": []})
-                a["label"].append(fa[ok])
-                a["onboard"].append(fl.fa_onboard_g[ok, i])
+    for fl, i, steps, fa in labelled_steps(cfg, flights):
+        ty = fl.types[i]
+        sc = scenario_name(cfg.robot_types, ty, [fl.types[j] for j in range(len(fl.types)) if j != i])
+        for key in (("type", ty), ("scenario", sc)):
+            a = acc.setdefault(key, {"label": [], "onboard": []})
+            a["label"].append(fa[steps, 2] * 1e3 / G)
+            a["onboard"].append(fl.fa_onboard_g[steps, i])
     out: dict = {"type": {}, "scenario": {}}
     every = np.concatenate([np.concatenate(a["label"]) for (kind, _), a in acc.items() if kind == "type"])
     out["all"] = {"samples": int(every.size), "rms_g": round(float(np.sqrt(np.mean(every ** 2))), 3),

@@ -35,7 +35,7 @@ class Flight:
     name: str = ""
 
 
-def _labelled_steps(cfg: Config, flights: list[Flight]):
+def labelled_steps(cfg: Config, flights: list[Flight]):
     """(flight, robot i, time steps with a label, f_a [T, 3] N) of every labelled robot,
     in the order of the data set's samples."""
     for fl in flights:
@@ -81,7 +81,7 @@ def flight_queries(cfg: Config, flights: list[Flight]) -> Queries:
     """The data set's samples (``flights_to_dataset``, same order) as the C API
     receives them: own state in float32 and every other robot as a neighbour."""
     parts = []
-    for fl, i, steps, _ in _labelled_steps(cfg, flights):
+    for fl, i, steps, _ in labelled_steps(cfg, flights):
         ntype, rel = candidates(cfg, fl, i, steps)
         parts.append(Queries(np.full(len(steps), cfg.robot_types.index(fl.types[i]), np.uint8),
                              fl.p[steps, i].astype(np.float32), fl.v[steps, i].astype(np.float32),
@@ -95,7 +95,7 @@ def flights_to_dataset(cfg: Config, flights: list[Flight], scenario_names: list[
     rows_sample, rows_type, rows_state = [], [], []
     n_samples = 0
     t_offset, last = 0.0, None
-    for fl, i, steps, fa in _labelled_steps(cfg, flights):
+    for fl, i, steps, fa in labelled_steps(cfg, flights):
         if last is not None and fl is not last:
             t_offset += float(last.t[-1] - last.t[0]) + 1.0  # flights follow each other in time
         last = fl
