@@ -142,6 +142,62 @@ def gap_table(cfg: Config | None = None, gaps=(0.1, 0.2, 0.3, 0.5, 1.0, 1.5, 2.0
     return "\n".join(lines) + "\n"
 
 
+SIM_TO_REAL_TOL = 0.3   # the issue's goal: the simulated median worst z error within 30 % of the real
+
+
+def _cell(x, nd: int = 3) -> str:
+    if x is None:
+        return "-"
+    if isinstance(x, list):
+        return "/".join(_cell(v, 2) for v in x)
+    return f"{x:.{nd}f}"
+
+
+def _ratio(sim, real) -> str:
+    if sim is None or real is None or isinstance(sim, list) or not real:
+        return ""
+    return f"{sim / real:.2f}"
+
+
+def roughness_table(cmp: dict) -> str:
+    """Every statistic of host/sim/flightstats.py: real, clean and rough simulator
+    (``experiments/calibrate.py compare``), with rough / real."""
+    lines = ["| statistic | real | clean sim | rough sim | rough / real |", "|---|---|---|---|---|"]
+    real, clean, rough = cmp["real"], cmp["clean"], cmp["rough"]
+
+    def rows(group: str, key: str, stats, label):
+        for name in sorted(real[group]):
+            for st in stats:
+                r = real[group][name].get(st)
+                c = clean[group].get(name, {}).get(st)
+                g = rough[group].get(name, {}).get(st)
+                nd = 4 if st in ("motor_noise", "slope_V_per_min") else 3
+                lines.append(f"| {label(name, st)} | {_cell(r, nd)} | {_cell(c, nd)} | {_cell(g, nd)} | {_ratio(g, r)} |")
+
+    rows("free_air", "type", ("mean_g", "std_g", "fast_std_g", "band_fraction", "motor_noise"),
+         lambda n, s: f"free air, {n}: {s}" + (" (0-0.5, 0.5-2, 2-5, 5-20, 20-50 Hz)" if s == "band_fraction" else ""))
+    rows("wake_scatter", "pair", ("scatter_g", "fast_scatter_g", "mean_abs_g"), lambda n, s: f"{n}: {s}")
+    rows("battery", "type", ("start_V", "slope_V_per_min"), lambda n, s: f"battery, {n}: {s}")
+    rows("swaps", "case", ("median_worst_z_error_m",), lambda n, s: f"swap {n}: {s}")
+    return "\n".join(lines) + "\n"
+
+
+def sim_to_real_table(cmp: dict) -> str:
+    """Per swap scenario of the replayed flights: median worst z error of the bottom
+    robot (cm), real against the clean and the rough simulator, and whether the rough
+    one is within SIM_TO_REAL_TOL of the real."""
+    lines = ["| scenario | swaps | real (cm) | clean sim (cm) | rough sim (cm) | rough / real | within 30 % |",
+             "|---|---|---|---|---|---|---|"]
+    for case, r in sorted(cmp["real"]["swaps"].items()):
+        c = cmp["clean"]["swaps"].get(case, {}).get("median_worst_z_error_m")
+        g = cmp["rough"]["swaps"].get(case, {}).get("median_worst_z_error_m")
+        rv = r["median_worst_z_error_m"]
+        ok = g is not None and abs(g / rv - 1.0) <= SIM_TO_REAL_TOL
+        lines.append(f"| {case} | {r['swaps']} | {100 * rv:.1f} | {_cell(None if c is None else 100 * c, 1)} | "
+                     f"{_cell(None if g is None else 100 * g, 1)} | {_ratio(g, rv)} | {'yes' if ok else 'no'} |")
+    return "\n".join(lines) + "\n"
+
+
 if __name__ == "__main__":
     print(markdown(calibration_table()))
     print(gap_table())

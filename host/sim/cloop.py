@@ -20,6 +20,7 @@ from ..cbuild import fill_gains, fill_vehicle
 from ..cfhost import load_fly
 from .aero import calibrated
 from .dynamics import Dynamics, SwarmState
+from .roughness import Roughness, Turbulence
 from .sensing import Sensing
 from .vehicle import G, base_type, default_gains, vehicle
 
@@ -66,12 +67,14 @@ class FlightLog:
 class CLoopSwarm:
     def __init__(self, cfg: Config, types: list[str], gen_dir, positions, learned: str | None = None,
                  aero: bool = False, battery_V: float = 3.9, controllers=None, gains=None,
-                 sensing: Sensing | None = None, seed: int = 0):
+                 sensing: Sensing | None = None, seed: int = 0, rough: Roughness | None = None):
         """learned: None (baseline, f_a = 0), "float" or "fixed"; aero: ground-truth
         interactions (host/sim/aero.py) on or off; controllers: per robot "ns2" (the
         app's path, default) or "mellinger" (the firmware's); gains: per robot None
         (default_gains) or a dict of ns2_gains_t fields replacing some defaults;
-        sensing: the figures of host/sim/sensing.py; seed: noise, biases and losses."""
+        sensing: the figures of host/sim/sensing.py; seed: noise, biases and losses;
+        rough: a real Crazyflie's unmodelled effects (host/sim/roughness.py; None: the
+        clean simulator)."""
         if learned not in (None, "float", "fixed"):
             raise ValueError(f"learned must be None, 'float' or 'fixed', got {learned!r}")
         self.cfg = cfg
@@ -96,13 +99,18 @@ class CLoopSwarm:
         self.robots = ffi.new("ns2_fly_robot_t[]", n)
         acc_b, acc_scale, gyro_b = self.sensing.biases(self.rng, n)
         se = self.sensing
+        self.rough = rough
+        thrust = rough.thrust_factors(self.rng, n) if rough is not None else np.ones(n)
+        self.turbulence = Turbulence(rough, n, 1.0 / ATT_HZ, seed) if rough is not None else None
         for i, veh in enumerate(self.vehicles):
             it = ffi.new("ns2_fly_init_t *")
             it.kind = lib.NS2_FLY_MELLINGER if controllers[i] == "mellinger" else lib.NS2_FLY_PILOT
             it.id, it.type = i + 1, int(self.type_idx[i])
-            it.par, it.psi1, it.p0 = list(self.dyn.par[i]), list(veh.psi1), list(self.state.p[i])
+            it.par, it.psi1, it.p0 = list(self.dyn.par[i]), list(np.asarray(veh.psi1) * thrust[i]), list(self.state.p[i])
             it.bias_acc_g, it.bias_gyro_dps, it.acc_scale = list(acc_b[i]), list(gyro_b[i]), acc_scale[i]
-            it.sd_acc_g, it.sd_gyro_dps, it.ext_pos_std_m = se.acc_sd_g, se.gyro_sd_dps, se.ext_pos_std_m
+            sd_acc, sd_gyro = ((se.acc_sd_g, se.gyro_sd_dps) if rough is None
+                               else rough.imu_sd(types[i], se.acc_sd_g, se.gyro_sd_dps))
+            it.sd_acc_g, it.sd_gyro_dps, it.ext_pos_std_m = sd_acc, sd_gyro, se.ext_pos_std_m
             fill_vehicle(it.veh, veh)
             g = default_gains(veh)
             g.update((gains[i] if gains is not None else None) or {})
@@ -161,6 +169,9 @@ class CLoopSwarm:
                 frame.tick, frame.p, frame.rx = tick, ptr("float *", p_meas), ptr("uint8_t *", rx)
                 fr = frame
             f_a = self.aero(st.p, st.v, st.u.sum(axis=1)) if self.aero else np.zeros((n, 3))
+            if self.turbulence is not None:
+                f_a = f_a + self.turbulence.force(f_a)
+            battery_V = self.battery_V if self.rough is None else self.rough.battery_V(k / ATT_HZ, self.battery_V)
             if k >= settle and ms % every_log == 0:
                 est = np.array([self._estimate(i) for i in range(n)])
                 log.t.append(t)
@@ -169,7 +180,7 @@ class CLoopSwarm:
                 log.q.append(est[:, 6:10])
                 log.w.append(est[:, 10:13])
                 log.pwm.append(np.array([list(self.robots[i].pwm) for i in range(n)]))
-                log.battery_V.append(np.full(n, self.battery_V))
+                log.battery_V.append(np.full(n, battery_V))
                 log.truth_p.append(st.p.copy())
                 log.truth_v.append(st.v.copy())
                 log.truth_fa.append(f_a.copy())
@@ -180,7 +191,7 @@ class CLoopSwarm:
             noise = self.rng.standard_normal((STEP_TICKS, n, 6), dtype=np.float32)
             fa = np.ascontiguousarray(f_a, float)
             n_tr += lib.ns2_fly_run(self.robots, n, ptr("double *", x), ptr("double *", fa), ms, STEP_TICKS,
-                                    ptr("float *", noise), ptr("ns2_setpoint_t *", self.sps), fr, self.battery_V,
+                                    ptr("float *", noise), ptr("ns2_setpoint_t *", self.sps), fr, battery_V,
                                     tr + n_tr if tr != ffi.NULL else ffi.NULL, trace_robot or 0, tr_max - n_tr)
         self.state = SwarmState.unpack(x.copy())
         out = log.arrays()

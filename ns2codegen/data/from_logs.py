@@ -33,6 +33,7 @@ class Flight:
     labelled: list[bool] | None = None      # robots whose labels are used (default all); the others are neighbours only
     fa_onboard_g: np.ndarray | None = None  # [T, N] the on-board prediction flown, NaN where not logged
     name: str = ""
+    p_d: np.ndarray | None = None           # [T, N, 3] the logged position setpoint, NaN where not logged
 
 
 def labelled_steps(cfg: Config, flights: list[Flight]):

@@ -1,0 +1,227 @@
+"""The simulator calibrated on the real flights of 16 June 2020 (``ns2 sim calibrate``):
+
+1. measure the real roughness (host/sim/flightstats.py on the collection's logs);
+2. fit host/sim/roughness.py's parameters to it, each from its own statistic:
+   battery (the logged voltage), thrust scatter (the robots' hover thrust within a
+   type), IMU vibration (one free-air probe flight per type and parameter: the fast
+   part of the residual rises with the accelerometer's noise, the motor-command
+   noise with the gyro's, each in quadrature), wake turbulence (replays of the pair
+   swaps with the other effects on: the real scatter under a neighbour beyond the
+   simulator's, per unit of the wake's force; tau from its fast share);
+3. replay the real swap flights in the clean and the rough simulator with what flew
+   them (the authors' network in the loop, host/sim/replay.py) and compare every
+   statistic of step 1: the calibration table and the sim-to-real swap table.
+No swap or ring result of the paper is a fitting target."""
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import asdict
+from pathlib import Path
+
+import numpy as np
+
+from ns2codegen.config import Config
+from ns2codegen.data.from_logs import Flight
+from ns2codegen.fileio import atomic_write_bytes
+
+from ns2host.sim import flightstats as fs
+from ns2host.sim.cloop import CLoopSwarm
+from ns2host.sim.replay import pieces_by_flight, replay
+from ns2host.sim.roughness import EFFECTS, Roughness, hp_share
+from ns2host.sim.scenarios import random_walk
+
+PROBE = {"seconds": 30.0, "acc_g": 0.05, "gyro_dps": 1.0, "cube": ((-1.0, 1.0), (-1.0, 1.0), (0.6, 1.4)), "seed": 1}
+PAIR_SWAPS = ("swap_ss", "swap_sl", "swap_ll")
+FIT_FLIGHTS_PER_PAIR = 3      # pair swap flights replayed for the turbulence fit (the first ones by name)
+
+
+def swap_flights(flights: list[Flight]) -> list[Flight]:
+    return [f for f in flights if f.name.startswith("swap_")]
+
+
+def real_statistics(cfg: Config, flights: list[Flight]) -> dict:
+    """Step 1 on the real collection: free air and battery over every flight, the wake
+    scatter and the swap errors over the swap flights."""
+    sw = swap_flights(flights)
+    return {"free_air": fs.free_air(cfg, flights), "battery": fs.battery(flights),
+            "wake_scatter": fs.wake_scatter(cfg, sw), "swaps": fs.swap_errors(sw)}
+
+
+def probe(cfg: Config, gen_dir, robot_type: str, rough: Roughness | None) -> dict:
+    """free_air statistics of one robot's random walk (PROBE) in the simulator."""
+    sp, start = random_walk(1, cube=PROBE["cube"], seed=PROBE["seed"])
+    sw = CLoopSwarm(cfg, [robot_type], gen_dir, start, aero=True, rough=rough, seed=PROBE["seed"])
+    log = sw.run(PROBE["seconds"], sp)
+    fl = Flight([robot_type], *(log[k] for k in ("t", "p", "v", "q", "pwm", "battery_V")))
+    return fs.free_air(cfg, [fl])[robot_type]
+
+
+def _quadrature(real: float, base: float, probed: float, probe_value: float) -> float:
+    """x such that real^2 = base^2 + (probed^2 - base^2) (x / probe_value)^2 (0 if the
+    simulator is already as rough)."""
+    gain = (probed ** 2 - base ** 2) / probe_value ** 2
+    if gain <= 0:
+        raise ValueError(f"the probe did not raise the statistic ({base} -> {probed})")
+    return math.sqrt(max(real ** 2 - base ** 2, 0.0) / gain)
+
+
+def fit_vibration(cfg: Config, gen_dir, real_free: dict, base: Roughness) -> tuple[dict, dict, dict]:
+    """Accelerometer and gyro vibration per robot type from free-air probes."""
+    acc, gyro, rows = {}, {}, {}
+    for ty in cfg.robot_types:
+        if ty not in real_free or real_free[ty]["fast_std_g"] is None:
+            raise ValueError(f"no free-air stretch of a {ty} robot in the real flights")
+        off = base.without("vibration")
+        b = probe(cfg, gen_dir, ty, off)
+        a = probe(cfg, gen_dir, ty, _vib(base, ty, PROBE["acc_g"], 0.0))
+        acc[ty] = _quadrature(real_free[ty]["fast_std_g"], b["fast_std_g"], a["fast_std_g"], PROBE["acc_g"])
+        b2 = probe(cfg, gen_dir, ty, _vib(base, ty, acc[ty], 0.0))
+        g = probe(cfg, gen_dir, ty, _vib(base, ty, acc[ty], PROBE["gyro_dps"]))
+        gyro[ty] = _quadrature(real_free[ty]["motor_noise"], b2["motor_noise"], g["motor_noise"], PROBE["gyro_dps"])
+        rows[ty] = {"without": b, "acc_probe": a, "acc_fitted": b2, "gyro_probe": g}
+    return acc, gyro, rows
+
+
+def _vib(base: Roughness, ty: str, acc: float, gyro: float) -> Roughness:
+    from dataclasses import replace
+
+    return replace(base, vibration_acc_g={**base.vibration_acc_g, ty: acc},
+                   vibration_gyro_dps={**base.vibration_gyro_dps, ty: gyro})
+
+
+def replay_all(cfg: Config, gen_dir, pieces: dict, rough: Roughness | None, workers: int = 1,
+               seed: int = 0) -> list[Flight]:
+    """Replay every flight of ``pieces`` (name -> real pieces); ``workers`` processes."""
+    names = sorted(pieces)
+    if workers > 1 and len(names) > 1:
+        import multiprocessing
+        from concurrent.futures import ProcessPoolExecutor
+
+        from ns2host.cfhost import load_fly
+        load_fly(gen_dir)
+        with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("fork")) as ex:
+            return list(ex.map(_replay_one, [(cfg, pieces[n], gen_dir, rough, seed) for n in names]))
+    return [_replay_one((cfg, pieces[n], gen_dir, rough, seed)) for n in names]
+
+
+def _replay_one(args) -> Flight:
+    cfg, pcs, gen_dir, rough, seed = args
+    return replay(cfg, pcs, gen_dir, learned="float", rough=rough, seed=seed)
+
+
+def fit_pieces(flights: list[Flight]) -> dict:
+    """The pair swap flights the turbulence fit replays: FIT_FLIGHTS_PER_PAIR per pair."""
+    by = pieces_by_flight(swap_flights(flights))
+    out = {}
+    for sc in PAIR_SWAPS:
+        for n in sorted(n for n in by if n.split("/")[0] == sc)[:FIT_FLIGHTS_PER_PAIR]:
+            out[n] = by[n]
+    return out
+
+
+def fit_turbulence(cfg: Config, gen_dir, flights: list[Flight], base: Roughness, workers: int = 1) -> tuple[float, float, dict]:
+    """ratio and tau of the wake turbulence: the real within-bin scatter under a
+    neighbour beyond the simulator's (the other effects on, turbulence off), per unit
+    of the bins' rms force, pooled over the pairs of types by samples; tau from the
+    share of that excess variance in the fast part (roughness.hp_share)."""
+    pieces = fit_pieces(flights)
+    real = fs.wake_scatter(cfg, [p for ps in pieces.values() for p in ps])
+    sim = fs.wake_scatter(cfg, replay_all(cfg, gen_dir, pieces, base.without("turbulence"), workers))
+    num = den = num_f = 0.0
+    rows = {}
+    for key, r in real.items():
+        s = sim.get(key)
+        if s is None:
+            continue
+        ex = max(r["scatter_g"] ** 2 - s["scatter_g"] ** 2, 0.0)
+        ex_f = max(r["fast_scatter_g"] ** 2 - s["fast_scatter_g"] ** 2, 0.0)
+        num += r["samples"] * ex
+        num_f += r["samples"] * ex_f
+        den += r["samples"] * r["mean_abs_g"] ** 2
+        rows[key] = {"real": r, "sim_without_turbulence": s}
+    if den <= 0:
+        raise ValueError("no pair of robots under each other in the fit flights")
+    ratio = math.sqrt(num / den)
+    share = num_f / num if num > 0 else 1.0
+    taus = np.geomspace(0.002, 2.0, 400)
+    tau = float(taus[int(np.argmin([abs(hp_share(t) - share) for t in taus]))])
+    return ratio, tau, {"pairs": rows, "fast_share_of_excess": round(share, 3), "flights": sorted(pieces)}
+
+
+def thrust_sd(hover_by_robot: dict, robot_type_of: dict) -> float:
+    """Relative standard deviation of the robots' hover thrust within a type, pooled over
+    the types with two robots or more (hover_masses' by_robot medians)."""
+    dev, dof = 0.0, 0
+    for ty in set(robot_type_of.values()):
+        m = np.array([hover_by_robot[r]["median_g"] for r, t in robot_type_of.items() if t == ty and r in hover_by_robot])
+        if len(m) >= 2:
+            dev += float(((m / m.mean() - 1.0) ** 2).sum())
+            dof += len(m) - 1
+    if not dof:
+        raise ValueError("no robot type with two hover-weighed robots: thrust scatter unknown")
+    return math.sqrt(dev / dof)
+
+
+def fit(cfg: Config, gen_dir, flights: list[Flight], hover_by_robot: dict, robot_type_of: dict,
+        workers: int = 1) -> tuple[Roughness, dict]:
+    """Every parameter of Roughness from the real flights (module docstring)."""
+    real = real_statistics(cfg, flights)
+    bat = real["battery"]
+    start = float(np.median([b["start_V"] for b in bat.values()]))
+    sag = -float(np.median([b["slope_V_per_min"] for b in bat.values()]))
+    base = Roughness(battery_start_V=round(start, 3), battery_sag_V_per_min=round(sag, 4),
+                     thrust_sd=round(thrust_sd(hover_by_robot, robot_type_of), 4))
+    acc, gyro, vib_rows = fit_vibration(cfg, gen_dir, real["free_air"], base)
+    base = Roughness(**{**asdict(base), "vibration_acc_g": {k: round(v, 4) for k, v in acc.items()},
+                        "vibration_gyro_dps": {k: round(v, 3) for k, v in gyro.items()}})
+    ratio, tau, turb_rows = fit_turbulence(cfg, gen_dir, flights, base, workers)
+    rough = Roughness(**{**asdict(base), "turbulence_ratio": round(ratio, 3), "turbulence_tau_s": round(tau, 4)})
+    return rough, {"real": real, "vibration_probes": vib_rows, "turbulence": turb_rows}
+
+
+def compare(cfg: Config, gen_dir, flights: list[Flight], rough: Roughness, names: list[str] | None = None,
+            workers: int = 1) -> dict:
+    """Statistics of step 1 for the real flights, the clean and the rough simulator:
+    free air from the probes, the rest over the replayed swap flights (``names``: a
+    subset; the real side is then the same subset)."""
+    by = pieces_by_flight(swap_flights(flights))
+    if names is not None:
+        by = {n: by[n] for n in names}
+    real_sw = [p for ps in by.values() for p in ps]
+    out = {"flights": sorted(by), "real": {"free_air": fs.free_air(cfg, flights), "battery": fs.battery(flights),
+                                          "wake_scatter": fs.wake_scatter(cfg, real_sw),
+                                          "swaps": fs.swap_errors(real_sw)}}
+    for label, r in (("clean", None), ("rough", rough)):
+        sims = replay_all(cfg, gen_dir, by, r, workers)
+        out[label] = {"free_air": {ty: probe(cfg, gen_dir, ty, r) for ty in cfg.robot_types},
+                      "battery": fs.battery(sims), "wake_scatter": fs.wake_scatter(cfg, sims),
+                      "swaps": fs.swap_errors(sims)}
+    return out
+
+
+def roughness_dict(rough: Roughness) -> dict:
+    d = asdict(rough)
+    d["enabled"] = list(d["enabled"])
+    return d
+
+
+def calibrate(cfg: Config, gen_dir, flights: list[Flight], hover_by_robot: dict, robot_type_of: dict,
+              out_dir: str | Path, workers: int = 1, names: list[str] | None = None,
+              rough: Roughness | None = None) -> dict:
+    """Fit (unless ``rough`` is given), compare, write out_dir/calibration.json and
+    calibration.md; returns the JSON."""
+    from ns2host.sim.calibration import roughness_table, sim_to_real_table
+
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    fit_report = None
+    if rough is None:
+        rough, fit_report = fit(cfg, gen_dir, flights, hover_by_robot, robot_type_of, workers)
+    cmp = compare(cfg, gen_dir, flights, rough, names, workers)
+    res = {"roughness": roughness_dict(rough), "effects": list(EFFECTS), "fit": fit_report, "compare": cmp}
+    atomic_write_bytes(out_dir / "calibration.json", json.dumps(res, indent=1, sort_keys=True).encode())
+    md = ("# The simulator against the real flights\n\n" + roughness_table(cmp) + "\n\n## Replayed swaps\n\n"
+          + sim_to_real_table(cmp) + "\n")
+    atomic_write_bytes(out_dir / "calibration.md", md.encode())
+    return res

@@ -1,0 +1,282 @@
+"""The roughness of a flight, measured the same way on real logs and on simulated ones
+(issue: a simulator as rough as a real Crazyflie, step 1).  Every function takes
+``Flight``s on a uniform time base (ns2codegen.data.from_logs: the real collection
+through ns2codegen.logs, the simulator's logs through host/sim/collect.py) and
+labels them as the data set does (``labelled_steps``: eq. (residual) from the
+estimated state, PWM and battery voltage).
+
+free_air      the residual force of a robot with no neighbour near (no robot within
+              FREE_AIR horizontally, above FREE_AIR's height): mean, standard
+              deviation, its fast part (minus its HP_WINDOW moving average: what
+              no controller follows), its spectrum in bands; the motor-command
+              noise (motor_noise) there
+wake_scatter  how the residual under one neighbour scatters around its mean for the
+              same relative state (bins of vertical gap, horizontal distance and
+              relative horizontal speed): the pooled within-bin standard deviation,
+              against the bins' mean |f_a,z|
+battery       the battery voltage over a flight: at take-off and its slope
+z_loop        the z tracking of a robot with no neighbour near: the error's mean and
+              standard deviation per type, and the closed loop's stiffness identified
+              from it (the commanded vertical force against the z and v_z errors)
+swap_errors   the worst z error of the bottom robot of each swap (the paper's metric,
+              Fig. swap): per scenario, the median over swaps
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ns2codegen.config import Config
+from ns2codegen.data.from_logs import Flight, labelled_steps
+from ns2codegen.data.labels import psi1_newtons, quat_to_R
+
+from .vehicle import G
+
+FREE_AIR = {"min_z_m": 0.4, "min_horizontal_m": 0.6}
+HP_WINDOW = 21            # samples (0.2 s at 100 Hz): the fast part of a signal is what is left around this mean
+NOISE_WINDOW = 11         # samples (0.1 s at 100 Hz): motor commands minus their moving average
+BANDS_HZ = ((0.0, 0.5), (0.5, 2.0), (2.0, 5.0), (5.0, 20.0), (20.0, 50.1))
+WELCH_N = 256             # samples per spectrum segment (2.56 s)
+WAKE = {"max_horizontal_m": 0.3, "gap_m": (0.1, 1.2), "bin_gap_m": 0.05, "bin_horizontal_m": 0.025,
+        "bin_speed_mps": 0.25, "min_bin": 10}
+SWAP_MIN_S = 0.5          # s: a shorter movement is no swap (the setpoint's noise around a start)
+SWAP_MIN_SPEED = 0.02     # m/s: the bottom robot's setpoint moves horizontally (a swap under way;
+                          # its speed from the 0.1 s moving average: the real setpoint is logged in mm)
+
+
+def moving_average(x: np.ndarray, n: int) -> np.ndarray:
+    """Centred moving average of n samples along axis 0 (edges: the partial window)."""
+    k = np.ones(n)
+    x = np.asarray(x, float)
+    flat = x.reshape(len(x), -1)
+    num = np.stack([np.convolve(c, k, mode="same") for c in flat.T], axis=1)
+    den = np.convolve(np.ones(len(x)), k, mode="same")[:, None]
+    return (num / den).reshape(x.shape)
+
+
+def motor_noise(pwm: np.ndarray) -> float:
+    """rms of the motor commands (PWM in [0, 1]) minus their 0.1 s moving average, over
+    time, motors and the robots given ([T, ..., 4]); the window's edges left out."""
+    flat = np.asarray(pwm, float).reshape(len(pwm), -1)
+    h = NOISE_WINDOW // 2
+    d = (flat - moving_average(flat, NOISE_WINDOW))[h:-h]
+    return float(np.sqrt((d ** 2).mean()))
+
+
+def runs(mask: np.ndarray) -> list[tuple[int, int]]:
+    """[start, end) of every run of True."""
+    e = np.flatnonzero(np.diff(np.concatenate([[0], np.asarray(mask, np.int8), [0]])))
+    return list(zip(e[::2].tolist(), e[1::2].tolist()))
+
+
+def _labels_g(cfg: Config, flights: list[Flight]):
+    """(flight, robot, f_a,z [T] in g with NaN where unlabelled) per labelled robot."""
+    for fl, i, steps, fa in labelled_steps(cfg, flights):
+        fz = np.full(len(fl.t), np.nan)
+        fz[steps] = fa[steps, 2] * 1e3 / G
+        yield fl, i, fz
+
+
+def _alone(fl: Flight, i: int) -> np.ndarray:
+    ok = fl.p[:, i, 2] > FREE_AIR["min_z_m"]
+    for j in range(len(fl.types)):
+        if j != i:
+            ok &= np.hypot(*(fl.p[:, j, :2] - fl.p[:, i, :2]).T) > FREE_AIR["min_horizontal_m"]
+    return ok
+
+
+def free_air(cfg: Config, flights: list[Flight]) -> dict:
+    """Per robot type: samples, mean_g, std_g, fast_std_g (the label minus its 0.2 s
+    moving average), band_fraction (Welch spectrum of runs >= 2.56 s, share of the
+    variance per band of BANDS_HZ, or None without such a run), motor_noise."""
+    from scipy.signal import welch
+
+    acc: dict = {}
+    for fl, i, fz in _labels_g(cfg, flights):
+        ok = _alone(fl, i) & np.isfinite(fz)
+        a = acc.setdefault(fl.types[i], {"x": [], "fast": [], "psd": [], "pwm": []})
+        h, hn = HP_WINDOW // 2, NOISE_WINDOW // 2
+        for s, e in runs(ok):
+            x = fz[s:e]
+            a["x"].append(x)
+            if e - s > HP_WINDOW:
+                a["fast"].append((x - moving_average(x, HP_WINDOW))[h:-h])
+            if e - s > NOISE_WINDOW:
+                pw = fl.pwm[s:e, i]
+                a["pwm"].append((pw - moving_average(pw, NOISE_WINDOW))[hn:-hn])
+            if e - s >= WELCH_N:
+                f, p = welch(x - x.mean(), fs=1.0 / float(np.median(np.diff(fl.t))), nperseg=WELCH_N)
+                a["psd"].append(p * (e - s))
+    out = {}
+    for ty, a in sorted(acc.items()):
+        x = np.concatenate(a["x"]) if a["x"] else np.zeros(0)
+        fast = np.concatenate(a["fast"]) if a["fast"] else np.zeros(0)
+        pwm = np.concatenate(a["pwm"]) if a["pwm"] else np.zeros((0, 4))
+        bands = None
+        if a["psd"]:
+            p = np.sum(a["psd"], axis=0)
+            bands = [round(float(p[(f >= lo) & (f < hi)].sum() / p.sum()), 3) for lo, hi in BANDS_HZ]
+        out[ty] = {"samples": int(x.size), "mean_g": _r(x.mean() if x.size else None),
+                   "std_g": _r(x.std() if x.size else None),
+                   "fast_std_g": _r(np.sqrt((fast ** 2).mean()) if fast.size else None),
+                   "band_fraction": bands, "bands_hz": [list(b) for b in BANDS_HZ],
+                   "motor_noise": _r(np.sqrt((pwm ** 2).mean()) if pwm.size else None, 5)}
+    return out
+
+
+def _r(x, nd: int = 3):
+    return None if x is None else round(float(x), nd)
+
+
+def wake_scatter(cfg: Config, flights: list[Flight]) -> dict:
+    """Per (robot type, neighbour type) of two-robot flights, the robot under its
+    neighbour (vertical gap in WAKE's range, horizontal distance below its maximum):
+    the labels binned by gap, horizontal distance and relative horizontal speed; the
+    pooled within-bin standard deviation (scatter_g: what no model of the relative
+    state predicts, measurement noise included), the rms of the bins' means
+    (mean_abs_g), and the same scatter of its fast part (fast_scatter_g)."""
+    w = WAKE
+    acc: dict = {}
+    for fl, i, fz in _labels_g(cfg, flights):
+        if len(fl.types) != 2:
+            continue
+        j = 1 - i
+        d = fl.p[:, j] - fl.p[:, i]
+        r = np.hypot(d[:, 0], d[:, 1])
+        dv = np.hypot(*(fl.v[:, j, :2] - fl.v[:, i, :2]).T)
+        ok = (np.isfinite(fz) & (d[:, 2] >= w["gap_m"][0]) & (d[:, 2] <= w["gap_m"][1])
+              & (r <= w["max_horizontal_m"]))
+        fast = np.full(len(fz), np.nan)
+        h = HP_WINDOW // 2
+        for s, e in runs(np.isfinite(fz)):
+            if e - s > HP_WINDOW:
+                fast[s + h:e - h] = (fz[s:e] - moving_average(fz[s:e], HP_WINDOW))[h:-h]
+        key = f"{fl.types[i]} under {fl.types[j]}"
+        a = acc.setdefault(key, {"bin": [], "x": [], "fast": []})
+        b = np.stack([np.floor(d[ok, 2] / w["bin_gap_m"]), np.floor(r[ok] / w["bin_horizontal_m"]),
+                      np.floor(dv[ok] / w["bin_speed_mps"])], 1).astype(np.int64)
+        a["bin"].append(b)
+        a["x"].append(fz[ok])
+        a["fast"].append(fast[ok])
+    out = {}
+    for key, a in sorted(acc.items()):
+        if not a["x"] or not sum(len(x) for x in a["x"]):
+            continue
+        b, x, fast = np.concatenate(a["bin"]), np.concatenate(a["x"]), np.concatenate(a["fast"])
+        _, inv, cnt = np.unique(b, axis=0, return_inverse=True, return_counts=True)
+        inv = inv.ravel()
+        keep = cnt[inv] >= w["min_bin"]
+        if not keep.any():
+            continue
+        _, inv = np.unique(inv[keep], return_inverse=True)
+        x, fast = x[keep], fast[keep]
+        m = np.bincount(inv, x) / np.bincount(inv)
+        dof = x.size - len(m)
+        res = x - m[inv]
+        okf = np.isfinite(fast)
+        mf = np.bincount(inv[okf], fast[okf], minlength=len(m)) / np.maximum(np.bincount(inv[okf], minlength=len(m)), 1)
+        out[key] = {"samples": int(x.size), "bins": int(len(m)),
+                    "scatter_g": _r(np.sqrt((res ** 2).sum() / max(dof, 1))),
+                    "mean_abs_g": _r(np.sqrt((m[inv] ** 2).mean())),
+                    "fast_scatter_g": _r(np.sqrt(((fast[okf] - mf[inv[okf]]) ** 2).mean())) if okf.any() else None}
+    return out
+
+
+def battery(flights: list[Flight], min_s: float = 10.0) -> dict:
+    """Per robot type, over flight pieces of at least ``min_s``: the voltage in the
+    first second (median over pieces) and the slope of a straight-line fit (V/min,
+    median), with their 10th-90th percentiles."""
+    acc: dict = {}
+    for fl in flights:
+        if fl.t[-1] - fl.t[0] < min_s:
+            continue
+        first = fl.t - fl.t[0] < 1.0
+        for i, ty in enumerate(fl.types):
+            a = acc.setdefault(ty, {"v0": [], "slope": []})
+            a["v0"].append(float(np.median(fl.battery_V[first, i])))
+            a["slope"].append(float(np.polyfit(fl.t, fl.battery_V[:, i], 1)[0]) * 60.0)
+    return {ty: {"pieces": len(a["v0"]), "start_V": _r(np.median(a["v0"])),
+                 "start_V_p10_p90": [_r(v) for v in np.percentile(a["v0"], [10, 90])],
+                 "slope_V_per_min": _r(np.median(a["slope"]), 4),
+                 "slope_p10_p90": [_r(v, 4) for v in np.percentile(a["slope"], [10, 90])]}
+            for ty, a in sorted(acc.items())}
+
+
+def setpoint_derivatives(fl: Flight) -> tuple[np.ndarray, np.ndarray]:
+    """v_d, a_d [T, N, 3] of the logged position setpoint (after a 0.1 s moving average:
+    the real setpoint is logged in millimetres)."""
+    v = np.gradient(moving_average(fl.p_d, NOISE_WINDOW), fl.t, axis=0)
+    return v, np.gradient(moving_average(v, NOISE_WINDOW), fl.t, axis=0)
+
+
+def z_loop(cfg: Config, flights: list[Flight]) -> dict:
+    """Free-air z tracking (robots alone as in free_air; flights with setpoints): per
+    type the z error's mean and standard deviation (m); pooled over the types, the
+    least-squares fit of the commanded vertical acceleration (psi_1 of the logged PWM,
+    before the motors' delay, along the body z axis, per unit of the type's mass,
+    minus g and the setpoint's a_z) = -kp e_z - kd e_vz + bias of the type, with its R^2: the
+    stiffness of the controller that flew (a PD law; an integral would show as a
+    drifting bias)."""
+    per: dict = {}
+    X, Y = [], []
+    for fl in flights:
+        if fl.p_d is None or len(fl.t) < 2 * NOISE_WINDOW or not np.isfinite(fl.p_d).all():
+            continue
+        v_d, a_d = setpoint_derivatives(fl)
+        for i, ty in enumerate(fl.types):
+            if fl.labelled is not None and not fl.labelled[i]:
+                continue
+            ok = _alone(fl, i)
+            if not ok.any():
+                continue
+            veh = cfg.vehicle(ty)
+            T = psi1_newtons(veh["psi1"], fl.pwm[:, i], fl.battery_V[:, i]).sum(axis=1)
+            az = T * quat_to_R(fl.q[:, i])[:, 2, 2] / (veh["mass_g"] / 1000.0) - G - a_d[:, i, 2]
+            ez = fl.p[:, i, 2] - fl.p_d[:, i, 2]
+            ev = fl.v[:, i, 2] - v_d[:, i, 2]
+            per.setdefault(ty, []).append(ez[ok])
+            onehot = np.zeros((len(ez), len(cfg.robot_types)))
+            onehot[:, cfg.robot_types.index(ty)] = 1.0
+            X.append(np.column_stack([ez, ev, onehot])[ok])
+            Y.append(az[ok])
+    out: dict = {"by_type": {ty: {"samples": int(sum(len(e) for e in es)),
+                                  "z_error_mean_m": _r(np.concatenate(es).mean(), 4),
+                                  "z_error_std_m": _r(np.concatenate(es).std(), 4)} for ty, es in sorted(per.items())}}
+    if X:
+        X, Y = np.concatenate(X), np.concatenate(Y)
+        c = np.linalg.lstsq(X, Y, rcond=None)[0]
+        out["fit"] = {"kp_per_s2": _r(-c[0]), "kd_per_s": _r(-c[1]),
+                      "bias_mps2": {ty: _r(b) for ty, b in zip(cfg.robot_types, c[2:])},
+                      "r2": _r(1.0 - ((Y - X @ c) ** 2).mean() / Y.var()), "samples": int(len(Y))}
+    return out
+
+
+def swap_case(types: list[str], bottom: int, order: list[int]) -> str:
+    """The paper's name of a swap: the robots above the bottom one, from the bottom up,
+    then "2" and the bottom robot (L2S: a large robot above a small one)."""
+    letter = lambda t: t[0].upper()  # noqa: E731
+    return "".join(letter(types[k]) for k in order if k != bottom) + "2" + letter(types[bottom])
+
+
+def swap_errors(flights: list[Flight]) -> dict:
+    """Per swap scenario: the worst |z - z_d| (m) of the bottom robot in each swap (the
+    robot with the lowest setpoint; one swap = from the start of a horizontal movement
+    of its setpoint to the start of the next, whole swaps inside one flight piece only;
+    z from the robot's own estimate, as logged), and their median.  Flights need the
+    setpoint ``p_d``."""
+    per: dict = {}
+    for fl in flights:
+        if fl.p_d is None or np.isnan(fl.p_d).all() or len(fl.types) < 2:
+            continue
+        zd = np.nanmedian(fl.p_d[:, :, 2], axis=0)
+        order = [int(k) for k in np.argsort(zd, kind="stable")]
+        bottom = order[0]
+        case = swap_case(fl.types, bottom, order)
+        vd = setpoint_derivatives(fl)[0][:, bottom, :2]
+        moving = np.hypot(vd[:, 0], vd[:, 1]) > SWAP_MIN_SPEED
+        starts = [s for s, e in runs(moving) if s > 0 and fl.t[e - 1] - fl.t[s] >= SWAP_MIN_S]
+        err = np.abs(fl.p[:, bottom, 2] - fl.p_d[:, bottom, 2])
+        for a, b in zip(starts[:-1], starts[1:]):
+            per.setdefault(case, []).append(float(np.nanmax(err[a:b])))
+    return {case: {"swaps": len(w), "median_worst_z_error_m": _r(np.median(w), 4),
+                   "p25_p75_m": [_r(v, 4) for v in np.percentile(w, [25, 75])], "worst_m": _r(max(w), 4)}
+            for case, w in sorted(per.items())}

@@ -1,0 +1,83 @@
+"""Replay a real flight in the simulator: the same team flies the logged setpoints
+(``ctrltargetZ``: what the robots' high-level commanders sent to their controllers)
+from the logged start, every robot as a Crazyflie (cloop.py) with a learned f_a in
+the loop (the collection of 16 June 2020 flew the authors' network: import it with
+``ns2 real import-authors`` and export it).  The simulated flight comes back as a
+``Flight`` with the same time base and setpoints, so host/sim/flightstats.py measures
+both the same way (the sim-to-real table, docs/simulator.md).
+
+What is not the real flight: the controller is the project's (ns2_pilot with its
+default gains; the authors' firmware controller and gains are not published with
+the logs), the robots' masses and thrust maps are the config's (the hover-measured
+masses of experiments/real.py when given its real.toml), and the interactions are
+the simulator's ground truth."""
+from __future__ import annotations
+
+import numpy as np
+
+from ns2codegen.config import Config
+from ns2codegen.data.from_logs import Flight
+
+from .cloop import CLoopSwarm, Setpoints
+from .flightstats import NOISE_WINDOW, moving_average
+from .roughness import Roughness
+
+
+def pieces_by_flight(flights: list[Flight]) -> dict[str, list[Flight]]:
+    """The usable pieces of each real flight (ns2codegen.logs cuts a flight at gaps)."""
+    out: dict = {}
+    for fl in flights:
+        out.setdefault(fl.name, []).append(fl)
+    return out
+
+
+def logged_setpoints(pieces: list[Flight]):
+    """(setpoints(t), start positions, t0, duration) of one real flight: the logged
+    position setpoints of all its pieces joined (linear across the cut gaps), the
+    velocity and acceleration setpoints their derivatives after a 0.1 s moving
+    average (the setpoint is logged in millimetres)."""
+    if any(p.p_d is None for p in pieces) or not all(np.isfinite(p.p_d).all() for p in pieces):
+        raise ValueError(f"flight {pieces[0].name!r}: no complete position setpoint logged")
+    t = np.concatenate([p.t for p in pieces])
+    p_d = np.concatenate([p.p_d for p in pieces])
+    order = np.argsort(t)
+    t, p_d = t[order], p_d[order]
+    grid = np.arange(t[0], t[-1] + 1e-9, 0.01)
+    p = np.stack([np.stack([np.interp(grid, t, p_d[:, i, k]) for k in range(3)], 1)
+                  for i in range(p_d.shape[1])], 1)
+    v = np.gradient(moving_average(p, NOISE_WINDOW), grid, axis=0)
+    a = np.gradient(moving_average(v, NOISE_WINDOW), grid, axis=0)
+    n = p.shape[1]
+
+    def sp(tau, state=None):
+        k = int(np.clip(round(tau / 0.01), 0, len(grid) - 1))
+        return Setpoints(p[k], v[k], a[k], np.zeros(n))
+
+    return sp, p[0], float(grid[0]), float(grid[-1] - grid[0])
+
+
+def z_gains(cfg: Config, robot_type: str, kp_per_s2: float, kd_per_s: float) -> dict:
+    """ns2_gains_t overrides that make the project's controller a PD law in z of the
+    given stiffness (per unit mass; no integral): v_r = v_d - Lp e_z, f = ... - Kv e_v,
+    so kd = Kv / m and kp = Kv Lp / m."""
+    from .vehicle import default_gains, vehicle
+
+    veh = vehicle(cfg, robot_type)
+    g = default_gains(veh)
+    return {"Lp": [*g["Lp"][:2], kp_per_s2 / kd_per_s], "Kv": [*g["Kv"][:2], kd_per_s * veh.mass],
+            "Gv": [*g["Gv"][:2], 0.0]}
+
+
+def replay(cfg: Config, pieces: list[Flight], gen_dir, learned: str | None = "float",
+           rough: Roughness | None = None, seed: int = 0, z_loop: dict | None = None) -> Flight:
+    """Fly one real flight's setpoints with its team in the simulator; the drones'
+    log as a Flight (time as the real flight's, estimated states, setpoints).
+    z_loop: {"kp_per_s2", "kd_per_s"} of the controller that flew (flightstats.z_loop's
+    fit) instead of the project's default z gains."""
+    sp, start, t0, duration = logged_setpoints(pieces)
+    types = list(pieces[0].types)
+    gains = None if z_loop is None else [z_gains(cfg, t, z_loop["kp_per_s2"], z_loop["kd_per_s"]) for t in types]
+    sw = CLoopSwarm(cfg, types, gen_dir, start, aero=True, learned=learned, seed=seed, rough=rough, gains=gains)
+    log = sw.run(duration, sp)
+    return Flight(types, log["t"] + t0, log["p"], log["v"], log["q"], log["pwm"], log["battery_V"],
+                  name=pieces[0].name, p_d=log["p_d"])

@@ -1,0 +1,116 @@
+"""What a real Crazyflie has and the clean simulator does not: each effect separate,
+switchable (``Roughness.without(name)``; ``None`` in cloop.py flies the clean
+simulator), its parameters fitted to the real flights of 16 June 2020 by
+``ns2 sim calibrate`` (host/sim/calibration.py ``fit_roughness``: the statistics of
+host/sim/flightstats.py, real against simulated, never a swap or ring result).
+The defaults below are that fit's output (docs/simulator.md, "Roughness"); a test
+refits them from the logs.
+
+vibration    propeller vibration seen by the IMU: white noise per 1 kHz sample added
+             (in quadrature) to the BMI088 datasheet noise of sensing.py, per robot
+             type, accelerometer (g) and gyro (deg/s).  Source: the fast part (above
+             about 5 Hz) of the free-air residual force and the motor-command noise,
+             which the datasheet noise leaves 2-4x too small.
+turbulence   rotor-wake turbulence: a force along z on every robot, a first-order
+             Gauss-Markov process of correlation time tau_s whose standard deviation
+             is ``ratio`` x |f_a,z| of the ground truth at that robot (the wakes and
+             the ground it sits in; no wake, no turbulence).  Source: the scatter of
+             the real residual under a neighbour for the same relative state, beyond
+             the clean simulator's, and its fast share (tau).
+thrust       per-robot thrust scatter: each robot's psi_1 (PWM -> force) scaled by
+             1 + eps, eps ~ N(0, sd), drawn per flight; the controller keeps the
+             type's nominal map.  Source: the spread of the robots' hover thrust
+             within a type (experiments/real.py hover_masses).
+battery      battery sag: the voltage the motors and the controller see falls
+             linearly from start_V at sag_V_per_min.  Source: the logged pm.vbat.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from .vehicle import base_type
+
+EFFECTS = ("vibration", "turbulence", "thrust", "battery")
+
+
+@dataclass(frozen=True)
+class Roughness:
+    # propeller vibration (per 1 kHz sample), by robot type
+    vibration_acc_g: dict = field(default_factory=lambda: {"small": 0.0, "large": 0.0})
+    vibration_gyro_dps: dict = field(default_factory=lambda: {"small": 0.0, "large": 0.0})
+    # rotor-wake turbulence
+    turbulence_ratio: float = 0.0
+    turbulence_tau_s: float = 0.05
+    # per-robot thrust scatter (relative standard deviation of psi_1)
+    thrust_sd: float = 0.0
+    # battery sag
+    battery_start_V: float = 3.9
+    battery_sag_V_per_min: float = 0.0
+    enabled: tuple = EFFECTS
+
+    def without(self, *names: str) -> "Roughness":
+        unknown = [n for n in names if n not in EFFECTS]
+        if unknown:
+            raise ValueError(f"unknown roughness effects {unknown}: {EFFECTS}")
+        return replace(self, enabled=tuple(e for e in self.enabled if e not in names))
+
+    def only(self, *names: str) -> "Roughness":
+        return self.without(*[e for e in EFFECTS if e not in names])
+
+    def on(self, name: str) -> bool:
+        return name in self.enabled
+
+    def imu_sd(self, robot_type: str, acc_sd_g: float, gyro_sd_dps: float) -> tuple[float, float]:
+        """The IMU noise per sample of a robot of this type: datasheet plus vibration."""
+        if not self.on("vibration"):
+            return acc_sd_g, gyro_sd_dps
+        t = base_type(robot_type)
+        return (math.hypot(acc_sd_g, self.vibration_acc_g.get(t, 0.0)),
+                math.hypot(gyro_sd_dps, self.vibration_gyro_dps.get(t, 0.0)))
+
+    def thrust_factors(self, rng: np.random.Generator, n: int) -> np.ndarray:
+        """1 + eps per robot (ones without the effect); drawn from ``rng``'s own
+        stream so that switching it does not move the other noises."""
+        sub = np.random.default_rng(rng.integers(2 ** 63))
+        eps = sub.normal(0.0, self.thrust_sd, n)
+        return 1.0 + eps if self.on("thrust") else np.ones(n)
+
+    def battery_V(self, t_s: float, nominal_V: float) -> float:
+        if not self.on("battery"):
+            return nominal_V
+        return self.battery_start_V - self.battery_sag_V_per_min * max(t_s, 0.0) / 60.0
+
+
+class Turbulence:
+    """The wake turbulence of one flight: per robot a unit Gauss-Markov state along z,
+    advanced once per simulator step (dt), scaled by ratio x |f_a,z|."""
+
+    def __init__(self, rough: Roughness, n: int, dt: float, seed: int):
+        self.on = rough.on("turbulence") and rough.turbulence_ratio > 0.0
+        self.ratio = rough.turbulence_ratio
+        self.rho = math.exp(-dt / rough.turbulence_tau_s) if rough.turbulence_tau_s > 0 else 0.0
+        self.rng = np.random.default_rng([seed, 0x7B])
+        self.x = self.rng.standard_normal(n) if self.on else np.zeros(n)
+
+    def force(self, f_a: np.ndarray) -> np.ndarray:
+        """The turbulent force [N, 3] (N) to add to the truth f_a [N, 3] of this step."""
+        out = np.zeros_like(f_a)
+        if not self.on:
+            return out
+        self.x = self.rho * self.x + math.sqrt(1.0 - self.rho ** 2) * self.rng.standard_normal(len(self.x))
+        out[:, 2] = self.ratio * np.abs(f_a[:, 2]) * self.x
+        return out
+
+
+def hp_share(tau_s: float, dt: float = 0.01, window: int = 21) -> float:
+    """Share of a Gauss-Markov process's variance (correlation time tau_s, sampled at
+    dt) left in x minus its centred moving average of ``window`` samples (the fast
+    part of flightstats): used to read tau from the real fast share."""
+    rho = math.exp(-dt / tau_s)
+    w = -np.ones(window) / window
+    w[window // 2] += 1.0
+    k = np.abs(np.subtract.outer(np.arange(window), np.arange(window)))
+    return float(w @ (rho ** k) @ w)
