@@ -84,3 +84,52 @@ def sim_rings(gen_dir, out_dir, duration, learned, quiet, as_json):
     with _progress(quiet, len(RING_CASES) * len(CONTROLLERS), "flight", "sim rings") as update:
         res = ring_experiments(cfg, gen_dir, out_dir, duration=duration, learned=learned, progress=update)
     _emit(as_json, res, (Path(out_dir) / "rings.md").read_text())
+
+
+@sim.command("calibrate")
+@click.option("--logs", "logs_dir", type=click.Path(file_okay=False), default="build/neural-swarm-data",
+              show_default=True, help="the unpacked real collection with its flights.toml (`ns2 real data`)")
+@click.option("--data-dir", type=click.Path(file_okay=False), default="build/real", show_default=True,
+              help="`ns2 real data`'s folder: real.toml (hover masses) and data_report.json (hover per robot)")
+@_gen_option("build/real/authors-gen", "export of the network that flew the real flights (the authors', "
+             "`ns2 real import-authors` + `ns2 export`): in the loop of the replays")
+@click.option("--out", "out_dir", type=click.Path(file_okay=False), default="build/sim/calibration",
+              show_default=True, help="calibration.json and calibration.md")
+@click.option("--per-scenario", type=click.IntRange(min=1), default=None,
+              help="replay only the first N flights of each swap scenario (default: every swap flight)")
+@click.option("--refit/--no-refit", default=True, show_default=True,
+              help="fit the roughness again (else compare with host/sim/roughness.py's defaults)")
+@click.option("--workers", type=click.IntRange(min=1), default=1, show_default=True,
+              help="replay this many flights at once (processes)")
+@_quiet_option
+@_json_option
+def sim_calibrate(logs_dir, data_dir, gen_dir, out_dir, per_scenario, refit, workers, quiet, as_json):
+    """Measure the real flights' roughness, fit host/sim/roughness.py to it, replay the real
+    swaps in the clean and the rough simulator: the calibration and sim-to-real tables."""
+    import json
+
+    from ns2codegen.config import Config
+    from ns2codegen.logs.align import logs_to_flights
+    from ns2exp.calibrate import calibrate, swap_flights
+    from ns2host.sim.replay import pieces_by_flight
+    from ns2host.sim.roughness import Roughness
+
+    data_dir = Path(data_dir)
+    for need in (data_dir / "real.toml", data_dir / "data_report.json", Path(logs_dir) / "flights.toml"):
+        if not need.is_file():
+            raise click.ClickException(f"{need} missing: run `ns2 real data` first")
+    cfg = Config.load(data_dir / "real.toml")
+    flights, reports = logs_to_flights(cfg, logs_dir)
+    ids = {r["name"]: r["robots"] for r in reports}
+    type_of = {rid: t for fl in flights for rid, t in zip(ids[fl.name], fl.types)}
+    try:
+        hover = json.loads((data_dir / "data_report.json").read_text())["hover"]["by_robot"]
+    except (KeyError, ValueError) as e:
+        raise click.ClickException(f"{data_dir / 'data_report.json'}: no hover.by_robot ({e})") from e
+    names = None
+    if per_scenario is not None:
+        by = sorted(pieces_by_flight(swap_flights(flights)))
+        names = [n for n in by if [m for m in by if m.split("/")[0] == n.split("/")[0]].index(n) < per_scenario]
+    res = calibrate(cfg, gen_dir, flights, hover, type_of, out_dir, workers=workers, names=names,
+                    rough=None if refit else Roughness())
+    _emit(as_json, res, (Path(out_dir) / "calibration.md").read_text())

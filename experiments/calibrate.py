@@ -27,7 +27,7 @@ from ns2codegen.fileio import atomic_write_bytes
 
 from ns2host.sim import flightstats as fs
 from ns2host.sim.cloop import CLoopSwarm
-from ns2host.sim.replay import pieces_by_flight, replay
+from ns2host.sim.replay import pieces_by_flight, replay, z_gains
 from ns2host.sim.roughness import EFFECTS, Roughness, hp_share
 from ns2host.sim.scenarios import random_walk
 
@@ -48,13 +48,18 @@ def real_statistics(cfg: Config, flights: list[Flight]) -> dict:
             "wake_scatter": fs.wake_scatter(cfg, sw), "swaps": fs.swap_errors(sw)}
 
 
-def probe(cfg: Config, gen_dir, robot_type: str, rough: Roughness | None) -> dict:
-    """free_air statistics of one robot's random walk (PROBE) in the simulator."""
+def probe_flight(cfg: Config, gen_dir, robot_type: str, rough: Roughness | None, z_loop: dict | None = None) -> Flight:
+    """One robot's random walk (PROBE) in the simulator, as the drone logs it."""
     sp, start = random_walk(1, cube=PROBE["cube"], seed=PROBE["seed"])
-    sw = CLoopSwarm(cfg, [robot_type], gen_dir, start, aero=True, rough=rough, seed=PROBE["seed"])
+    gains = None if z_loop is None else [z_gains(cfg, robot_type, z_loop["kp_per_s2"], z_loop["kd_per_s"])]
+    sw = CLoopSwarm(cfg, [robot_type], gen_dir, start, aero=True, rough=rough, seed=PROBE["seed"], gains=gains)
     log = sw.run(PROBE["seconds"], sp)
-    fl = Flight([robot_type], *(log[k] for k in ("t", "p", "v", "q", "pwm", "battery_V")))
-    return fs.free_air(cfg, [fl])[robot_type]
+    return Flight([robot_type], *(log[k] for k in ("t", "p", "v", "q", "pwm", "battery_V")), p_d=log["p_d"])
+
+
+def probe(cfg: Config, gen_dir, robot_type: str, rough: Roughness | None) -> dict:
+    """free_air statistics of the probe flight."""
+    return fs.free_air(cfg, [probe_flight(cfg, gen_dir, robot_type, rough)])[robot_type]
 
 
 def _quadrature(real: float, base: float, probed: float, probe_value: float) -> float:
@@ -91,8 +96,9 @@ def _vib(base: Roughness, ty: str, acc: float, gyro: float) -> Roughness:
 
 
 def replay_all(cfg: Config, gen_dir, pieces: dict, rough: Roughness | None, workers: int = 1,
-               seed: int = 0) -> list[Flight]:
-    """Replay every flight of ``pieces`` (name -> real pieces); ``workers`` processes."""
+               seed: int = 0, z_loop: dict | None = None) -> list[Flight]:
+    """Replay every flight of ``pieces`` (name -> real pieces); ``workers`` processes;
+    ``z_loop``: fly the z gains identified on the real flights (replay.replay)."""
     names = sorted(pieces)
     if workers > 1 and len(names) > 1:
         import multiprocessing
@@ -101,13 +107,13 @@ def replay_all(cfg: Config, gen_dir, pieces: dict, rough: Roughness | None, work
         from ns2host.cfhost import load_fly
         load_fly(gen_dir)
         with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("fork")) as ex:
-            return list(ex.map(_replay_one, [(cfg, pieces[n], gen_dir, rough, seed) for n in names]))
-    return [_replay_one((cfg, pieces[n], gen_dir, rough, seed)) for n in names]
+            return list(ex.map(_replay_one, [(cfg, pieces[n], gen_dir, rough, seed, z_loop) for n in names]))
+    return [_replay_one((cfg, pieces[n], gen_dir, rough, seed, z_loop)) for n in names]
 
 
 def _replay_one(args) -> Flight:
-    cfg, pcs, gen_dir, rough, seed = args
-    return replay(cfg, pcs, gen_dir, learned="float", rough=rough, seed=seed)
+    cfg, pcs, gen_dir, rough, seed, z_loop = args
+    return replay(cfg, pcs, gen_dir, learned="float", rough=rough, seed=seed, z_loop=z_loop)
 
 
 def fit_pieces(flights: list[Flight]) -> dict:
@@ -180,23 +186,31 @@ def fit(cfg: Config, gen_dir, flights: list[Flight], hover_by_robot: dict, robot
     return rough, {"real": real, "vibration_probes": vib_rows, "turbulence": turb_rows}
 
 
+VARIANTS = ("clean", "rough", "rough, z loop as identified")
+
+
 def compare(cfg: Config, gen_dir, flights: list[Flight], rough: Roughness, names: list[str] | None = None,
             workers: int = 1) -> dict:
-    """Statistics of step 1 for the real flights, the clean and the rough simulator:
-    free air from the probes, the rest over the replayed swap flights (``names``: a
-    subset; the real side is then the same subset)."""
+    """Statistics of step 1 for the real flights and three simulators: clean, rough
+    (``rough``), rough with the controller's z gains identified on the real flights
+    (flightstats.z_loop, replay.z_gains): free air from the probes, the rest over the
+    replayed swap flights (``names``: a subset; the real side is the same subset)."""
     by = pieces_by_flight(swap_flights(flights))
     if names is not None:
         by = {n: by[n] for n in names}
     real_sw = [p for ps in by.values() for p in ps]
+    zl = fs.z_loop(cfg, flights)
     out = {"flights": sorted(by), "real": {"free_air": fs.free_air(cfg, flights), "battery": fs.battery(flights),
-                                          "wake_scatter": fs.wake_scatter(cfg, real_sw),
+                                          "z_loop": zl, "wake_scatter": fs.wake_scatter(cfg, real_sw),
                                           "swaps": fs.swap_errors(real_sw)}}
-    for label, r in (("clean", None), ("rough", rough)):
-        sims = replay_all(cfg, gen_dir, by, r, workers)
-        out[label] = {"free_air": {ty: probe(cfg, gen_dir, ty, r) for ty in cfg.robot_types},
-                      "battery": fs.battery(sims), "wake_scatter": fs.wake_scatter(cfg, sims),
-                      "swaps": fs.swap_errors(sims)}
+    for label in VARIANTS:
+        r = None if label == "clean" else rough
+        z = zl["fit"] if label.endswith("identified") else None
+        probes = [probe_flight(cfg, gen_dir, ty, r, z) for ty in cfg.robot_types]
+        sims = replay_all(cfg, gen_dir, by, r, workers, z_loop=z)
+        out[label] = {"free_air": {ty: fs.free_air(cfg, [p])[ty] for ty, p in zip(cfg.robot_types, probes)},
+                      "z_loop": fs.z_loop(cfg, probes), "battery": fs.battery(sims),
+                      "wake_scatter": fs.wake_scatter(cfg, sims), "swaps": fs.swap_errors(sims)}
     return out
 
 

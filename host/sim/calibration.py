@@ -159,42 +159,65 @@ def _ratio(sim, real) -> str:
     return f"{sim / real:.2f}"
 
 
+def _variants(cmp: dict) -> list[str]:
+    return [k for k in cmp if k not in ("flights", "real")]
+
+
 def roughness_table(cmp: dict) -> str:
-    """Every statistic of host/sim/flightstats.py: real, clean and rough simulator
-    (``experiments/calibrate.py compare``), with rough / real."""
-    lines = ["| statistic | real | clean sim | rough sim | rough / real |", "|---|---|---|---|---|"]
-    real, clean, rough = cmp["real"], cmp["clean"], cmp["rough"]
+    """Every statistic of host/sim/flightstats.py: real against each simulator of
+    ``cmp`` (experiments/calibrate.py compare), with the last one / real."""
+    sims = _variants(cmp)
+    lines = ["| statistic | real | " + " | ".join(sims) + f" | {sims[-1]} / real |",
+             "|---|---|" + "---|" * (len(sims) + 1)]
+    real = cmp["real"]
 
-    def rows(group: str, key: str, stats, label):
-        for name in sorted(real[group]):
-            for st in stats:
-                r = real[group][name].get(st)
-                c = clean[group].get(name, {}).get(st)
-                g = rough[group].get(name, {}).get(st)
-                nd = 4 if st in ("motor_noise", "slope_V_per_min") else 3
-                lines.append(f"| {label(name, st)} | {_cell(r, nd)} | {_cell(c, nd)} | {_cell(g, nd)} | {_ratio(g, r)} |")
+    def get(d: dict, path: tuple):
+        for k in path:
+            if not isinstance(d, dict) or k not in d:
+                return None
+            d = d[k]
+        return d
 
-    rows("free_air", "type", ("mean_g", "std_g", "fast_std_g", "band_fraction", "motor_noise"),
-         lambda n, s: f"free air, {n}: {s}" + (" (0-0.5, 0.5-2, 2-5, 5-20, 20-50 Hz)" if s == "band_fraction" else ""))
-    rows("wake_scatter", "pair", ("scatter_g", "fast_scatter_g", "mean_abs_g"), lambda n, s: f"{n}: {s}")
-    rows("battery", "type", ("start_V", "slope_V_per_min"), lambda n, s: f"battery, {n}: {s}")
-    rows("swaps", "case", ("median_worst_z_error_m",), lambda n, s: f"swap {n}: {s}")
+    def row(label: str, path: tuple, nd: int = 3):
+        r = get(real, path)
+        cells = [get(cmp[v], path) for v in sims]
+        lines.append(f"| {label} | {_cell(r, nd)} | " + " | ".join(_cell(c, nd) for c in cells)
+                     + f" | {_ratio(cells[-1], r)} |")
+
+    for ty in sorted(real["free_air"]):
+        for st in ("mean_g", "std_g", "fast_std_g", "band_fraction", "motor_noise"):
+            extra = " (0-0.5, 0.5-2, 2-5, 5-20, 20-50 Hz)" if st == "band_fraction" else ""
+            row(f"free air, {ty}: {st}{extra}", ("free_air", ty, st), 4 if st == "motor_noise" else 3)
+        for st in ("z_error_mean_m", "z_error_std_m"):
+            row(f"free air, {ty}: {st}", ("z_loop", "by_type", ty, st), 4)
+    for st in ("kp_per_s2", "kd_per_s", "r2"):
+        row(f"free air, z loop identified (all types): {st}", ("z_loop", "fit", st))
+    for pair in sorted(real["wake_scatter"]):
+        for st in ("scatter_g", "fast_scatter_g", "mean_abs_g"):
+            row(f"{pair}: {st}", ("wake_scatter", pair, st))
+    for ty in sorted(real["battery"]):
+        for st in ("start_V", "slope_V_per_min"):
+            row(f"battery, {ty}: {st}", ("battery", ty, st), 4 if st == "slope_V_per_min" else 3)
+    for case in sorted(real["swaps"]):
+        row(f"swap {case}: median worst z error (m)", ("swaps", case, "median_worst_z_error_m"), 4)
     return "\n".join(lines) + "\n"
 
 
 def sim_to_real_table(cmp: dict) -> str:
     """Per swap scenario of the replayed flights: median worst z error of the bottom
-    robot (cm), real against the clean and the rough simulator, and whether the rough
-    one is within SIM_TO_REAL_TOL of the real."""
-    lines = ["| scenario | swaps | real (cm) | clean sim (cm) | rough sim (cm) | rough / real | within 30 % |",
-             "|---|---|---|---|---|---|---|"]
+    robot (cm), real against each simulator, and whether the last one is within
+    SIM_TO_REAL_TOL of the real."""
+    sims = _variants(cmp)
+    lines = ["| scenario | swaps | real (cm) | " + " | ".join(f"{v} (cm)" for v in sims)
+             + f" | {sims[-1]} / real | within 30 % |", "|---|---|---|" + "---|" * (len(sims) + 2)]
     for case, r in sorted(cmp["real"]["swaps"].items()):
-        c = cmp["clean"]["swaps"].get(case, {}).get("median_worst_z_error_m")
-        g = cmp["rough"]["swaps"].get(case, {}).get("median_worst_z_error_m")
         rv = r["median_worst_z_error_m"]
+        vals = [cmp[v]["swaps"].get(case, {}).get("median_worst_z_error_m") for v in sims]
+        g = vals[-1]
         ok = g is not None and abs(g / rv - 1.0) <= SIM_TO_REAL_TOL
-        lines.append(f"| {case} | {r['swaps']} | {100 * rv:.1f} | {_cell(None if c is None else 100 * c, 1)} | "
-                     f"{_cell(None if g is None else 100 * g, 1)} | {_ratio(g, rv)} | {'yes' if ok else 'no'} |")
+        lines.append(f"| {case} | {r['swaps']} | {100 * rv:.1f} | "
+                     + " | ".join(_cell(None if x is None else 100 * x, 1) for x in vals)
+                     + f" | {_ratio(g, rv)} | {'yes' if ok else 'no'} |")
     return "\n".join(lines) + "\n"
 
 

@@ -100,7 +100,7 @@ class CLoopSwarm:
         acc_b, acc_scale, gyro_b = self.sensing.biases(self.rng, n)
         se = self.sensing
         self.rough = rough
-        thrust = rough.thrust_factors(self.rng, n) if rough is not None else np.ones(n)
+        thrust = rough.thrust_factors(seed, n) if rough is not None else np.ones(n)
         self.turbulence = Turbulence(rough, n, 1.0 / ATT_HZ, seed) if rough is not None else None
         for i, veh in enumerate(self.vehicles):
             it = ffi.new("ns2_fly_init_t *")

@@ -13,6 +13,8 @@ masses of experiments/real.py when given its real.toml), and the interactions ar
 the simulator's ground truth."""
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from ns2codegen.config import Config
@@ -58,13 +60,20 @@ def logged_setpoints(pieces: list[Flight]):
 
 def z_gains(cfg: Config, robot_type: str, kp_per_s2: float, kd_per_s: float) -> dict:
     """ns2_gains_t overrides that make the project's controller a PD law in z of the
-    given stiffness (per unit mass; no integral): v_r = v_d - Lp e_z, f = ... - Kv e_v,
-    so kd = Kv / m and kp = Kv Lp / m."""
+    given stiffness per unit mass, without its integral: ns2_controller.c's
+    f_z = m a_d - (m Lp + Kv) e_v - Kv Lp e_z, so with K = Kv / m, kd = Lp + K and
+    kp = Lp K: Lp and K are the roots of x^2 - kd x + kp (Lp the smaller, as in the
+    default gains).  A law with kd^2 < 4 kp has no such split and is refused."""
     from .vehicle import default_gains, vehicle
 
+    disc = kd_per_s ** 2 - 4.0 * kp_per_s2
+    if kp_per_s2 <= 0 or kd_per_s <= 0 or disc < 0:
+        raise ValueError(f"no ns2 controller gains for kp = {kp_per_s2} 1/s^2, kd = {kd_per_s} 1/s "
+                         "(both positive and kd^2 >= 4 kp needed)")
+    lp = 0.5 * (kd_per_s - math.sqrt(disc))
     veh = vehicle(cfg, robot_type)
     g = default_gains(veh)
-    return {"Lp": [*g["Lp"][:2], kp_per_s2 / kd_per_s], "Kv": [*g["Kv"][:2], kd_per_s * veh.mass],
+    return {"Lp": [*g["Lp"][:2], lp], "Kv": [*g["Kv"][:2], (kd_per_s - lp) * veh.mass],
             "Gv": [*g["Gv"][:2], 0.0]}
 
 

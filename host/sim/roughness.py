@@ -39,16 +39,16 @@ EFFECTS = ("vibration", "turbulence", "thrust", "battery")
 @dataclass(frozen=True)
 class Roughness:
     # propeller vibration (per 1 kHz sample), by robot type
-    vibration_acc_g: dict = field(default_factory=lambda: {"small": 0.0, "large": 0.0})
-    vibration_gyro_dps: dict = field(default_factory=lambda: {"small": 0.0, "large": 0.0})
+    vibration_acc_g: dict = field(default_factory=lambda: {"small": 0.0586, "large": 0.0667})
+    vibration_gyro_dps: dict = field(default_factory=lambda: {"small": 0.537, "large": 0.857})
     # rotor-wake turbulence
-    turbulence_ratio: float = 0.0
-    turbulence_tau_s: float = 0.05
+    turbulence_ratio: float = 0.054
+    turbulence_tau_s: float = 0.002
     # per-robot thrust scatter (relative standard deviation of psi_1)
-    thrust_sd: float = 0.0
+    thrust_sd: float = 0.0158
     # battery sag
-    battery_start_V: float = 3.9
-    battery_sag_V_per_min: float = 0.0
+    battery_start_V: float = 3.552
+    battery_sag_V_per_min: float = 0.1063
     enabled: tuple = EFFECTS
 
     def without(self, *names: str) -> "Roughness":
@@ -71,12 +71,13 @@ class Roughness:
         return (math.hypot(acc_sd_g, self.vibration_acc_g.get(t, 0.0)),
                 math.hypot(gyro_sd_dps, self.vibration_gyro_dps.get(t, 0.0)))
 
-    def thrust_factors(self, rng: np.random.Generator, n: int) -> np.ndarray:
-        """1 + eps per robot (ones without the effect); drawn from ``rng``'s own
-        stream so that switching it does not move the other noises."""
-        sub = np.random.default_rng(rng.integers(2 ** 63))
-        eps = sub.normal(0.0, self.thrust_sd, n)
-        return 1.0 + eps if self.on("thrust") else np.ones(n)
+    def thrust_factors(self, seed: int, n: int) -> np.ndarray:
+        """1 + eps per robot (ones without the effect), from a stream of its own: no
+        effect moves the simulator's other noises, so with every effect off the rough
+        simulator is the clean one bit for bit."""
+        if not self.on("thrust"):
+            return np.ones(n)
+        return 1.0 + np.random.default_rng([seed, 0x54]).normal(0.0, self.thrust_sd, n)
 
     def battery_V(self, t_s: float, nominal_V: float) -> float:
         if not self.on("battery"):

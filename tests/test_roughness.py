@@ -1,0 +1,184 @@
+"""The rough simulator (issue 23): each effect of host/sim/roughness.py switchable and
+doing only its part, the statistics of host/sim/flightstats.py (the same code on real
+and simulated flights), the fit's arithmetic, and the replay of a real swap."""
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from conftest import REAL_DATA, needs, real_logs
+from ns2codegen.logs.align import logs_to_flights
+from ns2codegen.logs.collection import COLLECTION
+from ns2exp.calibrate import _quadrature, thrust_sd
+from ns2host.sim import flightstats as fs
+from ns2host.sim.cloop import CLoopSwarm, hover_setpoints
+from ns2host.sim.replay import logged_setpoints, pieces_by_flight, replay, z_gains
+from ns2host.sim.roughness import Roughness, Turbulence, hp_share
+from ns2host.sim.scenarios import swap
+
+SWAPS = "neural-swarm-2020-06-16-swaps.tar.xz"
+SL = [f"{COLLECTION}/swap_sl/cf51_03", f"{COLLECTION}/swap_sl/cf101_03"]
+
+
+def _fly(cfg, exported, rough, seconds=1.0, seed=4):
+    sp, start = swap(2, [0.5, 0.8], radius=0.3, duration=1.0, rest=0.2, seed=seed)
+    sw = CLoopSwarm(cfg, ["small", "large"], exported.gen_dir, start, aero=True, seed=seed, rough=rough)
+    return sw, sw.run(seconds, sp, settle_s=0.2)
+
+
+def test_every_effect_off_is_the_clean_simulator_bit_for_bit(cfg, exported):
+    _, clean = _fly(cfg, exported, None)
+    _, off = _fly(cfg, exported, Roughness().only())
+    _, rough = _fly(cfg, exported, Roughness())
+    for k in ("p", "v", "q", "pwm", "truth_p", "truth_fa", "battery_V"):
+        assert np.array_equal(clean[k], off[k]), k
+    assert not np.array_equal(clean["pwm"], rough["pwm"])
+    with pytest.raises(ValueError, match="unknown roughness"):
+        Roughness().without("wind")
+
+
+def test_each_effect_does_its_part(cfg, exported):
+    r = Roughness()
+    sw, log = _fly(cfg, exported, r.only("thrust"))
+    fac = r.thrust_factors(4, 2)
+    assert abs(fac - 1).max() > 0 and abs(fac - 1).max() < 5 * r.thrust_sd
+    for i, veh in enumerate(sw.vehicles):
+        assert list(sw.robots[i].psi1) == pytest.approx(list(np.asarray(veh.psi1) * fac[i]), rel=1e-12)
+    sw, _ = _fly(cfg, exported, r.only("vibration"), seconds=0.1)
+    se = sw.sensing
+    for i, t in enumerate(sw.types):
+        assert sw.robots[i].sd_acc_g == pytest.approx(math.hypot(se.acc_sd_g, r.vibration_acc_g[t]), rel=1e-6)
+        assert sw.robots[i].sd_gyro_dps == pytest.approx(math.hypot(se.gyro_sd_dps, r.vibration_gyro_dps[t]), rel=1e-6)
+    _, log = _fly(cfg, exported, r.only("battery"))
+    t_from_start = np.asarray(log["t"]) + 0.2
+    want = r.battery_start_V - r.battery_sag_V_per_min * t_from_start / 60
+    assert np.allclose(log["battery_V"][:, 0], want, atol=1e-3)
+    _, clean = _fly(cfg, exported, None)
+    _, turb = _fly(cfg, exported, replace(r, turbulence_ratio=0.3).only("turbulence"))
+    d = turb["truth_fa"][0, :, 2] - clean["truth_fa"][0, :, 2]     # first log row: same state, own step
+    assert np.all(np.abs(d) > 0) and np.all(np.abs(d) <= 0.3 * 6 * np.abs(clean["truth_fa"][0, :, 2]))
+
+
+def test_turbulence_is_the_stated_process():
+    r = Roughness(turbulence_ratio=0.2, turbulence_tau_s=0.02)
+    tu = Turbulence(r, 2, 0.002, seed=1)
+    f = np.array([[0.0, 0.0, -0.1], [0.0, 0.0, 0.0]])
+    x = np.array([tu.force(f)[:, 2] for _ in range(40000)])
+    assert np.all(x[:, 1] == 0.0)                       # no wake, no turbulence
+    assert np.std(x[:, 0]) == pytest.approx(0.2 * 0.1, rel=0.05)
+    rho = np.corrcoef(x[:-1, 0], x[1:, 0])[0, 1]
+    assert rho == pytest.approx(math.exp(-0.002 / 0.02), abs=0.01)
+
+
+def test_hp_share_matches_a_simulated_process():
+    rng = np.random.default_rng(0)
+    for tau in (0.01, 0.1, 1.0):
+        rho = math.exp(-0.01 / tau)
+        x = np.zeros(200000)
+        e = rng.standard_normal(len(x)) * math.sqrt(1 - rho ** 2)
+        for k in range(1, len(x)):
+            x[k] = rho * x[k - 1] + e[k]
+        h = fs.HP_WINDOW // 2
+        fast = (x - fs.moving_average(x, fs.HP_WINDOW))[h:-h]
+        assert hp_share(tau) == pytest.approx(fast.var() / x.var(), rel=0.05)
+
+
+def test_fit_arithmetic():
+    # quadrature: the probe doubles the statistic's variance at 0.1 -> reach the real 2.0 from 1.0
+    x = _quadrature(2.0, 1.0, math.sqrt(2.0), 0.1)
+    assert 1.0 + (x / 0.1) ** 2 == pytest.approx(4.0)
+    assert _quadrature(0.5, 1.0, 2.0, 0.1) == 0.0       # already as rough: no extra
+    with pytest.raises(ValueError):
+        _quadrature(2.0, 1.0, 1.0, 0.1)
+    hover = {"a": {"median_g": 30.0}, "b": {"median_g": 33.0}, "c": {"median_g": 60.0}}
+    sd = thrust_sd(hover, {"a": "small", "b": "small", "c": "large"})
+    m = np.array([30.0, 33.0])
+    assert sd == pytest.approx(np.std(m / m.mean(), ddof=1))
+    with pytest.raises(ValueError):
+        thrust_sd({"c": {"median_g": 60.0}}, {"c": "large"})
+
+
+def test_z_gains_make_the_stated_pd_law(cfg):
+    g = z_gains(cfg, "small", 2.4, 3.9)
+    m = cfg.vehicle("small")["mass_g"] / 1000.0
+    lp, kv = g["Lp"][2], g["Kv"][2] / m
+    # f_z = m a_d - (m Lp + Kv) e_v - Kv Lp e_z (ns2_controller.c), per unit mass
+    assert kv * lp == pytest.approx(2.4, rel=1e-9) and lp + kv == pytest.approx(3.9, rel=1e-9)
+    assert g["Gv"][2] == 0.0
+
+
+def test_free_air_statistics_see_the_vibration(cfg, exported):
+    """The simulator's free-air statistics move with the effect fitted to them: the
+    fast part of the label with the accelerometer's noise, the motor noise with the gyro's."""
+    from ns2codegen.data.from_logs import Flight
+
+    p0 = [[0.0, 0.0, 1.0]]
+
+    def stats(rough):
+        log = CLoopSwarm(cfg, ["small"], exported.gen_dir, p0, aero=True, seed=2, rough=rough).run(
+            4.0, hover_setpoints(p0), settle_s=0.5)
+        fl = Flight(["small"], *(log[k] for k in ("t", "p", "v", "q", "pwm", "battery_V")), p_d=log["p_d"])
+        return fs.free_air(cfg, [fl])["small"], fs.z_loop(cfg, [fl])
+
+    base = Roughness().only("vibration")
+    calm, z_calm = stats(replace(base, vibration_acc_g={"small": 0.0}, vibration_gyro_dps={"small": 0.0}))
+    acc, _ = stats(replace(base, vibration_acc_g={"small": 0.08}, vibration_gyro_dps={"small": 0.0}))
+    gyro, _ = stats(replace(base, vibration_acc_g={"small": 0.0}, vibration_gyro_dps={"small": 2.0}))
+    assert calm["samples"] == 396 and calm["band_fraction"] is not None and sum(calm["band_fraction"]) == pytest.approx(1, abs=0.01)
+    assert acc["fast_std_g"] > 1.5 * calm["fast_std_g"]
+    assert gyro["motor_noise"] > 1.5 * calm["motor_noise"] and abs(gyro["fast_std_g"] / calm["fast_std_g"] - 1) < 0.3
+    assert z_calm["by_type"]["small"]["z_error_std_m"] < 0.01 and z_calm["fit"]["samples"] == 400
+
+
+def test_swap_statistics_by_hand():
+    """swap_errors on a constructed flight: the bottom robot, the windows, the name."""
+    from ns2codegen.data.from_logs import Flight
+
+    t = np.arange(0, 12, 0.01)
+    n = len(t)
+    p_d = np.zeros((n, 2, 3))
+    p_d[:, 0, 2], p_d[:, 1, 2] = 1.0, 0.5               # robot 1 (small) is the bottom one
+    x = np.where((t % 3) < 1.5, np.sin(np.pi * (t % 3) / 1.5) ** 2, 0.0) * 0.2
+    p_d[:, :, 0] = np.cumsum(x)[:, None] * 0.01
+    p = p_d.copy()
+    bump = np.array([0.01, 0.03, 0.02, 0.05])           # a dip in each of the 4 windows
+    for k, b in enumerate(bump):
+        p[int((k * 3 + 0.7) * 100), 1, 2] -= b
+    fl = Flight(["large", "small"], t, p, np.zeros_like(p), np.tile([1.0, 0, 0, 0], (n, 2, 1)),
+                np.full((n, 2, 4), 0.5), np.full((n, 2), 3.9), p_d=p_d)
+    res = fs.swap_errors([fl])
+    assert list(res) == ["L2S"]
+    # movements start just after 0, 3, 6, 9: whole windows up to the next start, the last
+    # one (no next start in the flight) not counted: dips 0.01, 0.03, 0.02; 0.05 left out
+    assert res["L2S"]["swaps"] == 3 and res["L2S"]["worst_m"] == pytest.approx(0.03)
+    assert res["L2S"]["median_worst_z_error_m"] == pytest.approx(0.02, abs=1e-4)
+
+
+@needs(REAL_DATA)
+def test_a_real_swap_measured_and_replayed(cfg, exported):
+    root = real_logs(SWAPS, SL)
+    (root / "flights.toml").write_text(
+        'rate_hz = 100\n[ground_plane_m]\nsmall = 0.05\nlarge = 0.06\n[[flight]]\nname = "swap_sl/03"\n'
+        f'robots = [{{file = "{SL[0]}", type = "small"}}, {{file = "{SL[1]}", type = "large"}}]\n')
+    flights, _ = logs_to_flights(cfg, root)
+    pieces = pieces_by_flight(flights)["swap_sl/03"]
+    assert all(p.p_d is not None and np.isfinite(p.p_d).all() for p in pieces)
+    real = fs.swap_errors(pieces)
+    (case, r), = real.items()
+    assert case == "S2L" and r["swaps"] >= 4                # the large robot flies under the small one
+    sc = fs.wake_scatter(cfg, pieces)
+    assert list(sc) == ["large under small"] and sc["large under small"]["scatter_g"] > 0
+    sp, start, t0, dur = logged_setpoints(pieces)
+    for p in pieces:                                        # the setpoints replayed are the logged ones
+        k = np.arange(0, len(p.t), 50)
+        got = np.array([sp(tt - t0).p for tt in p.t[k]])
+        assert np.abs(got - p.p_d[k]).max() < 1e-6
+    assert np.allclose(start, pieces[0].p_d[0])
+    sim = replay(cfg, pieces, exported.gen_dir, learned="float", rough=Roughness())
+    assert sim.t[0] == pytest.approx(t0) and sim.t[-1] == pytest.approx(t0 + dur, abs=0.011)
+    s = fs.swap_errors([sim])
+    assert list(s) == ["S2L"] and abs(s["S2L"]["swaps"] - r["swaps"]) <= 1
+    assert 0 < s["S2L"]["median_worst_z_error_m"] < 0.5
