@@ -22,7 +22,7 @@ DEFAULT := build/default
 ONBOARD := build/onboard
 CHECKPOINT ?= $(DEFAULT)/model.pt
 
-.PHONY: all deps export export-onboard test bench firmware app flash fuzz sim paper-data ablation real clean
+.PHONY: all deps export export-onboard test bench firmware app flash fuzz sim paper-data ablation real calibrate clean
 
 all: export
 
@@ -96,25 +96,28 @@ fuzz: deps $(GEN)/ns2_model_config.h
 # SIM_SECONDS per team.
 SIM := build/sim
 SIM_SECONDS ?= 120
+# rough (default): a real Crazyflie's effects fitted to the real flights (`make calibrate`); or clean
+SIMULATOR ?= rough
 # one torch thread: the default count thrashes on a loaded 2-core machine (20-60x slower)
 sim paper-data ablation real: export OMP_NUM_THREADS ?= 1
 build/real/%: export OMP_NUM_THREADS ?= 1
 $(SIM)/round1.npz: | deps $(GEN)/ns2_model_config.h
 	@mkdir -p $(SIM)
-	$(NS2) sim collect --seconds-per-team $(SIM_SECONDS) --seed 1 --out $@
+	$(NS2) sim collect --sim $(SIMULATOR) --seconds-per-team $(SIM_SECONDS) --seed 1 --out $@
 $(SIM)/model1.pt: $(SIM)/round1.npz
 	$(NS2) train --data $< --out $@ --quiet
 $(SIM)/gen1/ns2_model_config.h: $(SIM)/model1.pt
 	$(NS2) export $< --out $(SIM)/gen1
 $(SIM)/round2.npz: $(SIM)/gen1/ns2_model_config.h
-	$(NS2) sim collect --gen $(SIM)/gen1 --learned fixed --seconds-per-team $(SIM_SECONDS) --seed 2 --out $@
+	$(NS2) sim collect --sim $(SIMULATOR) --gen $(SIM)/gen1 --learned fixed --seconds-per-team $(SIM_SECONDS) --seed 2 --out $@
 $(SIM)/model2.pt: $(SIM)/round1.npz $(SIM)/round2.npz
 	$(NS2) train --data $(SIM)/round1.npz --data $(SIM)/round2.npz --out $@ --quiet
 $(SIM)/gen2/ns2_model_config.h: $(SIM)/model2.pt
 	$(NS2) export $< --out $(SIM)/gen2
 sim: $(SIM)/gen2/ns2_model_config.h
-	$(NS2) sim swaps --gen $(SIM)/gen2 --out $(SIM)/results
-	$(NS2) sim rings --gen $(SIM)/gen2 --out $(SIM)/results
+	$(NS2) sim swaps --sim $(SIMULATOR) --gen $(SIM)/gen2 --out $(SIM)/results
+	$(NS2) sim rings --sim $(SIMULATOR) --gen $(SIM)/gen2 --out $(SIM)/results
+
 
 # The paper-sized simulated data set (1.4 M samples), the 5 networks trained on it,
 # the H/L ablation (about half an hour on 2 cores; JSON in build/paper_data.json)
@@ -179,6 +182,17 @@ $(REAL)/c_check.json: $(REAL)/gen/ns2_model_config.h
 real: $(REAL)/paper.json $(REAL)/heldout.json $(foreach a,$(REAL_AXES),$(REAL)/ablation-$(a).json) \
 		$(REAL)/authors.json $(REAL)/c_check.json
 	$(NS2) real report --dir $(REAL) --checkpoint $(REAL)/heldout/H-20-seed0.pt
+
+# The simulator against the real flights (docs/simulator.md, "A simulator as rough as a
+# real Crazyflie"): fit host/sim/roughness.py, replay the real swaps with the authors'
+# network in the loop; CALIBRATE_PER_SCENARIO real swap flights per scenario.
+CALIBRATE_PER_SCENARIO ?= 2
+calibrate: export OMP_NUM_THREADS ?= 1
+$(REAL)/authors-gen/ns2_model_config.h: $(REAL)/authors.pt
+	$(NS2) export $< --out $(REAL)/authors-gen --quiet
+calibrate: $(REAL)/all.npz $(REAL)/authors-gen/ns2_model_config.h
+	$(NS2) sim calibrate --logs build/neural-swarm-data --data-dir $(REAL) --gen $(REAL)/authors-gen \
+		--per-scenario $(CALIBRATE_PER_SCENARIO) --workers 2 --out $(SIM)/calibration
 
 clean:
 	rm -rf build

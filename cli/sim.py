@@ -16,6 +16,18 @@ def sim():
     """Swarm simulator with the firmware controller in the loop."""
 
 
+_rough_option = click.option(
+    "--sim", "simulator", type=click.Choice(["rough", "clean"]), default="rough", show_default=True,
+    help="rough: a real Crazyflie's unmodelled effects, fitted to the real flights (host/sim/roughness.py, "
+         "`ns2 sim calibrate`); clean: without them")
+
+
+def _rough(simulator: str):
+    from ns2host.sim.roughness import Roughness
+
+    return Roughness() if simulator == "rough" else None
+
+
 @sim.command("collect")
 @_gen_option("firmware/generated", "export folder: the controller build, the model for --learned, and the config")
 @click.option("--seconds-per-team", type=click.FloatRange(min=1.0), default=60.0, show_default=True,
@@ -26,10 +38,11 @@ def sim():
 @click.option("--usd-dir", type=click.Path(file_okay=False), default=None,
               help="also write every robot's log as a Crazyflie uSD file here (+ flights.toml)")
 @_vehicle_option
+@_rough_option
 @click.option("--out", type=click.Path(dir_okay=False), required=True, help="data set to write (.npz)")
 @_quiet_option
 @_json_option
-def sim_collect(gen_dir, seconds_per_team, learned, seed, usd_dir, vehicle_files, out, quiet, as_json):
+def sim_collect(gen_dir, seconds_per_team, learned, seed, usd_dir, vehicle_files, simulator, out, quiet, as_json):
     """Fly every team of 1-3 robots (random walks and swaps) and build a data set from the logs."""
     from ns2host.sim.collect import collect, teams
 
@@ -38,7 +51,7 @@ def sim_collect(gen_dir, seconds_per_team, learned, seed, usd_dir, vehicle_files
     team_list = teams(cfg)
     with _progress(quiet, sum(1 if len(t) == 1 else 2 for t in team_list), "flight", "sim collect") as update:
         ds = collect(cfg, gen_dir, seconds_per_team, seed=seed, learned=None if learned == "none" else learned,
-                     usd_dir=usd_dir, progress=update)
+                     usd_dir=usd_dir, progress=update, rough=_rough(simulator))
     ds.save(out)
     _emit(as_json, {"out": out, "samples": len(ds), "teams": len(team_list), "scenarios": ds.scenario_names},
           f"wrote {out}: {len(ds)} samples from {len(team_list)} teams, scenarios {ds.scenario_names}")
@@ -53,7 +66,7 @@ def _sim_experiment(name: str):
                              help=f"results folder: {name}.md, {name}.json, plots"),
                 click.option("--learned", type=click.Choice(["float", "fixed"]), default="fixed", show_default=True,
                              help="which C path of the model flies the NN case"),
-                _quiet_option, _json_option]):
+                _rough_option, _quiet_option, _json_option]):
             f = opt(f)
         return sim.command(name)(f)
     return deco
@@ -61,28 +74,30 @@ def _sim_experiment(name: str):
 
 @_sim_experiment("swaps")
 @click.option("--swaps", type=click.IntRange(min=1), default=6, show_default=True, help="swaps per case")
-def sim_swaps(gen_dir, out_dir, swaps, learned, quiet, as_json):
+def sim_swaps(gen_dir, out_dir, swaps, learned, simulator, quiet, as_json):
     """Swap experiments S2S, L2S, SS2L, SL2S, LL2S, LL2S*: BL, BL-tuned (gain search, written to
     OUT/gain_search.json once), NN, NN-default, Mellinger; swaps.json, swaps.md and plots in OUT."""
     from ns2exp.swarm import CONTROLLERS, SWAP_CASES, swap_experiments
 
     cfg = _export_config(gen_dir)
     with _progress(quiet, len(SWAP_CASES) * len(CONTROLLERS), "flight", "sim swaps") as update:
-        res = swap_experiments(cfg, gen_dir, out_dir, swaps=swaps, learned=learned, progress=update)
+        res = swap_experiments(cfg, gen_dir, out_dir, swaps=swaps, learned=learned, progress=update,
+                               rough=_rough(simulator))
     _emit(as_json, res, (Path(out_dir) / "swaps.md").read_text())
 
 
 @_sim_experiment("rings")
 @click.option("--duration", type=click.FloatRange(min=4.0), default=16.0, show_default=True,
               help="simulated seconds per flight")
-def sim_rings(gen_dir, out_dir, duration, learned, quiet, as_json):
+def sim_rings(gen_dir, out_dir, duration, learned, simulator, quiet, as_json):
     """5-robot intertwined rings and the 16-robot three rings, the controllers of `sim swaps`
     (the gain search of OUT/gain_search.json, run if missing); rings.json, rings.md in OUT."""
     from ns2exp.swarm import CONTROLLERS, RING_CASES, ring_experiments
 
     cfg = _export_config(gen_dir)
     with _progress(quiet, len(RING_CASES) * len(CONTROLLERS), "flight", "sim rings") as update:
-        res = ring_experiments(cfg, gen_dir, out_dir, duration=duration, learned=learned, progress=update)
+        res = ring_experiments(cfg, gen_dir, out_dir, duration=duration, learned=learned, progress=update,
+                               rough=_rough(simulator))
     _emit(as_json, res, (Path(out_dir) / "rings.md").read_text())
 
 

@@ -182,7 +182,8 @@ def fit(cfg: Config, gen_dir, flights: list[Flight], hover_by_robot: dict, robot
     base = Roughness(**{**asdict(base), "vibration_acc_g": {k: round(v, 4) for k, v in acc.items()},
                         "vibration_gyro_dps": {k: round(v, 3) for k, v in gyro.items()}})
     ratio, tau, turb_rows = fit_turbulence(cfg, gen_dir, flights, base, workers)
-    rough = Roughness(**{**asdict(base), "turbulence_ratio": round(ratio, 3), "turbulence_tau_s": round(tau, 4)})
+    rough = Roughness(**{**asdict(base), "turbulence_ratio": round(ratio, 3), "turbulence_tau_s": round(tau, 4),
+                         "hover_motor_noise": {ty: real["free_air"][ty]["motor_noise"] for ty in cfg.robot_types}})
     return rough, {"real": real, "vibration_probes": vib_rows, "turbulence": turb_rows}
 
 

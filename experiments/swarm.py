@@ -26,6 +26,8 @@ import numpy as np
 from ns2codegen.config import Config
 
 from ns2host.sim.cloop import CLoopSwarm
+from ns2host.sim.flightstats import NOISE_WINDOW, motor_noise
+from ns2host.sim.roughness import Roughness
 from ns2host.sim.scenarios import intertwined_rings, swap
 from ns2host.sim.vehicle import G, base_type
 
@@ -42,8 +44,8 @@ SWAP_S, REST_S, SPACING_M, BOTTOM_M = 2.5, 0.5, 0.3, 0.5
 
 
 CONTROLLERS = ("BL", "BL-tuned", "NN", "NN-default", "Mellinger")
-NOISE_WINDOW = 11        # samples (0.1 s at 100 Hz): motor commands minus their moving average
-HOVER_NOISE_LIMIT = 2.0  # BL-tuned: motor-command noise at hover at most this times BL's
+HOVER_NOISE_LIMIT = 2.0  # BL-tuned in the clean simulator: motor-command noise at hover at most this times BL's
+                         # (in the rough one: at most the real robots' in free air, Roughness.hover_motor_noise)
 # gain search, per axis group: Lp (1/s) and Kv per kg (N s/m/kg); default Lp 2 / 2.5, Kv 4 m
 GAIN_GRID_Z = {"Lp_z": (2.5, 3.75, 5.6, 8.4, 12.6, 19.0), "Kv_z": (4.0, 6.0, 9.0, 13.5, 20.0, 30.0)}
 GAIN_GRID_XY = {"Lp_xy": (2.0, 3.0, 4.5), "Kv_xy": (4.0, 6.0)}
@@ -58,18 +60,8 @@ def tuned(veh, tuning: dict | None) -> dict | None:
     return {"Lp": [t["Lp_xy"], t["Lp_xy"], t["Lp_z"]], "Kv": [t["Kv_xy"] * veh.mass] * 2 + [t["Kv_z"] * veh.mass]}
 
 
-def motor_noise(pwm: np.ndarray) -> float:
-    """rms of the motor commands (PWM in [0, 1]) minus their 0.1 s moving average, over
-    time, motors and the robots given ([T, ..., 4])."""
-    k = np.ones(NOISE_WINDOW) / NOISE_WINDOW
-    flat = pwm.reshape(len(pwm), -1)
-    smooth = np.stack([np.convolve(c, k, mode="same") for c in flat.T], axis=1)
-    h = NOISE_WINDOW // 2
-    return float(np.sqrt(((flat - smooth)[h:-h] ** 2).mean()))
-
-
 def _fly(cfg, team, gen_dir, start, sp, duration, controller: str, tuning, measured, seed: int = 0,
-         learned: str = "fixed") -> dict:
+         learned: str = "fixed", rough: Roughness | None = None) -> dict:
     """One flight of ``team``; ``controller`` (one of CONTROLLERS) on the ``measured``
     robots (indices), the others by BL (Mellinger) or the same controller."""
     from ns2host.sim.vehicle import vehicle
@@ -80,12 +72,12 @@ def _fly(cfg, team, gen_dir, start, sp, duration, controller: str, tuning, measu
     gains = [tuned(vehicle(cfg, t), use) for t in team]
     ctrls = ["mellinger" if controller == "Mellinger" and i in measured else "ns2" for i in range(n)]
     sw = CLoopSwarm(cfg, list(team), gen_dir, start, aero=True, learned=learned, gains=gains, controllers=ctrls,
-                    seed=seed)
+                    seed=seed, rough=rough)
     return sw.run(duration, sp)
 
 
 def run_swaps(cfg: Config, gen_dir, case: str, learned: str | None = None, swaps: int = 6, seed: int = 0,
-              controller: str | None = None, tuning: dict | None = None) -> dict:
+              controller: str | None = None, tuning: dict | None = None, rough: Roughness | None = None) -> dict:
     """The swap ``case``; ``controller`` (CONTROLLERS) or, for short, ``learned`` (None:
     BL, "fixed"/"float": NN with default gains).  Worst z error of the bottom robot per
     swap, its z error rms and motor-command noise."""
@@ -97,39 +89,41 @@ def run_swaps(cfg: Config, gen_dir, case: str, learned: str | None = None, swaps
         from ns2host.sim.vehicle import vehicle
 
         sw = CLoopSwarm(cfg, list(team), gen_dir, start, aero=True, learned=learned, seed=seed,
-                        gains=[tuned(vehicle(cfg, t), tuning) for t in team])
+                        gains=[tuned(vehicle(cfg, t), tuning) for t in team], rough=rough)
         log = sw.run(swaps * period, sp)
     else:
         log = _fly(cfg, team, gen_dir, start, sp, swaps * period, controller, tuning, measured=[0], seed=seed,
-                   learned=learned or "fixed")
+                   learned=learned or "fixed", rough=rough)
     z_err = np.abs(log["truth_p"][:, 0, 2] - log["p_d"][:, 0, 2])
     worst = [float(z_err[(log["t"] >= k * period) & (log["t"] < (k + 1) * period)].max()) for k in range(swaps)]
     return {"worst_z_error_m": worst, "z_error_rms_m": float(np.sqrt((z_err ** 2).mean())),
             "motor_cmd_rms": motor_noise(log["pwm"][:, 0]), "log": log}
 
 
-def hover_noise(cfg: Config, gen_dir, tuning: dict | None, seconds: float = 4.0) -> float:
+def hover_noise(cfg: Config, gen_dir, tuning: dict | None, seconds: float = 4.0, rough: Roughness | None = None) -> float:
     """Motor-command noise of a small robot hovering alone at 1 m with these gains."""
     from ns2host.sim.cloop import hover_setpoints
     from ns2host.sim.vehicle import vehicle
 
     p0 = [[0.0, 0.0, 1.0]]
-    sw = CLoopSwarm(cfg, ["small"], gen_dir, p0, gains=[tuned(vehicle(cfg, "small"), tuning)])
+    sw = CLoopSwarm(cfg, ["small"], gen_dir, p0, gains=[tuned(vehicle(cfg, "small"), tuning)], rough=rough)
     return motor_noise(sw.run(seconds, hover_setpoints(p0))["pwm"])
 
 
-def tune_gains(cfg: Config, gen_dir, out: Path | None = None, swaps: int = 6) -> dict:
+def tune_gains(cfg: Config, gen_dir, out: Path | None = None, swaps: int = 6, rough: Roughness | None = None) -> dict:
     """BL-tuned: a grid search of the height gains (Lp_z x Kv_z), then of the position
     gains (Lp_xy x Kv_xy) with the best height gains, under the simulator's sensing.
     Objective: the L2S swap's median worst z error without the learned force; constraint:
-    motor-command noise at hover at most HOVER_NOISE_LIMIT times the default gains'.
+    motor-command noise at hover at most HOVER_NOISE_LIMIT times the default gains' (clean
+    simulator) or at most the real small robots' in free air (rough: Roughness.hover_motor_noise).
     Returns (and writes to out/gain_search.json) the tuning and every candidate."""
-    limit = HOVER_NOISE_LIMIT * hover_noise(cfg, gen_dir, None)
+    limit = (HOVER_NOISE_LIMIT * hover_noise(cfg, gen_dir, None) if rough is None
+             else rough.hover_motor_noise["small"])
     rows, best = [], dict(DEFAULT_TUNING)
 
     def score(t: dict) -> float:
-        noise = hover_noise(cfg, gen_dir, t)
-        r = run_swaps(cfg, gen_dir, "L2S", None, swaps, tuning=t)
+        noise = hover_noise(cfg, gen_dir, t, rough=rough)
+        r = run_swaps(cfg, gen_dir, "L2S", None, swaps, tuning=t, rough=rough)
         med = float(np.median(r["worst_z_error_m"]))
         ok = noise <= limit and bool(np.isfinite(med)) and med < 0.5
         rows.append({**t, "median_worst_z_error_m": med, "hover_motor_cmd_rms": noise, "admissible": ok})
@@ -142,28 +136,28 @@ def tune_gains(cfg: Config, gen_dir, out: Path | None = None, swaps: int = 6) ->
         if np.isfinite(min(scores)):
             best = cands[int(np.argmin(scores))]
     res = {"tuning": best, "hover_noise_limit": limit, "objective": "L2S median worst z error, learned force off",
-           "key": _search_key(swaps), "candidates": rows}
+           "key": _search_key(swaps, rough), "candidates": rows}
     if out is not None:
         Path(out).mkdir(parents=True, exist_ok=True)
         (Path(out) / "gain_search.json").write_text(json.dumps(res, indent=2) + "\n")
     return res
 
 
-def _search_key(swaps: int) -> str:
+def _search_key(swaps: int, rough: Roughness | None = None) -> str:
     from ns2host.sim.sensing import Sensing
 
-    return repr((GAIN_GRID_Z, GAIN_GRID_XY, HOVER_NOISE_LIMIT, NOISE_WINDOW, swaps, Sensing()))
+    return repr((GAIN_GRID_Z, GAIN_GRID_XY, HOVER_NOISE_LIMIT, NOISE_WINDOW, swaps, Sensing(), rough))
 
 
-def load_or_tune(cfg: Config, gen_dir, out: Path, swaps: int = 6) -> dict:
+def load_or_tune(cfg: Config, gen_dir, out: Path, swaps: int = 6, rough: Roughness | None = None) -> dict:
     """The tuning of out/gain_search.json when it was made by the same search (grid, limit,
     sensing), else a new search (model-independent: f_a = 0)."""
     f = Path(out) / "gain_search.json"
     if f.is_file():
         old = json.loads(f.read_text())
-        if old.get("key") == _search_key(swaps):
+        if old.get("key") == _search_key(swaps, rough):
             return old["tuning"]
-    return tune_gains(cfg, gen_dir, out, swaps)["tuning"]
+    return tune_gains(cfg, gen_dir, out, swaps, rough)["tuning"]
 
 
 def _row(worst: list, rms: float, noise: float) -> dict:
@@ -211,10 +205,10 @@ def heat_maps(cfg: Config, gen_dir, out: Path) -> None:
 
 
 def swap_experiments(cfg: Config, gen_dir, out_dir, swaps: int = 6, cases=None, controllers=CONTROLLERS,
-                     learned: str = "fixed", progress=None) -> dict:
+                     learned: str = "fixed", progress=None, rough: Roughness | None = None) -> dict:
     """Every swap case with every controller; out_dir/swaps.json (a row per case and
     controller), swaps.md, box plots, f_a over time, heat maps (``progress(1)`` after
-    every case and controller)."""
+    every case and controller); ``rough``: the rough simulator (None: the clean one)."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -222,11 +216,11 @@ def swap_experiments(cfg: Config, gen_dir, out_dir, swaps: int = 6, cases=None, 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     cases = list(cases or SWAP_CASES)
-    tuning = load_or_tune(cfg, gen_dir, out)
+    tuning = load_or_tune(cfg, gen_dir, out, rough=rough)
     rows, worst, logs = [], {}, {}
     for case in cases:
         for ctrl in controllers:
-            r = run_swaps(cfg, gen_dir, case, learned, swaps=swaps, controller=ctrl, tuning=tuning)
+            r = run_swaps(cfg, gen_dir, case, learned, swaps=swaps, controller=ctrl, tuning=tuning, rough=rough)
             rows.append({"case": case, "controller": ctrl, **_row(r["worst_z_error_m"], r["z_error_rms_m"],
                                                                    r["motor_cmd_rms"]),
                          "worst_z_error_m": r["worst_z_error_m"]})
@@ -235,7 +229,7 @@ def swap_experiments(cfg: Config, gen_dir, out_dir, swaps: int = 6, cases=None, 
                 logs[case] = r["log"]
             if progress is not None:
                 progress(1)
-    res = {"swaps": swaps, "tuning": tuning, "rows": rows}
+    res = {"swaps": swaps, "tuning": tuning, "simulator": "clean" if rough is None else "rough", "rows": rows}
     (out / "swaps.json").write_text(json.dumps(res, indent=2) + "\n")
     (out / "swaps.md").write_text(swap_table(res))
     fig, ax = plt.subplots(figsize=(1.2 * len(cases) * len(controllers) + 2, 3.5))
@@ -293,19 +287,20 @@ RING_CASES = {"5-robot rings": 5, "16-robot three rings": 16}
 
 
 def ring_experiments(cfg: Config, gen_dir, out_dir, duration: float = 16.0, controllers=CONTROLLERS,
-                     learned: str = "fixed", progress=None) -> dict:
+                     learned: str = "fixed", progress=None, rough: Roughness | None = None) -> dict:
     """Worst z error of every robot after 2 s, per robot type and controller (Mellinger
     flies the small robots, BL the large); out_dir/rings.json (a row per case, robot
     type and controller) and rings.md (``progress(1)`` after every flight)."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    tuning = load_or_tune(cfg, gen_dir, out)
+    tuning = load_or_tune(cfg, gen_dir, out, rough=rough)
     rows = []
     for name, robots in RING_CASES.items():
         team, sp, start, _ = intertwined_rings(robots)
         small = [i for i, t in enumerate(team) if base_type(t) == "small"]
         for ctrl in controllers:
-            log = _fly(cfg, team, gen_dir, start, sp, duration, ctrl, tuning, measured=small, learned=learned)
+            log = _fly(cfg, team, gen_dir, start, sp, duration, ctrl, tuning, measured=small, learned=learned,
+                       rough=rough)
             if progress is not None:
                 progress(1)
             late = log["t"] > 2.0
@@ -319,7 +314,7 @@ def ring_experiments(cfg: Config, gen_dir, out_dir, duration: float = 16.0, cont
                              **_row(list(worst[sel]), float(np.sqrt((z_err[:, sel] ** 2).mean())),
                                     motor_noise(log["pwm"][:, sel])),
                              "mean_worst_z_error_m": float(worst[sel].mean())})
-    res = {"duration_s": duration, "tuning": tuning, "rows": rows}
+    res = {"duration_s": duration, "tuning": tuning, "simulator": "clean" if rough is None else "rough", "rows": rows}
     (out / "rings.json").write_text(json.dumps(res, indent=2) + "\n")
     lines = ["| experiment | robot type | controller | mean / max worst z error (cm) | z rms (cm) | motor noise (%) |",
              "|---|---|---|---|---|---|"]

@@ -163,11 +163,11 @@ def _variants(cmp: dict) -> list[str]:
     return [k for k in cmp if k not in ("flights", "real")]
 
 
-def roughness_table(cmp: dict) -> str:
+def roughness_table(cmp: dict, judged: str = "rough") -> str:
     """Every statistic of host/sim/flightstats.py: real against each simulator of
-    ``cmp`` (experiments/calibrate.py compare), with the last one / real."""
+    ``cmp`` (experiments/calibrate.py compare), with ``judged`` / real."""
     sims = _variants(cmp)
-    lines = ["| statistic | real | " + " | ".join(sims) + f" | {sims[-1]} / real |",
+    lines = ["| statistic | real | " + " | ".join(sims) + f" | {judged} / real |",
              "|---|---|" + "---|" * (len(sims) + 1)]
     real = cmp["real"]
 
@@ -182,7 +182,7 @@ def roughness_table(cmp: dict) -> str:
         r = get(real, path)
         cells = [get(cmp[v], path) for v in sims]
         lines.append(f"| {label} | {_cell(r, nd)} | " + " | ".join(_cell(c, nd) for c in cells)
-                     + f" | {_ratio(cells[-1], r)} |")
+                     + f" | {_ratio(get(cmp[judged], path), r)} |")
 
     for ty in sorted(real["free_air"]):
         for st in ("mean_g", "std_g", "fast_std_g", "band_fraction", "motor_noise"):
@@ -203,17 +203,17 @@ def roughness_table(cmp: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-def sim_to_real_table(cmp: dict) -> str:
+def sim_to_real_table(cmp: dict, judged: str = "rough") -> str:
     """Per swap scenario of the replayed flights: median worst z error of the bottom
-    robot (cm), real against each simulator, and whether the last one is within
-    SIM_TO_REAL_TOL of the real."""
+    robot (cm), real against each simulator, and whether ``judged`` (the simulator
+    `make sim` flies) is within SIM_TO_REAL_TOL of the real."""
     sims = _variants(cmp)
     lines = ["| scenario | swaps | real (cm) | " + " | ".join(f"{v} (cm)" for v in sims)
-             + f" | {sims[-1]} / real | within 30 % |", "|---|---|---|" + "---|" * (len(sims) + 2)]
+             + f" | {judged} / real | within 30 % |", "|---|---|---|" + "---|" * (len(sims) + 2)]
     for case, r in sorted(cmp["real"]["swaps"].items()):
         rv = r["median_worst_z_error_m"]
         vals = [cmp[v]["swaps"].get(case, {}).get("median_worst_z_error_m") for v in sims]
-        g = vals[-1]
+        g = cmp[judged]["swaps"].get(case, {}).get("median_worst_z_error_m")
         ok = g is not None and abs(g / rv - 1.0) <= SIM_TO_REAL_TOL
         lines.append(f"| {case} | {r['swaps']} | {100 * rv:.1f} | "
                      + " | ".join(_cell(None if x is None else 100 * x, 1) for x in vals)

@@ -20,6 +20,7 @@ from ns2codegen.data.dataset import Dataset
 from ns2codegen.data.from_logs import Flight, flights_to_dataset
 
 from .cloop import CLoopSwarm
+from .roughness import Roughness
 from .scenarios import near_field, random_walk, swap, who_moves
 from .usdlogs import write_flight, write_manifest
 
@@ -34,7 +35,7 @@ def teams(cfg: Config, max_size: int = 3) -> list[tuple[str, ...]]:
 
 
 def flight_log(cfg: Config, team, gen_dir, kind: str, duration: float, seed: int, learned=None,
-               near_gap_max: float = 1.2) -> dict:
+               near_gap_max: float = 1.2, rough: Roughness | None = None) -> dict:
     """Fly one scenario of ``kind`` with ``team``; the simulator's log (CLoopSwarm.run: the
     drones' estimates and, apart, the ground truth), cut before a crash (crash_cut)."""
     n = len(team)
@@ -53,7 +54,7 @@ def flight_log(cfg: Config, team, gen_dir, kind: str, duration: float, seed: int
         sp, start = random_walk(n, seed=seed)
     else:
         raise ValueError(f"unknown flight kind {kind!r}: random, swap, near or who")
-    sw = CLoopSwarm(cfg, list(team), gen_dir, start, aero=True, learned=learned, seed=seed)
+    sw = CLoopSwarm(cfg, list(team), gen_dir, start, aero=True, learned=learned, seed=seed, rough=rough)
     log = sw.run(duration, sp)
     n_keep = crash_cut(log["t"], log["truth_p"])
     if n_keep < len(log["t"]):
@@ -63,11 +64,11 @@ def flight_log(cfg: Config, team, gen_dir, kind: str, duration: float, seed: int
 
 
 def fly(cfg: Config, team, gen_dir, kind: str, duration: float, seed: int, learned=None,
-        near_gap_max: float = 1.2) -> Flight:
+        near_gap_max: float = 1.2, rough: Roughness | None = None) -> Flight:
     """``flight_log`` as the drones log it: the EKF's estimates (labels from estimated
-    states, as on the real drone)."""
-    log = flight_log(cfg, team, gen_dir, kind, duration, seed, learned, near_gap_max)
-    return Flight(list(team), *(log[k] for k in ("t", "p", "v", "q", "pwm", "battery_V")))
+    states, as on the real drone) and the setpoints."""
+    log = flight_log(cfg, team, gen_dir, kind, duration, seed, learned, near_gap_max, rough)
+    return Flight(list(team), *(log[k] for k in ("t", "p", "v", "q", "pwm", "battery_V")), p_d=log["p_d"])
 
 
 CRASH_MARGIN_S = 1.0  # s of log dropped before a crash (the loss of control before it)
@@ -86,7 +87,8 @@ def crash_cut(t, truth_p) -> int:
 
 def collect(cfg: Config, gen_dir, seconds_per_team: float, seed: int = 0, learned=None,
             team_list=None, usd_dir=None, near_field_seconds: float = 0.0, near_gap_max: float = 1.2,
-            who_moves_seconds: float = 0.0, progress=None, workers: int = 1) -> Dataset:
+            who_moves_seconds: float = 0.0, progress=None, workers: int = 1,
+            rough: Roughness | None = None) -> Dataset:
     """Half random walk, half swaps per team (single robots only random walk), plus
     ``near_field_seconds`` of close-range passes per pair of robots (vertical gaps up
     to ``near_gap_max``) and ``who_moves_seconds`` of one robot moving past the
@@ -94,7 +96,8 @@ def collect(cfg: Config, gen_dir, seconds_per_team: float, seed: int = 0, learne
     ``usd_dir`` the (noisy) logs are also written there as Crazyflie uSD files with a
     flights.toml, the input of ``ns2 logs-to-data``.  ``progress(1)`` after every flight.
     ``workers`` > 1 flies that many flights at once in forked processes (same flights,
-    same seeds, same data set)."""
+    same seeds, same data set); ``rough``: the rough simulator (host/sim/roughness.py;
+    None: the clean one)."""
     jobs = []
     for k, team in enumerate(team_list or teams(cfg)):
         kinds = ["random"] if len(team) == 1 else ["random", "swap"]
@@ -109,11 +112,12 @@ def collect(cfg: Config, gen_dir, seconds_per_team: float, seed: int = 0, learne
         from ..cfhost import load_fly
         load_fly(gen_dir)                             # build once, before the workers load it
         with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("fork")) as ex:
-            futures = [ex.submit(fly, cfg, team, gen_dir, kind, sec, s, learned, near_gap_max)
+            futures = [ex.submit(fly, cfg, team, gen_dir, kind, sec, s, learned, near_gap_max, rough)
                        for team, kind, sec, s in jobs]
             flights = [_done(f.result(), progress) for f in futures]
     else:
-        flights = [_done(fly(cfg, team, gen_dir, kind, sec, seed=s, learned=learned, near_gap_max=near_gap_max),
+        flights = [_done(fly(cfg, team, gen_dir, kind, sec, seed=s, learned=learned, near_gap_max=near_gap_max,
+                             rough=rough),
                          progress) for team, kind, sec, s in jobs]
     if usd_dir is not None:
         entries = [write_flight(Path(usd_dir), f"{''.join(t[0] for t in team)}_{kind}_{s}", list(team),

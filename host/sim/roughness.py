@@ -49,6 +49,9 @@ class Roughness:
     # battery sag
     battery_start_V: float = 3.552
     battery_sag_V_per_min: float = 0.1063
+    # not an effect: the motor-command noise of the real robots in free air (flightstats),
+    # the bound of BL-tuned's gain search in the rough simulator (experiments/swarm.py)
+    hover_motor_noise: dict = field(default_factory=lambda: {"small": 0.0274, "large": 0.0461})
     enabled: tuple = EFFECTS
 
     def without(self, *names: str) -> "Roughness":
