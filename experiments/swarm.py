@@ -11,8 +11,9 @@ swap) and rings, the z error of the measured robots, side by side for fair basel
   NN            BL-tuned's gains with the learned f_a (the headline: NN vs BL-tuned)
   NN-default    the learned f_a with the default gains (the rows before this change)
   Mellinger     the firmware's controller_mellinger.c (default gains, mass set to the
-                vehicle's, thrust through the firmware's power distribution and
-                battery compensation) on the measured robots, the others flown by BL
+                vehicle's, thrust through the firmware's power distribution and the
+                stock configuration's battery compensation) on the measured robots,
+                the others flown by BL
 
 Plots like the paper's flight-test figure (box plots), f_a predicted vs true over time,
 and f_a,z heat maps of the exported model (learning-results figure)."""

@@ -104,23 +104,38 @@ def build_stock() -> Path:
     return _cached("stock", _firmware_id(fw), build)
 
 
-def app_config() -> Path:
-    """The app's firmware configuration only (cf2_defconfig + app-config, as the app
-    build makes it: .config and include/generated/autoconf.h), for every host and
-    emulator build of firmware code (the simulator's estimator and controllers, the
-    harness, the Cortex-M4 counts): the configuration the drone flies with; cached,
-    seconds to make."""
+def _config(name: str, fragments: list[Path]) -> Path:
+    """A firmware configuration only (cf2_defconfig merged with ``fragments``, as the
+    app build makes it: .config and include/generated/autoconf.h); cached."""
     fw = crazyflie.firmware_dir()
-    app_cfg = APP_DIR / "app-config"
 
     def build(out: Path) -> None:
         common = ["-C", str(fw), f"KBUILD_OUTPUT={out}"]
         _make([*common, "KCONFIG_ALLCONFIG=configs/cf2_defconfig", "alldefconfig"], out / "config.log")
-        subprocess.run([str(fw / "scripts/kconfig/merge_config.sh"), "-O", str(out), "-m", str(out / ".config"),
-                        str(app_cfg)], capture_output=True, check=True, cwd=out)
+        if fragments:
+            subprocess.run([str(fw / "scripts/kconfig/merge_config.sh"), "-O", str(out), "-m", str(out / ".config"),
+                            *map(str, fragments)], capture_output=True, check=True, cwd=out)
         _make([*common, "silentoldconfig"], out / "silentoldconfig.log")
 
-    return _cached("config", _firmware_id(fw) + app_cfg.read_bytes(), build, "include/generated/autoconf.h")
+    key = _firmware_id(fw) + b"".join(f.read_bytes() for f in fragments)
+    return _cached(name, key, build, "include/generated/autoconf.h")
+
+
+def app_config() -> Path:
+    """The app's firmware configuration only (cf2_defconfig + app-config), for every
+    host and emulator build of firmware code (the simulator's estimator and
+    controllers, the harness, the Cortex-M4 counts; the Mellinger robots' battery
+    compensation excepted, see stock_config): the configuration the drone flies with;
+    cached, seconds to make."""
+    return _config("config", [APP_DIR / "app-config"])
+
+
+def stock_config() -> Path:
+    """The stock firmware's configuration only (cf2_defconfig): what a Crazyflie flying
+    the firmware's own controllers has, battery thrust compensation on
+    (CONFIG_ENABLE_THRUST_BAT_COMPENSATED, which app-config turns off); the simulator's
+    Mellinger robots compensate with it (host/cfhost.py)."""
+    return _config("stockconfig", [])
 
 
 def app_inputs(gen_dir: Path) -> list[Path]:

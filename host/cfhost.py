@@ -10,7 +10,12 @@ bindings do (``bindings/setup.py``: the same include folders, ``-fno-strict-alia
   the IMU low-pass filters    src/utils/src/filter.c (lpf2p);
   the Mellinger controller    controller_mellinger.c, power_distribution_quadrotor.c and
                               motorsCompensateBatteryVoltage (taken verbatim from
-                              src/drivers/src/motors.c, whose other code drives timers).
+                              src/drivers/src/motors.c, whose other code drives timers),
+                              the one piece compiled with the stock configuration
+                              (``cfapp.stock_config()``): a Crazyflie flying Mellinger
+                              flies the stock firmware, whose battery compensation is on;
+                              app-config turns it off for the app's psi_2, and with it
+                              the function returns its input unchanged.
 The ns2 library (firmware/src, ns2_pilot.c included) is compiled with its own strict
 flags (ns2host.cbuild.compile_objects) against one export folder.  One cffi module per
 export folder, cached under build/host/<hash>.
@@ -25,7 +30,7 @@ from pathlib import Path
 
 from .cbuild import (CDEF, REPO, _key, _module, compile_error, compile_objects, flags,
                      host_cc, require_export)
-from .cfapp import app_config
+from .cfapp import app_config, stock_config
 from .crazyflie import extract_function, firmware_dir
 
 FW_INCLUDES = [  # bindings/setup.py
@@ -88,6 +93,7 @@ uint32_t ns2_fly_run(ns2_fly_robot_t *rob, uint32_t n, double *x, const double *
                      const float *noise, const ns2_setpoint_t *sp, const ns2_fly_frame_t *frame, float battery_V,
                      ns2_fly_trace_t *tr, uint32_t tr_robot, uint32_t tr_max);
 void ns2_fly_estimate(const ns2_fly_robot_t *r, float out[13]);
+float motorsCompensateBatteryVoltage(uint32_t id, float iThrust, float supplyVoltage);
 """
 
 
@@ -104,12 +110,13 @@ def load_fly(gen_dir: str | Path):
 
     gen_dir = require_export(gen_dir)
     fw, auto = firmware_dir(), app_config() / "include" / "generated"
+    stock = stock_config() / "include" / "generated"  # the Mellinger robots' battery compensation
     f = flags()
     fw_inc = [f"-I{fw / i}" for i in FW_INCLUDES] + [f"-I{auto}"]
     ns2_inc = [f"-I{REPO / i}" for i in f["NS2_INCLUDES"]] + [f"-I{gen_dir}", f"-I{REPO / 'host'}"]
     h = hashlib.sha256(_key(gen_dir, f).encode() + FLY_CDEF.encode() + repr(FW_FLAGS).encode())
     for p in [fw / s for s in FW_SOURCES] + [fw / s for s, _ in FW_EXTRACTED + FW_EXTRACTED_DEFINES] + [REPO / s for s in HOST_FLY] \
-            + [REPO / "host" / "ns2_fly.h", auto / "autoconf.h"]:
+            + [REPO / "host" / "ns2_fly.h", auto / "autoconf.h", stock / "autoconf.h"]:
         h.update(p.name.encode() + p.read_bytes())
 
     def build(tmp: Path, name: str) -> None:
@@ -118,9 +125,10 @@ def load_fly(gen_dir: str | Path):
         defines = "".join(next(ln for ln in (fw / h).read_text().splitlines()
                                if re.match(rf"\s*#define\s+{d}\b", ln)).strip() + "\n" for h, d in FW_EXTRACTED_DEFINES)
         extracted.write_text(EXTRACT_PRELUDE + defines + "".join(extract_function(fw / s, fn) for s, fn in FW_EXTRACTED))
-        for src in [fw / s for s in FW_SOURCES] + [extracted]:
+        for src, conf in [(fw / s, auto) for s in FW_SOURCES] + [(extracted, stock)]:
             obj = tmp / f"cf_{src.stem}.o"
-            _run([host_cc(), *FW_FLAGS, *fw_inc, "-include", "autoconf.h", "-c", str(src), "-o", str(obj)])
+            inc = [f"-I{fw / i}" for i in FW_INCLUDES] + [f"-I{conf}"]
+            _run([host_cc(), *FW_FLAGS, *inc, "-include", "autoconf.h", "-c", str(src), "-o", str(obj)])
             objs.append(obj)
         for src in HOST_FLY:
             obj = tmp / f"{Path(src).stem}.o"

@@ -15,7 +15,8 @@
  *          (timestamp: reception tick, as peer_localization.c);
  *   control  either ns2_pilot (firmware/src, the app's code path) at 500/100 Hz,
  *          or the firmware's controller_mellinger.c + power_distribution_quadrotor.c
- *          + motorsCompensateBatteryVoltage (stabilizer.c's order);
+ *          + motorsCompensateBatteryVoltage (stabilizer.c's order; the stock
+ *          configuration's battery compensation, host/cfhost.py);
  *   plant  PWM -> motor force through psi_1, RK4 of eq. (dynamics) (ns2_sim.c).
  * The true state x stays here and in Python; the controllers see only the EKF
  * state and the filtered gyro.
@@ -40,7 +41,6 @@
 
 void ns2_sim_rk4(uint32_t n, double *x, const double *par, const double *u_c, const double *f_a,
                  const double *tau_a, double dt);
-float motorsCompensateBatteryVoltage(uint32_t id, float iThrust, float supplyVoltage);
 
 static kalmanCoreParams_t kparams; /* kalmanCoreDefaultParams, shared (read-only after init) */
 

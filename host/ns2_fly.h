@@ -89,4 +89,8 @@ uint32_t ns2_fly_run(ns2_fly_robot_t *rob, uint32_t n, double *x, const double *
 /* p, v, q, w (ns2_ctrl_state_t layout) the controllers see now. */
 void ns2_fly_estimate(const ns2_fly_robot_t *r, float out[13]);
 
+/* src/drivers/src/motors.c (extracted by host/cfhost.py, compiled with the stock
+ * configuration: battery compensation on, as a Crazyflie flying Mellinger has it) */
+float motorsCompensateBatteryVoltage(uint32_t id, float iThrust, float supplyVoltage);
+
 #endif /* NS2_FLY_H */

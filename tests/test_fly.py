@@ -102,6 +102,26 @@ def test_firmware_mellinger_flies(cfg, exported):
     assert 0.2 < log["pwm"][late].mean() < 0.95
 
 
+def test_mellinger_battery_compensation_is_the_stock_firmwares(exported):
+    """The Mellinger robots compensate the battery as the stock firmware does
+    (CONFIG_ENABLE_THRUST_BAT_COMPENSATED on in cf2_defconfig), although every other
+    firmware file of the kernel has the app's configuration, which turns it off (psi_2
+    compensates; there the function returns its input): motor voltage / supply voltage,
+    so the command scales as 1 / supply voltage.  Built with the app's configuration
+    (the kernel from 3c354c8 on) the Mellinger swap errors fell 3x (L2S 5.9 -> 2.0 cm)."""
+    from ns2host import cfapp
+    from ns2host.cfhost import load_fly
+
+    assert cfapp.kconfig(cfapp.stock_config())["CONFIG_ENABLE_THRUST_BAT_COMPENSATED"] == "y"
+    assert cfapp.kconfig(cfapp.app_config())["CONFIG_ENABLE_THRUST_BAT_COMPENSATED"] == "n"
+    _, lib = load_fly(exported.gen_dir)
+    for cmd in (20000.0, 35000.0, 50000.0):
+        full, low = (lib.motorsCompensateBatteryVoltage(0, cmd, v) for v in (4.2, 3.6))
+        assert low > 1.1 * full                        # a low battery gets a higher command,
+        assert low * 3.6 == pytest.approx(full * 4.2, rel=1e-5)  # as 1 / supply voltage
+    assert lib.motorsCompensateBatteryVoltage(0, 35000.0, 1.5) == 0.0  # the firmware's damaged-battery guard
+
+
 def test_swap_results_rows(cfg, exported, tmp_path, monkeypatch):
     """swaps.json: a row per case and controller with the metrics; the gain search is
     written once and reused; BL-tuned is the admissible candidate with the lowest objective."""
