@@ -203,7 +203,8 @@ def compare(cfg: Config, gen_dir, flights: list[Flight], rough: Roughness, names
     zl = fs.z_loop(cfg, flights)
     out = {"flights": sorted(by), "real": {"free_air": fs.free_air(cfg, flights), "battery": fs.battery(flights),
                                           "z_loop": zl, "wake_scatter": fs.wake_scatter(cfg, real_sw),
-                                          "swaps": fs.swap_errors(real_sw)}}
+                                          "swaps": fs.swap_errors(real_sw),
+                                          "unpredicted": fs.unpredicted(cfg, real_sw)}}
     for label in VARIANTS:
         r = None if label == "clean" else rough
         z = zl["fit"] if label.endswith("identified") else None
@@ -211,7 +212,8 @@ def compare(cfg: Config, gen_dir, flights: list[Flight], rough: Roughness, names
         sims = replay_all(cfg, gen_dir, by, r, workers, z_loop=z)
         out[label] = {"free_air": {ty: fs.free_air(cfg, [p])[ty] for ty, p in zip(cfg.robot_types, probes)},
                       "z_loop": fs.z_loop(cfg, probes), "battery": fs.battery(sims),
-                      "wake_scatter": fs.wake_scatter(cfg, sims), "swaps": fs.swap_errors(sims)}
+                      "wake_scatter": fs.wake_scatter(cfg, sims), "swaps": fs.swap_errors(sims),
+                      "unpredicted": fs.unpredicted(cfg, sims)}
     return out
 
 

@@ -130,6 +130,7 @@ def _missing_input_calls(tmp_path):
         ("sim", "collect"): ["--gen", nope, "--out", tmp_path / "d.npz"],
         ("sim", "swaps"): ["--gen", nope, "--out", tmp_path / "swaps"],
         ("sim", "rings"): ["--gen", nope, "--out", tmp_path / "rings"],
+        ("sim", "calibrate"): ["--data-dir", nope, "--out", tmp_path / "cal"],
         ("plan",): ["--checkpoint", nope / "m.pt", "--out", tmp_path / "plan"],
         ("real", "data"): ["--shared", nope, "--unpack-dir", tmp_path / "u", "--out", tmp_path / "real"],
         ("real", "check-c"): ["--gen", nope, "--checkpoint", nope / "m.pt", "--data-dir", nope],

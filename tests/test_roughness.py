@@ -182,3 +182,10 @@ def test_a_real_swap_measured_and_replayed(cfg, exported):
     s = fs.swap_errors([sim])
     assert list(s) == ["S2L"] and abs(s["S2L"]["swaps"] - r["swaps"]) <= 1
     assert 0 < s["S2L"]["median_worst_z_error_m"] < 0.5
+    # what the prediction flown left: the same statistic on both sides (the real robots' logged
+    # ctrlFa.Faz, the replay's C prediction), over the bottom robot's labels beyond 3 g
+    ur, us = fs.unpredicted(cfg, pieces), fs.unpredicted(cfg, [sim])
+    assert list(ur) == list(us) == ["S2L"]
+    for u in (ur["S2L"], us["S2L"]):
+        assert u["samples"] > 50 and 0 < u["rms_g"] < u["label_rms_g"] + abs(u["mean_g"]) + 10
+    assert np.isfinite(sim.fa_onboard_g).all() and np.abs(sim.fa_onboard_g[:, 1]).max() > 1.0   # the bottom robot

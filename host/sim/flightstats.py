@@ -20,6 +20,9 @@ z_loop        the z tracking of a robot with no neighbour near: the error's mean
               from it (the commanded vertical force against the z and v_z errors)
 swap_errors   the worst z error of the bottom robot of each swap (the paper's metric,
               Fig. swap): per scenario, the median over swaps
+unpredicted   what the prediction flown in the loop left of the bottom robot's residual
+              in the swaps (label minus the logged on-board f_a,z-hat where |label|
+              > UNPREDICTED_MIN_G): the force its controller had to absorb
 """
 from __future__ import annotations
 
@@ -247,6 +250,33 @@ def z_loop(cfg: Config, flights: list[Flight]) -> dict:
         out["fit"] = {"kp_per_s2": _r(-c[0]), "kd_per_s": _r(-c[1]),
                       "bias_mps2": {ty: _r(b) for ty, b in zip(cfg.robot_types, c[2:])},
                       "r2": _r(1.0 - ((Y - X @ c) ** 2).mean() / Y.var()), "samples": int(len(Y))}
+    return out
+
+
+UNPREDICTED_MIN_G = 3.0   # g: the bottom robot is in a wake (or the ground effect)
+
+
+def unpredicted(cfg: Config, flights: list[Flight]) -> dict:
+    """Per swap scenario: rms and mean (g) of label - fa_onboard_g of the bottom robot
+    where |label| > UNPREDICTED_MIN_G, the rms of those labels, and the samples."""
+    acc: dict = {}
+    for fl, i, fz in _labels_g(cfg, flights):
+        if fl.p_d is None or fl.fa_onboard_g is None or len(fl.types) < 2:
+            continue
+        zd = np.nanmedian(fl.p_d[:, :, 2], axis=0)
+        order = [int(k) for k in np.argsort(zd, kind="stable")]
+        if i != order[0]:
+            continue
+        ok = np.isfinite(fz) & np.isfinite(fl.fa_onboard_g[:, i]) & (np.abs(fz) > UNPREDICTED_MIN_G)
+        a = acc.setdefault(swap_case(fl.types, i, order), {"d": [], "x": []})
+        a["d"].append(fz[ok] - fl.fa_onboard_g[ok, i])
+        a["x"].append(fz[ok])
+    out = {}
+    for case, a in sorted(acc.items()):
+        d, x = np.concatenate(a["d"]), np.concatenate(a["x"])
+        if d.size:
+            out[case] = {"samples": int(d.size), "rms_g": _r(np.sqrt((d ** 2).mean())), "mean_g": _r(d.mean()),
+                         "label_rms_g": _r(np.sqrt((x ** 2).mean()))}
     return out
 
 

@@ -23,6 +23,7 @@ from ns2codegen.data.from_logs import Flight
 from .cloop import CLoopSwarm, Setpoints
 from .flightstats import NOISE_WINDOW, moving_average
 from .roughness import Roughness
+from .vehicle import G
 
 
 def pieces_by_flight(flights: list[Flight]) -> dict[str, list[Flight]]:
@@ -89,4 +90,4 @@ def replay(cfg: Config, pieces: list[Flight], gen_dir, learned: str | None = "fl
     sw = CLoopSwarm(cfg, types, gen_dir, start, aero=True, learned=learned, seed=seed, rough=rough, gains=gains)
     log = sw.run(duration, sp)
     return Flight(types, log["t"] + t0, log["p"], log["v"], log["q"], log["pwm"], log["battery_V"],
-                  name=pieces[0].name, p_d=log["p_d"])
+                  name=pieces[0].name, p_d=log["p_d"], fa_onboard_g=log["fa_hat"][:, :, 2] * 1e3 / G)
