@@ -39,10 +39,10 @@ EFFECTS = ("vibration", "turbulence", "thrust", "battery")
 @dataclass(frozen=True)
 class Roughness:
     # propeller vibration (per 1 kHz sample), by robot type
-    vibration_acc_g: dict = field(default_factory=lambda: {"small": 0.0586, "large": 0.0667})
-    vibration_gyro_dps: dict = field(default_factory=lambda: {"small": 0.537, "large": 0.857})
+    vibration_acc_g: dict = field(default_factory=lambda: {"small": 0.0585, "large": 0.0674})
+    vibration_gyro_dps: dict = field(default_factory=lambda: {"small": 0.565, "large": 0.908})
     # rotor-wake turbulence
-    turbulence_ratio: float = 0.054
+    turbulence_ratio: float = 0.055
     turbulence_tau_s: float = 0.002
     # per-robot thrust scatter (relative standard deviation of psi_1)
     thrust_sd: float = 0.0158
@@ -51,7 +51,7 @@ class Roughness:
     battery_sag_V_per_min: float = 0.1063
     # not an effect: the motor-command noise of the real robots in free air (flightstats),
     # the bound of BL-tuned's gain search in the rough simulator (experiments/swarm.py)
-    hover_motor_noise: dict = field(default_factory=lambda: {"small": 0.0274, "large": 0.0461})
+    hover_motor_noise: dict = field(default_factory=lambda: {"small": 0.0274, "large": 0.04613})
     enabled: tuple = EFFECTS
 
     def without(self, *names: str) -> "Roughness":
