@@ -16,12 +16,16 @@ from ns2codegen.errors import Ns2Error
 from ns2plan.output import POLY4D_BYTES, read_poly4d
 
 # log blocks: each fits a CRTP log packet (26 bytes of data); every name is checked
-# against the built cf2.elf's LOG table (tests/test_ground_cf.py)
+# against the built cf2.elf's LOG table (tests/test_ground_cf.py).  With the state,
+# the attitude, the motor PWM and the battery the radio log is a labelled data set
+# (ns2 logs-to-data, ns2codegen/logs/radiolog.py)
 LOG_BLOCKS = (
     ("ns2a", ("ns2.faHat", "ns2.status", "ns2.ex", "ns2.ey", "ns2.ez", "pm.vbat")),
     ("ns2b", ("stateEstimate.x", "stateEstimate.y", "stateEstimate.z", "stateEstimate.vx", "stateEstimate.vy",
               "ns2.nUsed")),
-    ("ns2c", ("stateEstimate.vz", "ns2.inferUs", "ns2.ctrlStatus", "pm.state")),
+    ("ns2c", ("stateEstimate.vz", "ns2.inferUs", "ns2.ctrlStatus", "pm.state", "motor.m1", "motor.m2", "motor.m3",
+              "motor.m4")),
+    ("ns2d", ("stateEstimate.qw", "stateEstimate.qx", "stateEstimate.qy", "stateEstimate.qz")),
 )
 LOG_PERIOD_MS = 50
 TRAJECTORY_ID = 1

@@ -38,6 +38,7 @@ robot_types:
   big: {ns2_type: large}
 """
 SWAP_S = 3.0
+TAKEOFF_S = 1.0   # the dry run hovers at the take-off point from the take-off command on
 
 
 def _swap_piece(a, b, duration):
@@ -65,6 +66,8 @@ def test_fly_sim_flies_the_swap_and_writes_both_logs(exported, tmp_path):
     rep = json.loads(r.output)
     assert rep["pieces"] == {"cf3": 1, "cf4": 1} and rep["simulated_s"] > SWAP_S + 1.0
     lines = [json.loads(x) for x in log.read_text().splitlines()]
+    assert lines[0] == {"flight": {"robots": {"cf3": "small", "cf4": "large"}, "sync": rep["sync"]}}
+    lines = lines[1:]
     by = {n: [x for x in lines if x["robot"] == n] for n in ("cf3", "cf4")}
     assert all(len(v) > 60 for v in by.values())
     for name, a, b in (("cf3", small_a, small_b), ("cf4", large_a, large_b)):
@@ -73,7 +76,7 @@ def test_fly_sim_flies_the_swap_and_writes_both_logs(exported, tmp_path):
         p = np.array([[x["stateEstimate.x"], x["stateEstimate.y"], x["stateEstimate.z"]] for x in rows])
         assert np.all(np.diff(t) > 0)
         assert np.abs(p[0] - a).max() < 0.1, (name, p[0])                 # hovering at the start
-        i_end = np.searchsorted(t, t[0] + SWAP_S - 0.05)                  # the other side, before landing
+        i_end = np.searchsorted(t, t[0] + TAKEOFF_S + SWAP_S - 0.05)      # the other side, before landing
         assert np.abs(p[i_end, :2] - b[:2]).max() < 0.1, (name, p[i_end])
         assert p[-1, 2] < 0.15 and np.abs(p[-1, :2] - b[:2]).max() < 0.1     # landed there
         e = np.array([[x["ns2.ex"], x["ns2.ey"], x["ns2.ez"]] for x in rows])
@@ -86,3 +89,16 @@ def test_fly_sim_flies_the_swap_and_writes_both_logs(exported, tmp_path):
     r = CliRunner().invoke(main, ["logs-to-data", rep["usd"], "--out", str(out), "--json"])
     assert r.exit_code == 0, r.output
     assert json.loads(r.output)["samples"] > 100
+    # and the radio log itself becomes a labelled data set (20 Hz, the ground's clock)
+    radio = tmp_path / "radio.npz"
+    r = CliRunner().invoke(main, ["logs-to-data", str(log), "--out", str(radio), "--json"])
+    assert r.exit_code == 0, r.output
+    rep2 = json.loads(r.output)
+    assert rep2["flights"][0]["sync"] == "ground receive time (radio log)" and rep2["flights"][0]["rate_hz"] == 20.0
+    from ns2codegen.data.dataset import Dataset
+    usd_ds, radio_ds = Dataset.load(out), Dataset.load(radio)
+    assert len(radio_ds) > 80 and set(radio_ds.robot_type.tolist()) == {0, 1}
+    for ty in (0, 1):   # the same flight's labels from both logs: the small robot's downwash, none above
+        a, b = usd_ds.label_g[usd_ds.robot_type == ty], radio_ds.label_g[radio_ds.robot_type == ty]
+        assert np.all(np.isfinite(b)) and abs(np.median(a) - np.median(b)) < 0.2, (ty, np.median(a), np.median(b))
+        assert (b.min() < 0.5 * a.min()) if ty == 0 else (b.min() > -3.0), (ty, a.min(), b.min())
