@@ -29,6 +29,11 @@ LOG_BLOCKS = (
 )
 LOG_PERIOD_MS = 50
 TRAJECTORY_ID = 1
+# the high-level commander's group of the ns2 swarm: every robot joins it before take-off,
+# and take-off and the trajectory start address it (the firmware's isInGroup), so the
+# same command can go to the whole swarm in one radio broadcast; land and stop go to
+# every group (ALL_GROUPS): nothing may keep a robot from landing
+GROUP = 0x80
 
 
 class LinkError(Ns2Error, RuntimeError):
@@ -92,13 +97,17 @@ class CfRobot:
             raise LinkError(f"{self.name}: the trajectory upload failed")
         n = len(data) // POLY4D_BYTES
         self.cf.high_level_commander.define_trajectory(TRAJECTORY_ID, 0, n)
+        if self.has_param("hlCommander.groupmask"):   # the command is deprecated for this parameter
+            self.set_param("hlCommander.groupmask", GROUP)
+        else:
+            self.cf.high_level_commander.set_group_mask(GROUP)
         return n
 
     def takeoff(self, height: float, duration: float) -> None:
-        self.cf.high_level_commander.takeoff(height, duration)
+        self.cf.high_level_commander.takeoff(height, duration, group_mask=GROUP)
 
     def start(self) -> None:
-        self.cf.high_level_commander.start_trajectory(TRAJECTORY_ID, 1.0, False)
+        self.cf.high_level_commander.start_trajectory(TRAJECTORY_ID, 1.0, False, group_mask=GROUP)
 
     def land(self, duration: float) -> None:
         self.cf.high_level_commander.land(0.0, duration)

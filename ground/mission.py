@@ -108,6 +108,8 @@ class Recorder:
         self.f.write(json.dumps({"flight": {"robots": robots, "sync": sync}}) + "\n")
 
     def __call__(self, robot: str, t_ms: int, data: dict) -> None:
+        if self.f is None or self.f.closed:   # a packet still on its way when the flight ended
+            return
         self.last.setdefault(robot, {}).update(data)
         host_ms = int(round((self.clock.now() - self.t0) * 1000.0))
         self.f.write(json.dumps({"robot": robot, "t_ms": t_ms, "host_ms": host_ms, **data}) + "\n")

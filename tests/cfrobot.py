@@ -31,6 +31,7 @@ PARAM_RONLY, LOG_TYPE_MASK = 0x40, 0x0F
 LOG_FMT = {1: "<B", 2: "<H", 3: "<I", 4: "<b", 5: "<h", 6: "<i", 7: "<f"}
 
 ROBOTS: dict[str, "Robot"] = {}   # uri -> robot behind it
+SENT: list[tuple[str, int, int, bytes]] = []   # every packet cflib sent to any robot, in order: (robot, port, channel, data)
 
 
 def param_fmt(typ: int) -> str:
@@ -57,7 +58,7 @@ class Robot:
             im.close()
         self.traj = bytearray(self.traj_size)
         self.log_values = {f"{g}.{n}": 0 for g, n, *_ in self.logs}
-        self.sent: list[tuple[int, int, bytes]] = []      # (port, channel, data) cflib sent
+        self.sent: list[tuple[int, int, bytes, float]] = []   # (port, channel, data, seconds since start) cflib sent
         self.hl: list[bytes] = []                          # high-level commander packets
         self.param_writes: list[tuple[str, object]] = []   # in the order they arrived
         self.out: queue.Queue = queue.Queue()
@@ -100,7 +101,8 @@ class Robot:
 
     def receive(self, pk) -> None:
         data = bytes(pk.data)
-        self.sent.append((pk.port, pk.channel, data))
+        self.sent.append((pk.port, pk.channel, data, time.monotonic() - self._t0))
+        SENT.append((self.name, pk.port, pk.channel, data))
         if not self.alive:
             return
         handler = {PORT_LINK: self._link, PORT_PLATFORM: self._platform, PORT_PARAM: self._param,
@@ -242,6 +244,7 @@ def install(robots: dict[str, Robot]):
     import cflib.crtp
 
     cflib.crtp.CLASSES[:] = [RecordingDriver]
+    SENT.clear()
     ROBOTS.clear()
     ROBOTS.update(robots)
 
