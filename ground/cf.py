@@ -67,10 +67,25 @@ class CfRobot:
         group, name = full.split(".")
         return self.cf.param.toc.get_element(group, name) is not None
 
-    def set_param(self, full: str, value) -> None:
+    def set_param(self, full: str, value, timeout_s: float = 5.0) -> None:
+        """Write a parameter and wait until the robot confirms it (the firmware echoes a
+        write once the value is in place and its callback ran): cflib only queues the
+        write, and a command sent after it could otherwise arrive first."""
         if not self.has_param(full):
             raise LinkError(f"{self.name}: no parameter {full} on the robot")
-        self.cf.param.set_value(full, value)
+        group, name = full.split(".")
+        done = threading.Event()
+
+        def confirmed(_name, _value):
+            done.set()
+
+        self.cf.param.add_update_callback(group=group, name=name, cb=confirmed)
+        try:
+            self.cf.param.set_value(full, value)
+            if not done.wait(timeout_s):
+                raise LinkError(f"{self.name}: {full}: the robot did not confirm the write within {timeout_s:g} s")
+        finally:
+            self.cf.param.remove_update_callback(group=group, name=name, cb=confirmed)
 
     # -- trajectory memory and high-level commander
     def trajectory_memory_size(self) -> int:
