@@ -385,3 +385,52 @@ def test_a_start_far_from_the_initial_position_is_refused(elf, exported, tmp_pat
     finally:
         sw_.close_links()
     assert all(rb.param_writes == [] and rb.hl == [] for rb in robots.values())
+
+
+def test_the_gains_the_user_set_survive_the_robot_type(elf, exported, tmp_path, tmp_path_factory):
+    """Gains set in the swarm file (firmware_params.ns2gain) go to the robot through
+    cflib after its ns2.selfType; replayed in the order they arrived into the app
+    (ns2_app.c on the host, each write as param_logic.c does it, with no controller
+    tick or one between the writes), the app flies the user's gains and the new type's
+    defaults for the rest.  The other order would lose them: a new type loads its
+    defaults when it is written."""
+    import subprocess
+
+    from ns2ground import mission, swarm as sw
+    from ns2plan.output import poly4d_bytes
+
+    user = {"Lpx": 9.5, "Kvz": 4.25, "faMaxN": 0.07}
+    (tmp_path / "crazyflies.yaml").write_text(SWARM.replace(
+        "    type: big\n", "    type: big\n    firmware_params:\n      ns2gain: {Lpx: 9.5, Kvz: 4.25, faMaxN: 0.07}\n"))
+    s = sw.load(tmp_path / "crazyflies.yaml", exported.cfg)
+    robots, sw_, links = _connect(elf, s)
+    try:
+        for r in robots.values():
+            r.log_values["pm.vbat"] = 3.9
+        mission.fly(links, s, exported.cfg, exported.gen_dir, {"cf1": poly4d_bytes(_pieces(1)),
+                                                                "cf7": poly4d_bytes(_pieces(2))},
+                    tmp_path / "f.jsonl", _fast())
+    finally:
+        sw_.close_links()
+    writes = [(n, v) for n, v in robots["cf7"].param_writes if n.split(".")[0] in sw.GROUPS]
+    assert writes[0] == ("ns2.selfType", 1) and dict(writes)["ns2gain.Lpx"] == pytest.approx(9.5)
+    harness = cfapp.build_harness(exported.gen_dir, tmp_path_factory.mktemp("harness"))
+
+    def app(steps):
+        r = subprocess.run([str(harness), "params", "tick:3", *steps, "tick:20"], capture_output=True, text=True,
+                           check=True)
+        return json.loads(r.stdout)
+
+    fields = [f"{n}{ax}" for n in sw.GAIN3 for ax in "xyz"] + list(sw.GAIN1)   # ns2_gains_t's order
+    for between in ([], ["tick:1"]):
+        out = app([x for n, v in writes for x in [f"{n}={v!r}", *between]])
+        expected = list(out["default_1"])
+        for k, v in user.items():
+            expected[fields.index(k)] = v
+        assert out["ctrl_type"] == 1
+        np.testing.assert_allclose(out["gains"], expected, rtol=1e-6)
+        np.testing.assert_allclose(out["controller_gains"], expected, rtol=1e-6)   # what the controller flies
+    assert out["default_1"][fields.index("Lpx")] != 9.5 and out["default_1"] != out["default_0"]
+    # the type written after the gains: the new type's defaults replace them (why the order matters)
+    late = app([f"{n}={v!r}" for n, v in writes[1:]] + ["ns2.selfType=1"])
+    np.testing.assert_allclose(late["gains"], late["default_1"], rtol=1e-6)
