@@ -90,14 +90,14 @@ class Fault:
 
 
 def app_params() -> set[str]:
-    """The parameters the app declares (PARAM_ADD and NS2_GAIN3 in firmware/app/src/ns2_app.c)."""
+    """The parameters the app declares (PARAM_ADD[_WITH_CALLBACK] and NS2_GAIN3 in firmware/app/src/ns2_app.c)."""
     from ns2host.cbuild import REPO
 
     out, group = set(), None
     for line in (REPO / "firmware/app/src/ns2_app.c").read_text().splitlines():
         if m := re.match(r"PARAM_GROUP_START\((\w+)\)", line):
             group = m.group(1)
-        elif m := re.match(r"PARAM_ADD\([^,]+, (\w+),", line):
+        elif m := re.match(r"PARAM_ADD(?:_WITH_CALLBACK)?\([^,]+, (\w+),", line):
             out.add(f"{group}.{m.group(1)}")
         elif m := re.match(r"NS2_GAIN3\((\w+)\)", line):
             out |= {f"{group}.{m.group(1)}{ax}" for ax in "xyz"}

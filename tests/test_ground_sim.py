@@ -105,9 +105,12 @@ def test_fly_sim_flies_the_swap_and_writes_both_logs(exported, tmp_path):
         assert (b.min() < 0.5 * a.min()) if ty == 0 else (b.min() > -3.0), (ty, a.min(), b.min())
 
 
+FAULT_S = 0.9   # after the take-off command: 0.4 s into the trajectories
+
+
 @pytest.mark.parametrize("fault, cause", [
-    ("lost-link:cf4@1.6", "cf4: link lost"), ("low-battery:cf3@1.6", "cf3: battery 3.00 V below 3.3 V"),
-    ("app-status:cf4@1.6", "cf4: app status -3"), ("ctrl-c@1.6", "Ctrl-C")])
+    (f"lost-link:cf4@{FAULT_S}", "cf4: link lost"), (f"low-battery:cf3@{FAULT_S}", "cf3: battery 3.00 V below 3.3 V"),
+    (f"app-status:cf4@{FAULT_S}", "cf4: app status -3"), (f"ctrl-c@{FAULT_S}", "Ctrl-C")])
 def test_fly_sim_rehearses_the_safety_paths(exported, tmp_path, fault, cause):
     """A fault during the trajectories of a dry run: the mission's own safety path lands
     every robot it can still reach, and the landing is flown to its end and logged."""
@@ -118,7 +121,7 @@ def test_fly_sim_rehearses_the_safety_paths(exported, tmp_path, fault, cause):
     (plan / "robot1_large.bin").write_bytes(poly4d_bytes([_swap_piece((0.0, 0.5, 0.8), (0.0, -0.5, 0.8), SWAP_S)]))
     log = tmp_path / "flight.jsonl"
     r = CliRunner().invoke(main, ["fly", str(exported.gen_dir), str(tmp_path / "crazyflies.yaml"), "--plan", str(plan),
-                                  "--log", str(log), "--sim", "--takeoff-s", "1", "--land-s", "1", "--sim-fault", fault])
+                                  "--log", str(log), "--sim", "--takeoff-s", "0.5", "--land-s", "0.8", "--sim-fault", fault])
     assert r.exit_code == 1, r.output
     last = r.output.strip().splitlines()[-1]
     lost = "cf4" if fault.startswith("lost-link") else None
@@ -129,10 +132,10 @@ def test_fly_sim_rehearses_the_safety_paths(exported, tmp_path, fault, cause):
         t = np.array([x["t_ms"] for x in rows]) / 1000.0
         z = np.array([x["stateEstimate.z"] for x in rows])
         if name == lost:   # nothing heard from it after the loss
-            assert t[-1] < 1.6 + 0.06 and z[-1] > 0.6
+            assert t[-1] < FAULT_S + 0.06 and z[-1] > 0.6
             continue
-        assert t[-1] > 1.6 + 1.0 and z[-1] < 0.15, (name, t[-1], z[-1])   # landed, long before the plan's end
-        assert np.abs(z[t < 1.6] - (0.4 if name == "cf3" else 0.8)).max() < 0.1      # flying until the fault
+        assert t[-1] > FAULT_S + 0.8 and z[-1] < 0.15, (name, t[-1], z[-1])   # landed, long before the plan's end
+        assert np.abs(z[t < FAULT_S] - (0.4 if name == "cf3" else 0.8)).max() < 0.1      # flying until the fault
     from ns2codegen.logs.usdlog import FIXED_FREQUENCY_NAME, read
     usd = [read(tmp_path / "flight-usd" / "flight" / f"cf{i}.usd").event(FIXED_FREQUENCY_NAME) for i in (0, 1)]
     z_end = [float(u["stateEstimate.z"][-1]) for u in usd]
