@@ -175,7 +175,8 @@ class CLoopSwarm:
             f_a = self.aero(st.p, st.v, st.u.sum(axis=1)) if self.aero else np.zeros((n, 3))
             if self.turbulence is not None:
                 f_a = f_a + self.turbulence.force(f_a)
-            battery_V = self.battery_V if self.rough is None else self.rough.battery_V(k / ATT_HZ, self.battery_V)
+            battery_V = (self.battery_V if self.rough is None
+                         else self.rough.battery_V((self._ms // STEP_TICKS + k) / ATT_HZ, self.battery_V))
             if k >= settle and ms % every_log == 0:
                 est = np.array([self._estimate(i) for i in range(n)])
                 log.t.append(t)
