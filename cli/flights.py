@@ -34,7 +34,7 @@ def sysid(type_name, static_csv, step_csv, mass_g, out, as_json):
 
 
 @main.command("logs-to-data")
-@click.argument("folder", type=click.Path(file_okay=False))
+@click.argument("folder", type=click.Path())
 @click.option("--out", type=click.Path(dir_okay=False), required=True, help="data set to write (.npz)")
 @_config_option
 @_vehicle_option
@@ -46,8 +46,9 @@ def sysid(type_name, static_csv, step_csv, mass_g, out, as_json):
               help="let flights.toml name log files outside FOLDER (absolute paths, '..', links)")
 @_json_option
 def logs_to_data(folder, out, config_path, vehicle_files, allow_truncated, z_min, allow_outside_paths, as_json):
-    """Crazyflie uSD logs of FOLDER (listed in FOLDER/flights.toml) -> data set (.npz):
-    clock alignment, common time base, labels f_a,z, neighbours by the interaction volume."""
+    """Crazyflie uSD logs of FOLDER (listed in FOLDER/flights.toml), or the radio log of
+    ns2 fly (a .jsonl file) -> data set (.npz): clock alignment, common time base, labels
+    f_a,z, neighbours by the interaction volume."""
     from ns2codegen.logs.align import logs_to_dataset
 
     cfg = _config(config_path, vehicle_files)

@@ -51,16 +51,20 @@ def swarm_params(export_dir, swarm_file, out, as_json):
 @click.option("--sim", is_flag=True, help="dry run: the same mission in the simulator (no radio); also writes "
               "the robots' uSD logs (flights.toml, for ns2 logs-to-data) into LOG's folder, <stem>-usd/")
 @click.option("--seed", type=int, default=0, show_default=True, help="with --sim: the simulator's noise")
+@click.option("--sim-fault", "sim_faults", multiple=True, metavar="KIND[:ROBOT]@SECONDS",
+              help="with --sim: a fault at SECONDS after take-off, to rehearse the safety paths: lost-link:ROBOT, "
+              "low-battery:ROBOT, app-status:ROBOT, ctrl-c (repeatable)")
 @_json_option
-def fly(export_dir, swarm_file, plan_dir, log_path, height, takeoff_s, land_s, min_battery, sim, seed, as_json):
+def fly(export_dir, swarm_file, plan_dir, log_path, height, takeoff_s, land_s, min_battery, sim, seed, sim_faults,
+        as_json):
     """Fly the plan with every enabled robot of SWARM_FILE (cflib): the model fingerprint of
     EXPORT_DIR checked on every robot first, parameters, ns2.sync, trajectories uploaded,
     take off, start together, land (docs/flying.md)."""
-    from pathlib import Path
-
     from ns2ground import cf, mission
     from ns2ground import swarm as sw
 
+    if sim_faults and not sim:
+        raise click.UsageError("--sim-fault rehearses a dry run: give --sim")
     cfg = _export_config(export_dir)
     s = sw.load(swarm_file, cfg)
     plans = mission.plans_for(s, plan_dir)
@@ -76,19 +80,7 @@ def fly(export_dir, swarm_file, plan_dir, log_path, height, takeoff_s, land_s, m
 
     _parent_ok(log_path)
     if sim:
-        from ns2ground.sim import SimSwarm
-
-        dry = SimSwarm(s, export_dir)
-        rep = mission.fly(dry.robots, s, cfg, export_dir, plans, log_path, settings, clock=dry.clock)
-        usd = Path(log_path).with_name(Path(log_path).stem + "-usd")
-        rec = mission.Recorder(log_path)
-        try:
-            flown = dry.fly(cfg, rec, usd, seed)
-        finally:
-            rec.close()
-        rep.update(usd=str(usd), samples=len(flown["t"]), simulated_s=float(flown["t"][-1]))
-        _emit(as_json, rep, f"flew {len(dry.robots)} simulated robots ({', '.join(dry.robots)}): log {log_path}, "
-              f"uSD logs {usd}")
+        _dry_run(s, cfg, export_dir, plans, log_path, settings, sim_faults, seed, as_json)
         return
     swarm, opened = cf.open_swarm({r.name: r.uri for r in s.enabled})
     links.update(opened)
@@ -99,6 +91,41 @@ def fly(export_dir, swarm_file, plan_dir, log_path, height, takeoff_s, land_s, m
     if _live():
         click.echo("", err=True)
     _emit(as_json, rep, f"flew {len(links)} robots ({', '.join(links)}): log {log_path}")
+
+
+def _dry_run(s, cfg, export_dir, plans, log_path, settings, sim_faults, seed, as_json):
+    """``ns2 fly --sim``: the mission against simulated robots flown in step with it
+    (ns2ground.sim); the landing after an abort is flown to its end and logged."""
+    import signal
+    from pathlib import Path
+
+    from ns2ground import mission
+    from ns2ground.sim import Fault, SimSwarm
+
+    try:
+        faults = [Fault.parse(f, [r.name for r in s.enabled]) for f in sim_faults]
+    except ValueError as e:
+        raise click.BadParameter(str(e), param_hint="--sim-fault") from None
+    dry = SimSwarm(s, export_dir, cfg, faults, seed)
+    rec = mission.Recorder(log_path, dry.clock)
+    usd = Path(log_path).with_name(Path(log_path).stem + "-usd")
+    aborted = None
+    ctrl_c = signal.signal(signal.SIGINT, lambda *_: setattr(dry.clock, "interrupt", True))   # at the next wait
+    try:
+        rep = mission.fly(dry.robots, s, cfg, export_dir, plans, log_path, settings, clock=dry.clock, recorder=rec)
+    except mission.Abort as e:
+        aborted = e
+    finally:
+        signal.signal(signal.SIGINT, ctrl_c)
+        try:
+            flown = dry.finish(usd)
+        finally:
+            rec.close()
+    if aborted is not None:
+        raise mission.Abort(f"{aborted} (dry run: uSD logs {usd})") from aborted
+    rep.update(usd=str(usd), samples=len(flown["t"]), simulated_s=float(flown["t"][-1]))
+    _emit(as_json, rep, f"flew {len(dry.robots)} simulated robots ({', '.join(dry.robots)}): log {log_path}, "
+          f"uSD logs {usd}")
 
 
 @main.command("flash")

@@ -16,15 +16,24 @@ from ns2codegen.errors import Ns2Error
 from ns2plan.output import POLY4D_BYTES, read_poly4d
 
 # log blocks: each fits a CRTP log packet (26 bytes of data); every name is checked
-# against the built cf2.elf's LOG table (tests/test_ground_cf.py)
+# against the built cf2.elf's LOG table (tests/test_ground_cf.py).  With the state,
+# the attitude, the motor PWM and the battery the radio log is a labelled data set
+# (ns2 logs-to-data, ns2codegen/logs/radiolog.py)
 LOG_BLOCKS = (
     ("ns2a", ("ns2.faHat", "ns2.status", "ns2.ex", "ns2.ey", "ns2.ez", "pm.vbat")),
     ("ns2b", ("stateEstimate.x", "stateEstimate.y", "stateEstimate.z", "stateEstimate.vx", "stateEstimate.vy",
               "ns2.nUsed")),
-    ("ns2c", ("stateEstimate.vz", "ns2.inferUs", "ns2.ctrlStatus", "pm.state")),
+    ("ns2c", ("stateEstimate.vz", "ns2.inferUs", "ns2.ctrlStatus", "pm.state", "motor.m1", "motor.m2", "motor.m3",
+              "motor.m4")),
+    ("ns2d", ("stateEstimate.qw", "stateEstimate.qx", "stateEstimate.qy", "stateEstimate.qz")),
 )
 LOG_PERIOD_MS = 50
 TRAJECTORY_ID = 1
+# the high-level commander's group of the ns2 swarm: every robot joins it before take-off,
+# and take-off and the trajectory start address it (the firmware's isInGroup), so the
+# same command can go to the whole swarm in one radio broadcast; land and stop go to
+# every group (ALL_GROUPS): nothing may keep a robot from landing
+GROUP = 0x80
 
 
 class LinkError(Ns2Error, RuntimeError):
@@ -58,10 +67,25 @@ class CfRobot:
         group, name = full.split(".")
         return self.cf.param.toc.get_element(group, name) is not None
 
-    def set_param(self, full: str, value) -> None:
+    def set_param(self, full: str, value, timeout_s: float = 5.0) -> None:
+        """Write a parameter and wait until the robot confirms it (the firmware echoes a
+        write once the value is in place and its callback ran): cflib only queues the
+        write, and a command sent after it could otherwise arrive first."""
         if not self.has_param(full):
             raise LinkError(f"{self.name}: no parameter {full} on the robot")
-        self.cf.param.set_value(full, value)
+        group, name = full.split(".")
+        done = threading.Event()
+
+        def confirmed(_name, _value):
+            done.set()
+
+        self.cf.param.add_update_callback(group=group, name=name, cb=confirmed)
+        try:
+            self.cf.param.set_value(full, value)
+            if not done.wait(timeout_s):
+                raise LinkError(f"{self.name}: {full}: the robot did not confirm the write within {timeout_s:g} s")
+        finally:
+            self.cf.param.remove_update_callback(group=group, name=name, cb=confirmed)
 
     # -- trajectory memory and high-level commander
     def trajectory_memory_size(self) -> int:
@@ -88,13 +112,17 @@ class CfRobot:
             raise LinkError(f"{self.name}: the trajectory upload failed")
         n = len(data) // POLY4D_BYTES
         self.cf.high_level_commander.define_trajectory(TRAJECTORY_ID, 0, n)
+        if self.has_param("hlCommander.groupmask"):   # the command is deprecated for this parameter
+            self.set_param("hlCommander.groupmask", GROUP)
+        else:
+            self.cf.high_level_commander.set_group_mask(GROUP)
         return n
 
     def takeoff(self, height: float, duration: float) -> None:
-        self.cf.high_level_commander.takeoff(height, duration)
+        self.cf.high_level_commander.takeoff(height, duration, group_mask=GROUP)
 
     def start(self) -> None:
-        self.cf.high_level_commander.start_trajectory(TRAJECTORY_ID, 1.0, False)
+        self.cf.high_level_commander.start_trajectory(TRAJECTORY_ID, 1.0, False, group_mask=GROUP)
 
     def land(self, duration: float) -> None:
         self.cf.high_level_commander.land(0.0, duration)

@@ -5,6 +5,8 @@ firmware), one robot after the other; a robot that fails does not stop the other
 and is reported with the reason."""
 from __future__ import annotations
 
+import contextlib
+import sys
 from pathlib import Path
 
 from ns2codegen.errors import Ns2Error
@@ -43,16 +45,25 @@ def flash(image, robots: dict[str, str], progress=None, bootloader=None) -> dict
     out = {}
     for name, uri in robots.items():
         bl = None
+        said = []   # cflib's progress messages: its reason when it raises a bare Exception
+
+        def report(msg, pct, n=name, said=said):
+            said.append(str(msg))
+            if progress:
+                progress(n, msg, pct)
+
         try:
             bl = (bootloader or _bootloader)(uri)
-            bl.flash_full(cf=None, filename=str(image), warm=True, targets=[Target("cf2", "stm32", "fw", [], [])],
-                          progress_cb=(lambda msg, pct, n=name: progress(n, msg, pct)) if progress else None)
+            with contextlib.redirect_stdout(sys.stderr):   # cflib prints; stdout is the command's (--json)
+                bl.flash_full(cf=None, filename=str(image), warm=True,
+                              targets=[Target("cf2", "stm32", "fw", [], [])], progress_cb=report)
             out[name] = None
         except Exception as e:  # noqa: BLE001  cflib raises bare Exception; one robot must not stop the rest
             if getattr(getattr(bl, "_cload", None), "link", True) is None:   # cflib found no link driver
                 out[name] = f"no radio link to {uri} (Crazyradio plugged in? robot on? address right?)"
             else:
-                out[name] = " ".join(str(e).split()) or type(e).__name__
+                out[name] = (" ".join(str(e).split()) or next((m for m in reversed(said) if m.startswith("Error")),
+                                                               type(e).__name__))
         finally:
             if bl is not None:
                 try:

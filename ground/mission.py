@@ -80,20 +80,43 @@ def start_point(plan: bytes):
     return [float(x) for x in read_poly4d(plan)[0][1][:3, 0]]
 
 
-class Recorder:
-    """Every log packet of every robot, one JSON line each, flushed as it arrives."""
+class WallClock:
+    """Real time (the simulator's dry run passes a virtual clock, ground/sim.py)."""
 
-    def __init__(self, path):
-        self.path = Path(path)
-        self.f = open(self.path, "a", buffering=1)
+    now = staticmethod(time.monotonic)
+    sleep = staticmethod(time.sleep)
+
+
+class Recorder:
+    """The flight log: JSON lines, each on disk as it arrives (docs/flying.md, read by
+    ``ns2 logs-to-data``, ns2codegen/logs/radiolog.py).  A flight starts with a header
+    line ``{"flight": {"robots": {name: ns2 type}, "sync": seq}}``; then one line per
+    log packet: ``{"robot", "t_ms"`` (the robot's clock), ``"host_ms"`` (the ground's
+    clock since the header), ``variable: value, ...}``.  The file is appended to and
+    opened only when a flight begins (a refused flight writes nothing)."""
+
+    def __init__(self, path, clock=WallClock):
+        self.path, self.clock = Path(path), clock
+        self.f = None
+        self.t0 = clock.now()
         self.last: dict[str, dict] = {}
 
+    def begin(self, robots: dict[str, str], sync: int) -> None:
+        if self.f is None:
+            self.f = open(self.path, "a", buffering=1)
+        self.t0 = self.clock.now()
+        self.f.write(json.dumps({"flight": {"robots": robots, "sync": sync}}) + "\n")
+
     def __call__(self, robot: str, t_ms: int, data: dict) -> None:
+        if self.f is None or self.f.closed:   # a packet still on its way when the flight ended
+            return
         self.last.setdefault(robot, {}).update(data)
-        self.f.write(json.dumps({"robot": robot, "t_ms": t_ms, **data}) + "\n")
+        host_ms = int(round((self.clock.now() - self.t0) * 1000.0))
+        self.f.write(json.dumps({"robot": robot, "t_ms": t_ms, "host_ms": host_ms, **data}) + "\n")
 
     def close(self) -> None:
-        self.f.close()
+        if self.f is not None:
+            self.f.close()
 
 
 def preflight(robots: dict, swarm: Swarm, cfg, export_dir, plans: dict[str, bytes]) -> int:
@@ -135,13 +158,6 @@ def _check(robots: dict, rec: Recorder, s: Settings) -> None:
             raise Abort(f"{name}: app status {last['ns2.status']}")
 
 
-class WallClock:
-    """Real time (the simulator's dry run passes a virtual clock, ground/sim.py)."""
-
-    now = staticmethod(time.monotonic)
-    sleep = staticmethod(time.sleep)
-
-
 def _wait(robots, rec, s: Settings, seconds: float, status, clock) -> None:
     end = clock.now() + seconds
     while clock.now() < end:
@@ -165,12 +181,15 @@ def land_all(robots: dict, s: Settings) -> list[str]:
 
 
 def fly(robots: dict, swarm: Swarm, cfg, export_dir, plans: dict[str, bytes], log_path,
-        s: Settings = Settings(), status=None, clock=WallClock) -> dict:
+        s: Settings = Settings(), status=None, clock=WallClock, recorder: Recorder | None = None) -> dict:
     """The whole flight; returns a report.  Raises ``Abort`` (after landing) on the safety paths.
-    ``status(last)`` is called at every poll with each robot's last logged values."""
+    ``status(last)`` is called at every poll with each robot's last logged values;
+    ``recorder``: the caller's (kept open, e.g. to record a dry run's landing after an abort)."""
     seq = preflight(robots, swarm, cfg, export_dir, plans)
     pieces = {name: rb.upload(plans[name]) for name, rb in robots.items()}
-    rec = Recorder(log_path)
+    rec = recorder or Recorder(log_path, clock)
+    types = {r.name: r.ns2_type for r in swarm.robots}
+    rec.begin({name: types[name] for name in robots}, seq)
     try:
         for rb in robots.values():
             rb.start_logs(rec)
@@ -179,7 +198,7 @@ def fly(robots: dict, swarm: Swarm, cfg, export_dir, plans: dict[str, bytes], lo
                 z = start_point(plans[name])[2]
                 rb.takeoff(z if z >= 0.1 else s.takeoff_height_m, s.takeoff_s)
             _wait(robots, rec, s, s.takeoff_s, status, clock)
-            for rb in robots.values():   # back to back: together within a radio round trip
+            for rb in robots.values():   # one burst, nothing between (group mask: ns2ground.cf.GROUP)
                 rb.start()
             _wait(robots, rec, s, max(duration_s(p) for p in plans.values()), status, clock)
         except (Abort, KeyboardInterrupt) as e:
@@ -192,5 +211,6 @@ def fly(robots: dict, swarm: Swarm, cfg, export_dir, plans: dict[str, bytes], lo
         for rb in robots.values():
             rb.stop()
     finally:
-        rec.close()
+        if recorder is None:
+            rec.close()
     return {"sync": seq, "pieces": pieces, "log": str(rec.path)}

@@ -26,6 +26,7 @@ comments, order and every other key of the user's file stay as they were.
 from __future__ import annotations
 
 import io
+import math
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -178,7 +179,10 @@ def load(path, cfg: Config) -> Swarm:
 
 def params(swarm: Swarm, cfg: Config, robot: Robot) -> dict[str, dict[str, float | int]]:
     """The app's parameters of ``robot`` for an export: group -> name -> value, in the
-    order they are set (selfType before the gains: a new type resets the gains)."""
+    order they are set (selfType before the gains: writing a new type loads its default
+    gains in the app, firmware/app/src/ns2_app.c).  The gains are the defaults of the
+    robot's vehicle, except those the swarm file sets in the robot's
+    ``firmware_params.ns2gain``."""
     types = cfg.robot_types
     masks = [0, 0]
     for r in swarm.robots:
@@ -188,6 +192,16 @@ def params(swarm: Swarm, cfg: Config, robot: Robot) -> dict[str, dict[str, float
     g = default_gains(vehicle(cfg, robot.ns2_type))
     gains = {f"{n}{ax}": round(float(g[n][i]), 9) for n in GAIN3 for i, ax in enumerate("xyz")}
     gains.update({p: round(float(g[k]), 9) for p, k in GAIN1.items()})
+    user = robot.firmware_params.get("ns2gain") or {}   # the user's own gains in the swarm file stay
+    where = f"{swarm.path}: robots.{robot.name}.firmware_params.ns2gain"
+    if not isinstance(user, dict):
+        raise SwarmFileError(f"{where}: not a mapping")
+    for k, v in user.items():
+        if k not in gains:
+            raise SwarmFileError(f"{where}.{k}: not a gain of the app ({', '.join(gains)})")
+        if not (isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)):
+            raise SwarmFileError(f"{where}.{k}: {v!r} is not a finite number")
+        gains[k] = float(v)
     return {"ns2": {"selfType": types.index(robot.ns2_type)},
             "ns2type": {"mask1": masks[0], "mask2": masks[1]},
             "ns2gain": gains}

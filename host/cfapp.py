@@ -387,6 +387,29 @@ def build_harness(gen_dir: Path, out: Path) -> Path:
     return exe
 
 
+HL_SOURCES = ("src/modules/src/planner.c", "src/modules/src/pptraj.c", "src/modules/src/pptraj_compressed.c")
+
+
+def build_hl_harness(out: Path) -> Path:
+    """The firmware's own high-level commander on the host (firmware/app/test_stubs/
+    hl_harness.c includes crtp_commander_high_level.c; with the firmware's planner.c,
+    pptraj.c, pptraj_compressed.c), against its real headers and the app build's
+    autoconf.h, warnings as errors.  Returns the executable."""
+    from .cbuild import host_cc
+
+    app = app_config()
+    fw = crazyflie.firmware_dir()
+    cmd = [host_cc(), "-std=gnu11", "-O1", "-ffp-contract=off", "-Wall", "-Werror", *FIRMWARE_DEFINES,
+           *[a for d in firmware_includes(app) for a in ("-isystem", str(d))], "-I", str(fw / "src/modules/src"),
+           "-include", str(app / "include/generated/autoconf.h"), str(APP_DIR / "test_stubs/hl_harness.c"),
+           *[str(fw / s) for s in HL_SOURCES], "-lm", "-o", str(Path(out) / "hl_harness")]
+    Path(out).mkdir(parents=True, exist_ok=True)
+    r = subprocess.run(cmd, capture_output=True, text=True)
+    if r.returncode != 0:
+        raise compile_error("hl_harness.c", cmd, r)
+    return Path(out) / "hl_harness"
+
+
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(prog="python -m ns2host.cfapp", description=__doc__.splitlines()[0])
     ap.add_argument("gen", nargs="?", default=str(REPO / "firmware" / "generated"))

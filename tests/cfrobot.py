@@ -27,10 +27,17 @@ from ns2host import cfapp
 PORT_PARAM, PORT_LOG, PORT_MEM, PORT_HL, PORT_PLATFORM, PORT_LINK = 2, 5, 4, 8, 13, 15
 PROTOCOL_VERSION = 12             # crtp.h CRTP_PROTOCOL_VERSION of the pinned firmware
 MEM_TYPE_TRAJ = 0x12
+# the bootloader (Cloader's commands; the STM32F405's layout: 1 KB pages, the firmware from page 16)
+NRF51, STM32 = 0xFE, 0xFF
+BL_RESET, BL_RESET_INIT, BL_GET_INFO, BL_LOAD_BUFFER, BL_WRITE_FLASH = 0xF0, 0xFF, 0x10, 0x14, 0x18
+BL_PROTOCOL = 0x10               # BootVersion.CF2_PROTO_VER
+BL_INFO = {STM32: (1024, 10, 1024, 16), NRF51: (1024, 10, 232, 88)}   # page size, buffer pages, pages, start page
 PARAM_RONLY, LOG_TYPE_MASK = 0x40, 0x0F
 LOG_FMT = {1: "<B", 2: "<H", 3: "<I", 4: "<b", 5: "<h", 6: "<i", 7: "<f"}
 
 ROBOTS: dict[str, "Robot"] = {}   # uri -> robot behind it
+ROBOTS_MADE: list[str] = []
+SENT: list[tuple[str, int, int, bytes]] = []   # every packet cflib sent to any robot, in order: (robot, port, channel, data)
 
 
 def param_fmt(typ: int) -> str:
@@ -46,18 +53,23 @@ class Robot:
     """A Crazyflie's CRTP services, with the TOCs of a built cf2.elf."""
 
     def __init__(self, elf, name: str = "cf"):
+        """``elf`` None: no parameters, logs or trajectory memory (a robot to flash)."""
         self.name = name
-        self.params = cfapp.param_entries(elf)
-        self.logs = cfapp.log_entries(elf)
-        im = cfapp.Image(elf)
-        try:
-            self.values = [self._start_value(im, typ, addr) for _, _, typ, _, addr in self.params]
-            self.traj_size = im.symbols["trajectories_memory"]["st_size"]
-        finally:
-            im.close()
+        self.params, self.logs, self.values, self.traj_size = [], [], [], 0
+        if elf is not None:
+            self.params = cfapp.param_entries(elf)
+            self.logs = cfapp.log_entries(elf)
+            im = cfapp.Image(elf)
+            try:
+                self.values = [self._start_value(im, typ, addr) for _, _, typ, _, addr in self.params]
+                self.traj_size = im.symbols["trajectories_memory"]["st_size"]
+            finally:
+                im.close()
+        self.boot_address = struct.pack(">I", 0xE7E70000 + len(ROBOTS_MADE) % 0x10000)   # unique per robot
+        ROBOTS_MADE.append(name)
         self.traj = bytearray(self.traj_size)
         self.log_values = {f"{g}.{n}": 0 for g, n, *_ in self.logs}
-        self.sent: list[tuple[int, int, bytes]] = []      # (port, channel, data) cflib sent
+        self.sent: list[tuple[int, int, bytes, float]] = []   # (port, channel, data, seconds since start) cflib sent
         self.hl: list[bytes] = []                          # high-level commander packets
         self.param_writes: list[tuple[str, object]] = []   # in the order they arrived
         self.out: queue.Queue = queue.Queue()
@@ -66,6 +78,11 @@ class Robot:
         self.alive = True
         self.driver = None
         self._t0 = time.monotonic()
+        self.in_bootloader = False
+        self.flash = bytearray(b"\xff" * BL_INFO[STM32][0] * BL_INFO[STM32][2])
+        self.buffers = bytearray(BL_INFO[STM32][0] * BL_INFO[STM32][1])
+        self.boots: list[str] = []                         # "bootloader" / "firmware", as it was reset
+        self.flash_error = 0                               # what WRITE_FLASH reports (0: none)
 
     @staticmethod
     def _start_value(im, typ, addr):
@@ -100,17 +117,49 @@ class Robot:
 
     def receive(self, pk) -> None:
         data = bytes(pk.data)
-        self.sent.append((pk.port, pk.channel, data))
+        port, channel = pk.header >> 4, pk.header & 0x03   # as sent (the bootloader sets port 0xFF)
+        self.sent.append((port, channel, data, time.monotonic() - self._t0))
+        SENT.append((self.name, port, channel, data))
         if not self.alive:
             return
         handler = {PORT_LINK: self._link, PORT_PLATFORM: self._platform, PORT_PARAM: self._param,
-                   PORT_LOG: self._log, PORT_MEM: self._mem, PORT_HL: self._hl}.get(pk.port)
+                   PORT_LOG: self._log, PORT_MEM: self._mem, PORT_HL: self._hl}.get(port)
         if handler is not None:
-            handler(pk.channel, data)
+            handler(channel, data)
+
+    @property
+    def boot_uri(self) -> str:
+        """Where the robot's bootloader answers (cflib's Cloader: radio://0/0/2M/B1<address>)."""
+        return f"radio://0/0/2M/B1{self.boot_address.hex().upper()}"
 
     def _link(self, ch, data):
-        if ch == 1:  # source: the magic string tells cflib the firmware speaks protocol versions
+        if ch == 1 and not self.in_bootloader:  # source: the firmware speaks protocol versions
             self.answer(PORT_LINK, 1, b"Bitcraze Crazyflie" + bytes(12))
+        elif ch == 3 and len(data) >= 2:
+            self._bootloader(data)
+
+    def _bootloader(self, data):
+        target, cmd = data[0], data[1]
+        if cmd == BL_RESET_INIT and target == NRF51:       # the address, little end first
+            self.answer(PORT_LINK, 3, bytes([target, cmd]) + self.boot_address[::-1])
+        elif cmd == BL_RESET and target == NRF51:
+            self.in_bootloader = data[2] == 0
+            self.boots.append("bootloader" if self.in_bootloader else "firmware")
+        elif not self.in_bootloader:
+            return
+        elif cmd == BL_GET_INFO and target in BL_INFO:
+            self.answer(PORT_LINK, 3, struct.pack("<BBHHHH", target, cmd, *BL_INFO[target]) + bytes(12)
+                        + bytes([BL_PROTOCOL]))
+        elif cmd == BL_LOAD_BUFFER and target == STM32:
+            page, addr = struct.unpack_from("<HH", data, 2)
+            at = page * BL_INFO[STM32][0] + addr
+            self.buffers[at:at + len(data) - 6] = data[6:]
+        elif cmd == BL_WRITE_FLASH and target == STM32:
+            buf, page, count = struct.unpack_from("<HHH", data, 2)
+            size = BL_INFO[STM32][0]
+            if not self.flash_error:
+                self.flash[page * size:(page + count) * size] = self.buffers[buf * size:(buf + count) * size]
+            self.answer(PORT_LINK, 3, bytes([target, cmd, 0 if self.flash_error else 1, self.flash_error]))
 
     def _platform(self, ch, data):
         if ch == 1 and data[:1] == b"\x00":
@@ -208,9 +257,11 @@ class RecordingDriver(CRTPDriver):
         self.link_error_callback = None
 
     def connect(self, uri, radio_link_statistics_callback, link_error_callback):
-        if uri not in ROBOTS:
+        uri = uri.split("?")[0]   # cflib's bootloader adds ?safelink=0
+        robot = ROBOTS.get(uri) or next((r for r in ROBOTS.values() if r.in_bootloader and r.boot_uri == uri), None)
+        if robot is None:
             raise WrongUriType(f"no test robot at {uri}")
-        self.robot = ROBOTS[uri]
+        self.robot = robot
         self.robot.driver = self
         self.link_error_callback = link_error_callback
 
@@ -242,6 +293,7 @@ def install(robots: dict[str, Robot]):
     import cflib.crtp
 
     cflib.crtp.CLASSES[:] = [RecordingDriver]
+    SENT.clear()
     ROBOTS.clear()
     ROBOTS.update(robots)
 

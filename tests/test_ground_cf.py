@@ -182,8 +182,90 @@ def test_a_flight_through_cflib(elf, exported, tmp_path):
         np.testing.assert_allclose(got[:, :3], p_ref, atol=2e-5)
         np.testing.assert_allclose(got[:, 3:], v_ref, atol=2e-4)
     lines = [json.loads(x) for x in (tmp_path / "flight.jsonl").read_text().splitlines()]
+    assert lines[0] == {"flight": {"robots": {"cf1": "small", "cf7": "large"}, "sync": rep["sync"]}}
+    lines = lines[1:]
     assert {x["robot"] for x in lines} == {"cf1", "cf7"}
     assert any(x.get("pm.vbat") == pytest.approx(3.9) and x.get("ns2.faHat") == pytest.approx(1.5) for x in lines)
+
+
+@pytest.fixture(scope="module")
+def hl_harness(tmp_path_factory):
+    """The firmware's own high-level commander on the host (firmware/app/test_stubs/hl_harness.c)."""
+    return cfapp.build_hl_harness(tmp_path_factory.mktemp("hl"))
+
+
+def _commander(harness, tmp_path, rb, evals=(), drop=()):
+    """What the firmware's high-level commander makes of the packets cflib sent to the
+    robot ``rb`` (its memory writes, commands and writes of hlCommander parameters, at
+    the times they arrived), with the planner evaluated at ``evals``; ``drop``: command
+    numbers or parameter names left out.  Returns its JSON lines."""
+    import subprocess
+
+    recs = [(t, 0, struct.pack("<BBB", port, ch, len(data)) + data + struct.pack("<d", t))
+            for port, ch, data, t in rb.sent
+            if (port == cfrobot.PORT_HL and data[0] not in drop) or (port == cfrobot.PORT_MEM and ch == 2)]
+    for port, ch, data, t in rb.sent:
+        if port == cfrobot.PORT_PARAM and ch == 2:
+            g, n, typ, _, _ = rb.params[struct.unpack_from("<H", data)[0]]
+            if g == "hlCommander" and n not in drop:
+                value = data[2:2 + struct.calcsize(cfrobot.param_fmt(typ))]
+                recs.append((t, 2, bytes([len(n)]) + n.encode() + bytes([len(value)]) + value + struct.pack("<d", t)))
+    recs += [(t, 1, struct.pack("<d", t)) for t in evals]
+    recs.sort(key=lambda r: (r[0], r[1]))
+    (tmp_path / "hl.bin").write_bytes(b"".join(bytes([kind]) + body for _, kind, body in recs))
+    r = subprocess.run([str(harness), str(tmp_path / "hl.bin")], capture_output=True, text=True, check=True)
+    return [json.loads(x) for x in r.stdout.splitlines()]
+
+
+def test_the_firmwares_commander_flies_what_cflib_sent(elf, exported, tmp_path, hl_harness):
+    """The packets of a flight through cflib, decoded by the firmware's own
+    crtp_commander_high_level.c (and its planner and pptraj.c) compiled on the host:
+    the trajectory memory written, every command accepted, each robot in the ns2 group
+    (its parameter hlCommander.groupmask, written as param_logic.c writes it) before
+    the take-off, and the take-off and start addressed to that group, the planner flying the planner's polynomials from
+    the start on, landing after; the starts of all robots left in one burst.  Without
+    the group, the firmware ignores the start: the group mask is what starts it."""
+    from ns2ground import cf, mission
+    from ns2plan.output import eval_pieces, poly4d_bytes
+
+    s = _swarm(tmp_path, exported.cfg)
+    pieces = {"cf1": _pieces(1), "cf7": _pieces(2, 4)}
+    plans = {n: poly4d_bytes(p) for n, p in pieces.items()}
+    robots, sw_, links = _connect(elf, s)
+    try:
+        for r in robots.values():
+            r.log_values["pm.vbat"] = 3.9
+        mission.fly(links, s, exported.cfg, exported.gen_dir, plans, tmp_path / "f.jsonl", _fast())
+    finally:
+        sw_.close_links()
+    names = {v: k for k, v in _hl_commands().items()}
+    start = names["COMMAND_START_TRAJECTORY_2"]
+    starts = [i for i, (_, port, _, d) in enumerate(cfrobot.SENT) if port == cfrobot.PORT_HL and d[0] == start]
+    assert len(starts) == 2 and starts[1] == starts[0] + 1      # one burst: nothing between the two starts
+    for name, rb in robots.items():
+        ts = next(t for port, _, d, t in rb.sent if port == cfrobot.PORT_HL and d[0] == start)
+        dur = sum(d for d, _ in pieces[name])
+        tt = np.linspace(0.0, dur - 1e-3, 40)
+        out = _commander(hl_harness, tmp_path, rb, ts + tt)
+        mem = [x for x in out if "mem" in x]
+        cmds = [x for x in out if "cmd" in x]
+        ev = [x for x in out if "t" in x]
+        assert mem and all(x["ok"] == 1 for x in mem)
+        assert all(x["ret"] == 0 for x in cmds), cmds
+        # this firmware has the parameter hlCommander.groupmask (its COMMAND_SET_GROUP_MASK is deprecated)
+        joined = [x for x in out if x.get("param") == "groupmask"]
+        assert len(joined) == 1 and joined[0]["ret"] == 0 and joined[0]["group_mask"] == cf.GROUP
+        assert out.index(joined[0]) < next(i for i, x in enumerate(out) if x.get("cmd") == names["COMMAND_TAKEOFF_2"])
+        by = {x["cmd"]: x for x in cmds}
+        assert by[start]["state"] == 1 and by[names["COMMAND_LAND_2"]]["state"] == 3   # FLYING, then LANDING
+        assert struct.unpack_from("<B", next(d for p, _, d, _ in rb.sent if p == cfrobot.PORT_HL and d[0] == start),
+                                  1)[0] == cf.GROUP
+        p_ref, v_ref = eval_pieces(pieces[name], tt)
+        np.testing.assert_allclose([x["pos"] for x in ev], p_ref, atol=1e-4)
+        np.testing.assert_allclose([x["vel"] for x in ev], v_ref, atol=1e-3)
+        # the same packets without the group: the firmware neither takes off nor starts
+        out2 = _commander(hl_harness, tmp_path, rb, ts + tt, drop=("groupmask",))
+        assert all(x["state"] == 0 and x["pos"] is None for x in out2 if "t" in x)
 
 
 def test_another_model_or_no_app_is_refused_before_anything_is_sent(elf, exported, tmp_path):
@@ -259,7 +341,7 @@ def test_safety_paths_land_the_swarm(elf, exported, tmp_path, fault):
                 "ctrl-c": "Ctrl-C"}[fault] in msg
     for rb in robots.values():
         assert "COMMAND_START_TRAJECTORY_2" in [names[d[0]] for d in rb.hl]
-    lines = (tmp_path / "f.jsonl").read_text().splitlines()
+    lines = (tmp_path / "f.jsonl").read_text().splitlines()[1:]
     assert lines and all(json.loads(x)["robot"] in robots for x in lines)   # the log up to then is on disk
 
 
@@ -303,3 +385,52 @@ def test_a_start_far_from_the_initial_position_is_refused(elf, exported, tmp_pat
     finally:
         sw_.close_links()
     assert all(rb.param_writes == [] and rb.hl == [] for rb in robots.values())
+
+
+def test_the_gains_the_user_set_survive_the_robot_type(elf, exported, tmp_path, tmp_path_factory):
+    """Gains set in the swarm file (firmware_params.ns2gain) go to the robot through
+    cflib after its ns2.selfType; replayed in the order they arrived into the app
+    (ns2_app.c on the host, each write as param_logic.c does it, with no controller
+    tick or one between the writes), the app flies the user's gains and the new type's
+    defaults for the rest.  The other order would lose them: a new type loads its
+    defaults when it is written."""
+    import subprocess
+
+    from ns2ground import mission, swarm as sw
+    from ns2plan.output import poly4d_bytes
+
+    user = {"Lpx": 9.5, "Kvz": 4.25, "faMaxN": 0.07}
+    (tmp_path / "crazyflies.yaml").write_text(SWARM.replace(
+        "    type: big\n", "    type: big\n    firmware_params:\n      ns2gain: {Lpx: 9.5, Kvz: 4.25, faMaxN: 0.07}\n"))
+    s = sw.load(tmp_path / "crazyflies.yaml", exported.cfg)
+    robots, sw_, links = _connect(elf, s)
+    try:
+        for r in robots.values():
+            r.log_values["pm.vbat"] = 3.9
+        mission.fly(links, s, exported.cfg, exported.gen_dir, {"cf1": poly4d_bytes(_pieces(1)),
+                                                                "cf7": poly4d_bytes(_pieces(2))},
+                    tmp_path / "f.jsonl", _fast())
+    finally:
+        sw_.close_links()
+    writes = [(n, v) for n, v in robots["cf7"].param_writes if n.split(".")[0] in sw.GROUPS]
+    assert writes[0] == ("ns2.selfType", 1) and dict(writes)["ns2gain.Lpx"] == pytest.approx(9.5)
+    harness = cfapp.build_harness(exported.gen_dir, tmp_path_factory.mktemp("harness"))
+
+    def app(steps):
+        r = subprocess.run([str(harness), "params", "tick:3", *steps, "tick:20"], capture_output=True, text=True,
+                           check=True)
+        return json.loads(r.stdout)
+
+    fields = [f"{n}{ax}" for n in sw.GAIN3 for ax in "xyz"] + list(sw.GAIN1)   # ns2_gains_t's order
+    for between in ([], ["tick:1"]):
+        out = app([x for n, v in writes for x in [f"{n}={v!r}", *between]])
+        expected = list(out["default_1"])
+        for k, v in user.items():
+            expected[fields.index(k)] = v
+        assert out["ctrl_type"] == 1
+        np.testing.assert_allclose(out["gains"], expected, rtol=1e-6)
+        np.testing.assert_allclose(out["controller_gains"], expected, rtol=1e-6)   # what the controller flies
+    assert out["default_1"][fields.index("Lpx")] != 9.5 and out["default_1"] != out["default_0"]
+    # the type written after the gains: the new type's defaults replace them (why the order matters)
+    late = app([f"{n}={v!r}" for n, v in writes[1:]] + ["ns2.selfType=1"])
+    np.testing.assert_allclose(late["gains"], late["default_1"], rtol=1e-6)

@@ -109,3 +109,37 @@ def test_make_flash_runs_ns2_flash(tmp_path):
                        capture_output=True, text=True)
     assert r.returncode == 0, r.stderr
     assert "python -m ns2cli flash build/app/cf2.bin --swarm crazyflies.yaml" in r.stdout
+
+
+def test_flash_through_cflibs_bootloader_packets(files, monkeypatch):
+    """cflib's own Bootloader and Cloader, their packets through the tests' link driver to
+    robots that answer as the nRF51 and the STM32 bootloader do (tests/cfrobot.py): each
+    robot warm-booted into its bootloader, the image written into its flash from the
+    firmware's first page, reset to the firmware; a robot whose flash write fails is
+    named with cflib's reason, and the next one is flashed."""
+    import time
+    import types
+
+    import cflib.bootloader.cloader as cloader
+    import numpy as np
+
+    # the waits for a real robot to reboot (0.5 s, 1 + 5 s): no robot reboots here
+    monkeypatch.setattr(cloader, "time", types.SimpleNamespace(time=time.time, sleep=lambda s: None))
+    image = np.random.default_rng(0).bytes(70_000)
+    (files / "cf2.bin").write_bytes(image)
+    robots = {n: cfrobot.Robot(None, n) for n in ("cf1", "cf3", "cf4")}
+    robots["cf3"].flash_error = 5
+    cfrobot.install({f"radio://0/80/2M/E7E7E7E70{n[-1]}": rb for n, rb in robots.items()})
+    r = CliRunner().invoke(main, ["flash", str(files / "cf2.bin"), "--swarm", str(files / "crazyflies.yaml"),
+                                  "--json"])
+    assert r.exit_code == 1, r.output
+    assert json.loads(r.stdout)["robots"] == {
+        "cf1": None, "cf3": "Error during flash operation (code 5)", "cf4": None}
+    start = cfrobot.BL_INFO[cfrobot.STM32][0] * cfrobot.BL_INFO[cfrobot.STM32][3]
+    for name, rb in robots.items():
+        assert rb.boots == ["bootloader", "firmware"] if name != "cf3" else rb.boots == ["bootloader"]
+        assert not rb.in_bootloader or name == "cf3"
+        written = bytes(rb.flash[start:start + len(image)])
+        assert (written == image) == (name != "cf3")
+        end = start + -(-len(image) // 1024) * 1024    # written page by page
+        assert set(rb.flash[:start]) == {0xFF} and set(rb.flash[end:]) == {0xFF}   # nothing outside the image

@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pytest
 from click.testing import CliRunner
 
 from conftest import FIRMWARE, needs
@@ -38,6 +39,7 @@ robot_types:
   big: {ns2_type: large}
 """
 SWAP_S = 3.0
+TAKEOFF_S = 1.0   # the dry run hovers at the take-off point from the take-off command on
 
 
 def _swap_piece(a, b, duration):
@@ -65,6 +67,8 @@ def test_fly_sim_flies_the_swap_and_writes_both_logs(exported, tmp_path):
     rep = json.loads(r.output)
     assert rep["pieces"] == {"cf3": 1, "cf4": 1} and rep["simulated_s"] > SWAP_S + 1.0
     lines = [json.loads(x) for x in log.read_text().splitlines()]
+    assert lines[0] == {"flight": {"robots": {"cf3": "small", "cf4": "large"}, "sync": rep["sync"]}}
+    lines = lines[1:]
     by = {n: [x for x in lines if x["robot"] == n] for n in ("cf3", "cf4")}
     assert all(len(v) > 60 for v in by.values())
     for name, a, b in (("cf3", small_a, small_b), ("cf4", large_a, large_b)):
@@ -73,7 +77,7 @@ def test_fly_sim_flies_the_swap_and_writes_both_logs(exported, tmp_path):
         p = np.array([[x["stateEstimate.x"], x["stateEstimate.y"], x["stateEstimate.z"]] for x in rows])
         assert np.all(np.diff(t) > 0)
         assert np.abs(p[0] - a).max() < 0.1, (name, p[0])                 # hovering at the start
-        i_end = np.searchsorted(t, t[0] + SWAP_S - 0.05)                  # the other side, before landing
+        i_end = np.searchsorted(t, t[0] + TAKEOFF_S + SWAP_S - 0.05)      # the other side, before landing
         assert np.abs(p[i_end, :2] - b[:2]).max() < 0.1, (name, p[i_end])
         assert p[-1, 2] < 0.15 and np.abs(p[-1, :2] - b[:2]).max() < 0.1     # landed there
         e = np.array([[x["ns2.ex"], x["ns2.ey"], x["ns2.ez"]] for x in rows])
@@ -86,3 +90,54 @@ def test_fly_sim_flies_the_swap_and_writes_both_logs(exported, tmp_path):
     r = CliRunner().invoke(main, ["logs-to-data", rep["usd"], "--out", str(out), "--json"])
     assert r.exit_code == 0, r.output
     assert json.loads(r.output)["samples"] > 100
+    # and the radio log itself becomes a labelled data set (20 Hz, the ground's clock)
+    radio = tmp_path / "radio.npz"
+    r = CliRunner().invoke(main, ["logs-to-data", str(log), "--out", str(radio), "--json"])
+    assert r.exit_code == 0, r.output
+    rep2 = json.loads(r.output)
+    assert rep2["flights"][0]["sync"] == "ground receive time (radio log)" and rep2["flights"][0]["rate_hz"] == 20.0
+    from ns2codegen.data.dataset import Dataset
+    usd_ds, radio_ds = Dataset.load(out), Dataset.load(radio)
+    assert len(radio_ds) > 80 and set(radio_ds.robot_type.tolist()) == {0, 1}
+    for ty in (0, 1):   # the same flight's labels from both logs: the small robot's downwash, none above
+        a, b = usd_ds.label_g[usd_ds.robot_type == ty], radio_ds.label_g[radio_ds.robot_type == ty]
+        assert np.all(np.isfinite(b)) and abs(np.median(a) - np.median(b)) < 0.2, (ty, np.median(a), np.median(b))
+        assert (b.min() < 0.5 * a.min()) if ty == 0 else (b.min() > -3.0), (ty, a.min(), b.min())
+
+
+FAULT_S = 0.9   # after the take-off command: 0.4 s into the trajectories
+
+
+@pytest.mark.parametrize("fault, cause", [
+    (f"lost-link:cf4@{FAULT_S}", "cf4: link lost"), (f"low-battery:cf3@{FAULT_S}", "cf3: battery 3.00 V below 3.3 V"),
+    (f"app-status:cf4@{FAULT_S}", "cf4: app status -3"), (f"ctrl-c@{FAULT_S}", "Ctrl-C")])
+def test_fly_sim_rehearses_the_safety_paths(exported, tmp_path, fault, cause):
+    """A fault during the trajectories of a dry run: the mission's own safety path lands
+    every robot it can still reach, and the landing is flown to its end and logged."""
+    (tmp_path / "crazyflies.yaml").write_text(SWARM)
+    plan = tmp_path / "plan"
+    plan.mkdir()
+    (plan / "robot0_small.bin").write_bytes(poly4d_bytes([_swap_piece((0.0, -0.5, 0.4), (0.0, 0.5, 0.4), SWAP_S)]))
+    (plan / "robot1_large.bin").write_bytes(poly4d_bytes([_swap_piece((0.0, 0.5, 0.8), (0.0, -0.5, 0.8), SWAP_S)]))
+    log = tmp_path / "flight.jsonl"
+    r = CliRunner().invoke(main, ["fly", str(exported.gen_dir), str(tmp_path / "crazyflies.yaml"), "--plan", str(plan),
+                                  "--log", str(log), "--sim", "--takeoff-s", "0.5", "--land-s", "0.8", "--sim-fault", fault])
+    assert r.exit_code == 1, r.output
+    last = r.output.strip().splitlines()[-1]
+    lost = "cf4" if fault.startswith("lost-link") else None
+    assert f"flight ended early ({cause}): landing {'cf3' if lost else 'cf3, cf4'}; log {log}" in last, last
+    lines = [json.loads(x) for x in log.read_text().splitlines()[1:]]
+    for name in ("cf3", "cf4"):
+        rows = [x for x in lines if x["robot"] == name]
+        t = np.array([x["t_ms"] for x in rows]) / 1000.0
+        z = np.array([x["stateEstimate.z"] for x in rows])
+        if name == lost:   # nothing heard from it after the loss
+            assert t[-1] < FAULT_S + 0.06 and z[-1] > 0.6
+            continue
+        assert t[-1] > FAULT_S + 0.8 and z[-1] < 0.15, (name, t[-1], z[-1])   # landed, long before the plan's end
+        assert np.abs(z[t < FAULT_S] - (0.4 if name == "cf3" else 0.8)).max() < 0.1      # flying until the fault
+    from ns2codegen.logs.usdlog import FIXED_FREQUENCY_NAME, read
+    usd = [read(tmp_path / "flight-usd" / "flight" / f"cf{i}.usd").event(FIXED_FREQUENCY_NAME) for i in (0, 1)]
+    z_end = [float(u["stateEstimate.z"][-1]) for u in usd]
+    # the simulator's own log (uSD): the robot without a link flew on, the others are down
+    assert z_end[0] < 0.15 and ((z_end[1] > 0.6) if lost else (z_end[1] < 0.15)), z_end

@@ -90,6 +90,17 @@ def test_swarm_params_changes_only_the_app_groups(swarm_file, exported):
     assert swarm_file.read_bytes() == before
 
 
+def test_swarm_params_keeps_the_users_gains(swarm_file, exported):
+    """Gains the user set in a robot's firmware_params.ns2gain stay; the others are the defaults."""
+    swarm_file.write_text(SWARM.replace("stabilizer: {estimator: 2, controller: 5}", "ns2gain: {Lpx: 9.5}"))
+    assert CliRunner().invoke(main, ["swarm-params", str(exported.gen_dir), str(swarm_file)]).exit_code == 0
+    s = sw.load(swarm_file, exported.cfg)
+    g = default_gains(vehicle(exported.cfg, "small"))
+    assert s.robots[0].firmware_params["ns2gain"]["Lpx"] == 9.5
+    assert s.robots[0].firmware_params["ns2gain"]["Lpy"] == pytest.approx(g["Lp"][1])
+    assert s.robots[2].firmware_params["ns2gain"]["Lpx"] == pytest.approx(g["Lp"][0])
+
+
 @pytest.mark.parametrize("edit, message", [
     (("type: big\n", "type: huge\n"), "robots.cf7.type: 'huge' is not a robot type"),
     (("ns2_type: large", "ns2_type: tiny"), "robot_types.big.ns2_type: 'tiny'"),
@@ -100,6 +111,10 @@ def test_swarm_params_changes_only_the_app_groups(swarm_file, exported):
     (("E7E7E7E707", "E7E7E7E740"), "robots.cf7.uri: radio id 64 of a large robot must be below 32"),
     (("robots:", "robotz:"), "robots: missing or empty"),
     (("fileversion: 3", "fileversion: [3"), "not YAML"),
+    (("stabilizer: {estimator: 2, controller: 5}", "ns2gain: {Lpw: 3.0}"),
+     "robots.cf1.firmware_params.ns2gain.Lpw: not a gain of the app"),
+    (("stabilizer: {estimator: 2, controller: 5}", "ns2gain: {Lpx: .nan}"),
+     "robots.cf1.firmware_params.ns2gain.Lpx: nan is not a finite number"),
 ])
 def test_bad_swarm_file_is_one_line_naming_robot_and_key(swarm_file, exported, edit, message):
     swarm_file.write_text(SWARM.replace(*edit))

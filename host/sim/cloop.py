@@ -59,6 +59,7 @@ class FlightLog:
     p_d: list = field(default_factory=list)
     fa_hat: list = field(default_factory=list)
     status: list = field(default_factory=list)
+    pilot_status: list = field(default_factory=list)   # ns2_pilot's status (the app's LOG ns2.status)
 
     def arrays(self) -> dict:
         return {k: np.array(v) for k, v in self.__dict__.items()}
@@ -122,6 +123,7 @@ class CLoopSwarm:
         self.controllers = controllers
         self.sps = np.zeros((n, 13), np.float32)      # ns2_setpoint_t: p, v, a, yaw, w
         self.est = ffi.new("float[13]")
+        self._ms, self._k, self._frames = 0, 0, deque()   # where a later run() goes on from
 
     def _estimate(self, i: int) -> np.ndarray:
         self.lib.ns2_fly_estimate(self.ffi.addressof(self.robots, i), self.est)
@@ -133,25 +135,27 @@ class CLoopSwarm:
         read at 100 Hz.  First ``settle_s`` s (not logged) hovering at the first setpoint, as
         after a take-off: the EKF converges from its initial covariance.  trace_robot: also
         return ``trace``, the inputs and outputs of every ns2_pilot_tick of that robot
-        (ns2_fly_trace_t records)."""
+        (ns2_fly_trace_t records).  A later call goes on with the same flight (no settling;
+        its clock, log times and mocap frames in flight continue): a flight flown in pieces."""
         ffi, lib, n, se = self.ffi, self.lib, len(self.types), self.sensing
-        settle = int(round(settle_s * ATT_HZ))
+        first = self._ms == 0
+        settle = int(round(settle_s * ATT_HZ)) if first else 0
         steps = settle + int(round(duration * ATT_HZ))
         every_log = TICK_HZ // log_hz
         frame_every = TICK_HZ // se.mocap_hz
         log = FlightLog()
         ptr = lambda ctype, a: ffi.cast(ctype, ffi.from_buffer(a))  # noqa: E731
         x = np.ascontiguousarray(self.state.pack(), float)
-        frames: deque = deque()
+        frames = self._frames
         frame = ffi.new("ns2_fly_frame_t *")
         tr_max = steps + 1
         tr = ffi.new("ns2_fly_trace_t[]", tr_max) if trace_robot is not None else ffi.NULL
         n_tr = 0
         for k in range(steps):
-            ms = k * STEP_TICKS
-            t = (k - settle) / ATT_HZ
+            ms = self._ms + k * STEP_TICKS
+            t = (self._k + k - settle) / ATT_HZ
             st = SwarmState.unpack(x)
-            if k == 0:
+            if k == 0 and first:
                 sp0 = setpoints(0.0, st)
                 z = np.zeros_like(sp0.p)
                 hover = Setpoints(sp0.p, z, z, sp0.yaw)
@@ -171,7 +175,8 @@ class CLoopSwarm:
             f_a = self.aero(st.p, st.v, st.u.sum(axis=1)) if self.aero else np.zeros((n, 3))
             if self.turbulence is not None:
                 f_a = f_a + self.turbulence.force(f_a)
-            battery_V = self.battery_V if self.rough is None else self.rough.battery_V(k / ATT_HZ, self.battery_V)
+            battery_V = (self.battery_V if self.rough is None
+                         else self.rough.battery_V((self._ms // STEP_TICKS + k) / ATT_HZ, self.battery_V))
             if k >= settle and ms % every_log == 0:
                 est = np.array([self._estimate(i) for i in range(n)])
                 log.t.append(t)
@@ -188,12 +193,15 @@ class CLoopSwarm:
                 log.fa_hat.append([[0.0, 0.0, self.robots[i].pilot.fa_hat_g * G / 1000.0 if self.learned else 0.0]
                                    for i in range(n)])
                 log.status.append([self.robots[i].pilot.ctrl.status for i in range(n)])
+                log.pilot_status.append([self.robots[i].pilot.status for i in range(n)])
             noise = self.rng.standard_normal((STEP_TICKS, n, 6), dtype=np.float32)
             fa = np.ascontiguousarray(f_a, float)
             n_tr += lib.ns2_fly_run(self.robots, n, ptr("double *", x), ptr("double *", fa), ms, STEP_TICKS,
                                     ptr("float *", noise), ptr("ns2_setpoint_t *", self.sps), fr, battery_V,
                                     tr + n_tr if tr != ffi.NULL else ffi.NULL, trace_robot or 0, tr_max - n_tr)
         self.state = SwarmState.unpack(x.copy())
+        self._ms += steps * STEP_TICKS
+        self._k += steps - settle
         out = log.arrays()
         if trace_robot is not None:
             out["trace"] = (tr, n_tr)

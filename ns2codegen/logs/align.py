@@ -301,8 +301,17 @@ def align(types: list[str], robots: list[RobotLog], rate_hz: float = 100.0, max_
 def logs_to_flights(cfg: Config, folder: str | Path, allow_truncated: bool = False, z_min: float = 0.02,
                     max_gap_s: float = 0.05, allow_outside: bool = False) -> tuple[list[Flight], list[dict]]:
     """Every flight of ``folder/flights.toml`` -> its usable pieces; per-flight reports.
-    ``allow_outside``: the manifest may name logs outside ``folder`` (manifest.py)."""
+    ``allow_outside``: the manifest may name logs outside ``folder`` (manifest.py).
+    ``folder`` may also be the radio log of ``ns2 fly`` (a file: radiolog.py)."""
     folder = Path(folder)
+    if folder.is_file():
+        from .radiolog import radiolog_to_flights
+
+        flights, reports = radiolog_to_flights(cfg, folder, z_min=z_min)
+        if not flights:
+            raise LogError(f"{folder}: no usable flight piece in the radio log (motors off, on the ground or gaps "
+                           "everywhere)")
+        return flights, reports
     man = load_manifest(folder, allow_outside)
     rate = man["rate_hz"]
     flights, reports = [], []

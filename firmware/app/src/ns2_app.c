@@ -94,6 +94,7 @@ static uint32_t typeMask1; /* radio id i is robot type 1 when bit i is set */
 static uint32_t typeMask2; /* ... type 2 (for a third robot type) */
 
 static ns2_gains_t gains;  /* PARAM ns2gain, copied into the controller at 100 Hz */
+static uint8_t gainsType = 0xFFu; /* robot type whose default gains were loaded last */
 static ns2_pilot_t pilot;  /* the drone's code path: peers, sliced prediction, controller */
 static uint8_t ctrlType = 0xFFu; /* robot type the pilot was initialized for */
 
@@ -129,14 +130,22 @@ static uint8_t self_type(void)
     return cfg.self_type < NS2_NUM_ROBOT_TYPES ? cfg.self_type : 0u;
 }
 
+/* PARAM ns2.selfType callback (the param task, when the write arrives, before the
+ * ground gets its confirmation): a new robot type loads its default gains here and
+ * only here, so gains written after it stay (the ground writes selfType first). */
+static void self_type_written(void)
+{
+    if (self_type() != gainsType) {
+        gainsType = self_type();
+        gains = default_gains[gainsType];
+    }
+}
+
 /* Reset the controller state (integrators, filters) and the prediction; a new
- * robot type also gets its vehicle parameters and default gains. */
+ * robot type also gets its vehicle parameters (its gains came with the write). */
 static void reset_controller(void)
 {
-    if (self_type() != ctrlType) {
-        ctrlType = self_type();
-        gains = default_gains[ctrlType];
-    }
+    ctrlType = self_type();
     pilot.gains = gains;
     ns2_pilot_reset(&pilot, &vehicles[ctrlType]);
     faHat = 0.0f;
@@ -198,7 +207,10 @@ static uint32_t elapsed_us(uint64_t t0)
 void controllerOutOfTreeInit(void)
 {
     ctrlType = self_type();
-    gains = default_gains[ctrlType];
+    if (gainsType == 0xFFu) { /* at boot; a later init (controller switched) keeps the gains set */
+        gainsType = ctrlType;
+        gains = default_gains[ctrlType];
+    }
     ns2_pilot_init(&pilot, &cfg, &vehicles[ctrlType], &gains); /* peers emptied, controller reset */
     faHat = 0.0f;
 }
@@ -256,7 +268,7 @@ void controllerOutOfTree(control_t *control, const setpoint_t *setpoint, const s
 PARAM_GROUP_START(ns2)
 PARAM_ADD(PARAM_UINT8, enable, &cfg.enable)
 PARAM_ADD(PARAM_UINT8, fixed, &cfg.fixed)
-PARAM_ADD(PARAM_UINT8, selfType, &cfg.self_type)
+PARAM_ADD_WITH_CALLBACK(PARAM_UINT8, selfType, &cfg.self_type, &self_type_written)
 PARAM_ADD(PARAM_UINT8, phiPerTick, &cfg.phi_per_tick)
 PARAM_ADD(PARAM_UINT16, maxAgeMs, &cfg.max_age_ms)
 PARAM_ADD(PARAM_FLOAT, faLimit, &cfg.fa_limit_g)

@@ -25,6 +25,13 @@
  *       the stabilizer does (peers through peerLocalizationTellPosition, the clock,
  *       controllerOutOfTree); OUT: the app's vehicle, default gains and ns2 PARAM
  *       values (raw structs), then per tick control.normalizedForces[4] (float32).
+ *   harness params STEP...
+ *       from boot (controllerOutOfTreeInit), hovering: each STEP is a parameter write
+ *       GROUP.NAME=VALUE of the app's groups (ns2, ns2type, ns2gain), done as the
+ *       firmware's param_logic.c does it (value, then the entry's callback), or
+ *       tick:N (N stabilizer ticks); prints the robot type the controller flies,
+ *       the gains (PARAM ns2gain), the gains the controller uses and each type's
+ *       default gains, as float arrays in ns2_gains_t order.
  */
 #include <stdio.h>
 #include <stdlib.h>
@@ -32,6 +39,7 @@
 
 #include "../src/ns2_lib.c"
 #include "../src/ns2_app.c"
+#include "param_write.h"
 
 /* the sizes and offsets the glue relies on, as the real headers have them (the
  * header of this firmware version; a different one fails the build here) */
@@ -215,8 +223,84 @@ static int trace(char **argv)
     return rc;
 }
 
+static void print_gains(const char *name, const ns2_gains_t *g)
+{
+    const float *f = (const float *)g;
+    printf(", \"%s\": [", name);
+    for (size_t i = 0; i < sizeof *g / sizeof(float); ++i) {
+        printf("%s%.9g", i ? ", " : "", (double)f[i]);
+    }
+    printf("]");
+}
+
+static int params(int argc, char **argv)
+{
+    _Static_assert(sizeof(ns2_gains_t) % sizeof(float) == 0, "ns2_gains_t is floats");
+    state_t state;
+    setpoint_t sp;
+    sensorData_t sensors = {0};
+    control_t control = {0};
+    hover_setpoint(&state, &sp);
+    controllerOutOfTreeInit();
+    uint32_t tick = 0;
+    for (int a = 2; a < argc; ++a) {
+        char group[32], name[32];
+        double value;
+        unsigned n;
+        if (sscanf(argv[a], "tick:%u", &n) == 1) {
+            for (unsigned k = 0; k < n; ++k, ++tick) {
+                now_ms = tick;
+                controllerOutOfTree(&control, &sp, &sensors, &state, tick);
+            }
+            continue;
+        }
+        if (sscanf(argv[a], "%31[^.].%31[^=]=%lf", group, name, &value) != 3) {
+            fprintf(stderr, "%s: not GROUP.NAME=VALUE or tick:N\n", argv[a]);
+            return 1;
+        }
+        struct param_s *table = strcmp(group, "ns2") == 0       ? __params_ns2
+                                : strcmp(group, "ns2type") == 0 ? __params_ns2type
+                                : strcmp(group, "ns2gain") == 0 ? __params_ns2gain
+                                                                : NULL;
+        const struct param_s *e = table;
+        while (e != NULL && e->type != (PARAM_GROUP | PARAM_STOP) && (e == table || strcmp(e->name, name) != 0)) {
+            ++e;
+        }
+        if (e == NULL || e->type == (PARAM_GROUP | PARAM_STOP)) {
+            fprintf(stderr, "%s: no such parameter of the app\n", argv[a]);
+            return 1;
+        }
+        const float f = (float)value;
+        const uint32_t u32 = (uint32_t)value;
+        const uint16_t u16 = (uint16_t)value;
+        const uint8_t u8 = (uint8_t)value;
+        const size_t size = (size_t)1u << (e->type & PARAM_BYTES_MASK);
+        const void *v = (e->type & PARAM_TYPE_FLOAT) ? (const void *)&f
+                        : size == 4                  ? (const void *)&u32
+                        : size == 2                  ? (const void *)&u16
+                                                     : (const void *)&u8;
+        if (param_write(table, name, v, size) != 0) {
+            fprintf(stderr, "%s: not writable\n", argv[a]);
+            return 1;
+        }
+    }
+    printf("{\"ctrl_type\": %u", (unsigned)ctrlType);
+    print_gains("gains", &gains);
+    print_gains("controller_gains", &pilot.gains);
+    for (int t = 0; t < NS2_NUM_ROBOT_TYPES; ++t) {
+        char key[32];
+        snprintf(key, sizeof key, "default_%d", t);
+        print_gains(key, &default_gains[t]);
+    }
+    printf("}\n");
+    return 0;
+}
+
 int main(int argc, char **argv)
 {
+    if (argc > 1 && strcmp(argv[1], "params") == 0) {
+        return params(argc, argv);
+    }
     if (argc > 7 && strcmp(argv[1], "trace") == 0) {
         return trace(argv);
     }
