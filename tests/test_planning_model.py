@@ -133,20 +133,37 @@ def _flight(P, V, F, types=("small", "large")):
     return FlownStates(list(types), np.asarray(P, float), np.asarray(V, float), np.asarray(F, float), "who")
 
 
-def test_margin_is_the_largest_low_error_where_the_planner_may_go(cfg):
-    from ns2exp.margin import error_stats, errors, in_region, margin_from_errors
+def test_margin_is_the_smallest_that_keeps_every_held_out_state_within_the_limit(cfg):
+    from ns2exp.margin import error_stats, errors, in_region, margin_from_errors, over_limit
     from ns2plan.problem import Limits
 
     lim = Limits(pos_lo=(-1, -1, 0.3), pos_hi=(1, 1, 2.0), clearance_m=0.15, fa_max_g={"small": 5.0, "large": 10.0})
-    # one-sided: the model reading low counts; states whose prediction is over the limit do not
-    true = np.array([-4.0, -6.0, -2.5, -1.0])
-    pred = np.array([-3.0, -6.5, -1.04, -3.0])
+    # statistics: one-sided (the model reading low counts); states whose prediction is over the limit do not
+    true = np.array([-4.0, -6.0, -2.5, -1.0, -5.5])
+    pred = np.array([-3.0, -6.5, -1.04, -3.0, -4.25])
     s = error_stats(true, pred, 5.0)
-    assert s["states"] == 3 and s["max_low_g"] == pytest.approx(1.46) and s["max_abs_g"] == pytest.approx(2.0)
-    err = {"small": {"true": true, "pred": pred}, "large": {"true": np.array([-9.0]), "pred": np.array([-9.5])}}
-    assert margin_from_errors(err, {"small": 5.0, "large": 10.0}) == {"small": pytest.approx(1.5), "large": 0.0}
+    assert s["states"] == 4 and s["max_low_g"] == pytest.approx(1.46) and s["max_abs_g"] == pytest.approx(2.0)
+    # the margin is set by the states over the limit: -5.5 g true where the model read -4.25 g (0.75 g under the
+    # limit) needs m > 0.75, so 0.8; -6 g true read as -6.5 g is refused by the planner anyway; the largest
+    # one-sided error (1.46 g, at -2.5 g true) cannot break the limit and does not count
+    err = {"small": {"true": true, "pred": pred}, "large": {"true": np.array([-9.0]), "pred": np.array([-1.0])}}
+    assert margin_from_errors(err, {"small": 5.0, "large": 10.0}) == {"small": pytest.approx(0.8), "large": 0.0}
+    ev = over_limit(err, {"small": 5.0, "large": 10.0})
+    assert ev["small"] == {"states": 5, "over_limit": 2, "largest_low_rule_g": pytest.approx(1.5)}
+    assert ev["large"]["over_limit"] == 0 and ev["large"]["largest_low_rule_g"] == pytest.approx(8.0)
     with pytest.raises(ValueError, match="no held-out states of robot type 'large'"):
         margin_from_errors({**err, "large": {"true": np.zeros(0), "pred": np.zeros(0)}}, {"small": 5.0, "large": 10.0})
+    # on random errors the margin keeps its promise and is the smallest on the grid that does
+    rng = np.random.default_rng(1)
+    for _ in range(20):
+        t = -rng.uniform(0, 15, 400)
+        p = t + rng.normal(0, 1.5, 400)
+        m = margin_from_errors({"small": {"true": t, "pred": p}}, {"small": 5.0})["small"]
+        kept = np.abs(p) <= 5.0 - m
+        assert (np.abs(t[kept]) <= 5.0).all()
+        if m > 0:
+            assert (np.abs(t[np.abs(p) <= 5.0 - (m - 0.1)]) > 5.0).any()
+        assert m <= over_limit({"small": {"true": t, "pred": p}}, {"small": 5.0})["small"]["largest_low_rule_g"] + 1e-9
     # the planning region: box (z), speed, separation (tight spheres + clearance)
     P = np.array([[[0, 0, 1.0], [0, 0, 1.5]],       # fine
                   [[0, 0, 0.2], [0, 0, 1.5]],       # robot 0 below the box
@@ -154,13 +171,13 @@ def test_margin_is_the_largest_low_error_where_the_planner_may_go(cfg):
                   [[0, 0, 1.0], [0, 0, 1.5]]])      # too fast
     V = np.zeros_like(P)
     V[3, 1, 0] = 1.2
-    F = np.array([[-3.0, 0.0], [-20.0, 0.0], [-30.0, 0.0], [-40.0, 0.0]])
+    F = np.array([[-6.0, 0.0], [-20.0, 0.0], [-30.0, 0.0], [-40.0, 0.0]])
     fl = _flight(P, V, F)
     assert in_region(cfg, fl, lim)[:, 0].tolist() == [True, False, False, False]
     from ns2plan.forces import ForceModel
 
     e = errors(cfg, ForceModel(cfg, None), [fl], lim)     # f_a = 0: the error is the truth itself
-    assert e["small"]["true"].tolist() == [-3.0] and margin_from_errors(e, lim.fa_max_g)["small"] == pytest.approx(3.0)
+    assert e["small"]["true"].tolist() == [-6.0] and margin_from_errors(e, lim.fa_max_g)["small"] == pytest.approx(5.1)
 
 
 def test_lipschitz_bound_and_closest_gap(cfg, exported):
