@@ -269,7 +269,8 @@ def planning_experiments(cfg: Config, checkpoint, gen_dir, out_dir, scenarios=No
           + downwash_table(check) + "\n\n"
           + (f"Planning margin from held-out flights ({rep['source']}):\n\n{margin_table(rep)}\n\n" if rep else
              f"Planning margin (given): {fa_margin_g} g\n\n")
-          + table(results) + "\n")
+          + table(results) + "\n\nWhere the planning time goes (means per trial, PlanResult.profile):\n\n"
+          + profile_table(results) + "\n")
     atomic_write_files(out, {"plan.json": json.dumps({"model_check": check, "margin": rep or {"margin_g": fa_margin_g},
                                                       "cases": results}, indent=1, default=float) + "\n",
                              "plan.md": md})
@@ -294,6 +295,30 @@ def table(results: dict) -> str:
             lines.append(f"| {key} | {mode} | {s['planned']}/{s['trials']} | {100 * s['median_worst_error_m']:.1f} / "
                          f"{100 * s['max_worst_error_m']:.1f} | {cells[0]} | {cells[1]} | "
                          f"{s['stage1_s_per_robot']:.1f} / {s['stage2_s_per_robot']:.1f} |")
+    return "\n".join(lines)
+
+
+PROFILE_COLUMNS = (("stage1_s", "Stage 1 s"), ("stage1_joint_s", "of it composite search s"),
+                   ("stage1_samples", "Stage 1 samples"), ("stage2_s", "Stage 2 s"), ("scp_iterations", "SCP iterations"),
+                   ("convex_solves", "convex solves"), ("cp_build_s", "build s"), ("cp_canon_s", "cvxpy canon s"),
+                   ("cp_solver_s", "solver s"), ("force_calls", "force calls"), ("force_forward_s", "force forward s"),
+                   ("force_backward_s", "force Jacobian backward s"))
+
+
+def profile_table(results: dict) -> str:
+    """Markdown: per dimension and planner the mean of every planned trial's profile
+    (PlanResult.profile; Stage 2's build time includes the force Jacobians)."""
+    lines = ["| dims | planner | trials | " + " | ".join(h for _, h in PROFILE_COLUMNS) + " |",
+             "|---|---|---|" + "---|" * len(PROFILE_COLUMNS)]
+    groups = {}
+    for key, res in results.items():
+        for mode, r in res.items():
+            groups.setdefault((key.split()[0], mode), []).extend(t["profile"] for t in r["trials"] if t["error"] is None)
+    for (dims, mode), profs in sorted(groups.items()):
+        if profs:
+            cells = [np.mean([p[k] for p in profs]) for k, _ in PROFILE_COLUMNS]
+            lines.append(f"| {dims} | {mode} | {len(profs)} | "
+                         + " | ".join(f"{c:.0f}" if c >= 100 else f"{c:.2f}" for c in cells) + " |")
     return "\n".join(lines)
 
 

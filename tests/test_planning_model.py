@@ -236,3 +236,18 @@ def test_per_type_margin_in_limits_and_problem_files(cfg, tmp_path):
     f.write_text(json.dumps({**base, "limits": {"fa_margin_g": "2"}}))
     with pytest.raises(PlanningError, match=r"limits.fa_margin_g: must be a number in \[0, 1000\] or a table"):
         load_problem(cfg, f)
+
+
+def test_profile_table_means_the_planned_trials():
+    from ns2exp.planning import PROFILE_COLUMNS, profile_table
+
+    prof = {k: 1.0 for k, _ in PROFILE_COLUMNS}
+    ok = {"error": None, "profile": {**prof, "stage1_s": 2.0, "stage1_samples": 300.0}}
+    other = {"error": None, "profile": {**prof, "stage1_s": 4.0, "stage1_samples": 100.0}}
+    failed = {"error": "no path", "profile": None}
+    results = {"2D SL": {"NN": {"trials": [ok, failed]}, "BL": {"trials": [ok]}}, "2D SS": {"NN": {"trials": [other]}},
+               "3D SL": {"NN": {"trials": [failed]}}}
+    rows = profile_table(results).splitlines()
+    assert len(rows) == 4                               # header, rule, 2D BL, 2D NN; 3-D NN planned nothing
+    assert rows[2].startswith("| 2D | BL | 1 | 2.00 | 1.00 | 300 |")
+    assert rows[3].startswith("| 2D | NN | 2 | 3.00 | 1.00 | 200 |")
