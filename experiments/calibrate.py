@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from pathlib import Path
 
 import numpy as np
@@ -89,8 +89,6 @@ def fit_vibration(cfg: Config, gen_dir, real_free: dict, base: Roughness) -> tup
 
 
 def _vib(base: Roughness, ty: str, acc: float, gyro: float) -> Roughness:
-    from dataclasses import replace
-
     return replace(base, vibration_acc_g={**base.vibration_acc_g, ty: acc},
                    vibration_gyro_dps={**base.vibration_gyro_dps, ty: gyro})
 
@@ -179,11 +177,11 @@ def fit(cfg: Config, gen_dir, flights: list[Flight], hover_by_robot: dict, robot
     base = Roughness(battery_start_V=round(start, 3), battery_sag_V_per_min=round(sag, 4),
                      thrust_sd=round(thrust_sd(hover_by_robot, robot_type_of), 4))
     acc, gyro, vib_rows = fit_vibration(cfg, gen_dir, real["free_air"], base)
-    base = Roughness(**{**asdict(base), "vibration_acc_g": {k: round(v, 4) for k, v in acc.items()},
-                        "vibration_gyro_dps": {k: round(v, 3) for k, v in gyro.items()}})
+    base = replace(base, vibration_acc_g={k: round(v, 4) for k, v in acc.items()},
+                   vibration_gyro_dps={k: round(v, 3) for k, v in gyro.items()})
     ratio, tau, turb_rows = fit_turbulence(cfg, gen_dir, flights, base, workers)
-    rough = Roughness(**{**asdict(base), "turbulence_ratio": round(ratio, 3), "turbulence_tau_s": round(tau, 4),
-                         "hover_motor_noise": {ty: real["free_air"][ty]["motor_noise"] for ty in cfg.robot_types}})
+    rough = replace(base, turbulence_ratio=round(ratio, 3), turbulence_tau_s=round(tau, 4),
+                    hover_motor_noise={ty: real["free_air"][ty]["motor_noise"] for ty in cfg.robot_types})
     return rough, {"real": real, "vibration_probes": vib_rows, "turbulence": turb_rows}
 
 

@@ -32,6 +32,7 @@ from ns2codegen.logs.align import logs_to_flights
 from ns2codegen.logs.collection import COLLECTION, write_manifest
 from ns2codegen.queries import Queries
 from ns2codegen.vehicle import G
+from ns2host.sim.flightstats import alone
 
 TARBALLS = ("neural-swarm-2020-06-16-swaps.tar.xz", "neural-swarm-2020-06-16-randomwalks-1.tar.xz",
             "neural-swarm-2020-06-16-randomwalks-2.tar.xz")
@@ -70,11 +71,9 @@ def is_held_out(name: str, names: list[str]) -> bool:
 
 
 def _alone(fl: Flight, i: int) -> np.ndarray:
-    ok = np.ones(len(fl.t), bool)
-    for j in range(len(fl.types)):
-        if j != i:
-            ok &= np.hypot(*(fl.p[:, j, :2] - fl.p[:, i, :2]).T) > HOVER["min_horizontal_distance_m"]
-    return ok & (fl.p[:, i, 2] > HOVER["min_z_m"]) & (np.linalg.norm(fl.v[:, i], axis=1) < HOVER["max_speed_mps"])
+    """Hovering alone (HOVER): flightstats.alone with the hover criteria, and slow."""
+    return (alone(fl, i, HOVER["min_z_m"], HOVER["min_horizontal_distance_m"])
+            & (np.linalg.norm(fl.v[:, i], axis=1) < HOVER["max_speed_mps"]))
 
 
 def hover_masses(cfg: Config, flights: list[Flight], ids: dict) -> dict:

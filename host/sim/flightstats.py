@@ -59,10 +59,15 @@ def moving_average(x: np.ndarray, n: int) -> np.ndarray:
 def motor_noise(pwm: np.ndarray) -> float:
     """rms of the motor commands (PWM in [0, 1]) minus their 0.1 s moving average, over
     time, motors and the robots given ([T, ..., 4]); the window's edges left out."""
-    flat = np.asarray(pwm, float).reshape(len(pwm), -1)
-    h = NOISE_WINDOW // 2
-    d = (flat - moving_average(flat, NOISE_WINDOW))[h:-h]
+    d = fast_part(np.asarray(pwm, float).reshape(len(pwm), -1), NOISE_WINDOW)
     return float(np.sqrt((d ** 2).mean()))
+
+
+def fast_part(x: np.ndarray, n: int) -> np.ndarray:
+    """x minus its centred n-sample moving average, the window's edges (n // 2 samples
+    at each end) left out."""
+    h = n // 2
+    return (x - moving_average(x, n))[h:len(x) - h]
 
 
 def runs(mask: np.ndarray) -> list[tuple[int, int]]:
@@ -79,12 +84,21 @@ def _labels_g(cfg: Config, flights: list[Flight]):
         yield fl, i, fz
 
 
-def _alone(fl: Flight, i: int) -> np.ndarray:
-    ok = fl.p[:, i, 2] > FREE_AIR["min_z_m"]
+def alone(fl: Flight, i: int, min_z_m: float = FREE_AIR["min_z_m"],
+          min_horizontal_m: float = FREE_AIR["min_horizontal_m"]) -> np.ndarray:
+    """Where robot i is above min_z_m with every other robot farther than
+    min_horizontal_m horizontally (free air by default)."""
+    ok = fl.p[:, i, 2] > min_z_m
     for j in range(len(fl.types)):
         if j != i:
-            ok &= np.hypot(*(fl.p[:, j, :2] - fl.p[:, i, :2]).T) > FREE_AIR["min_horizontal_m"]
+            ok &= np.hypot(*(fl.p[:, j, :2] - fl.p[:, i, :2]).T) > min_horizontal_m
     return ok
+
+
+def bottom_order(fl: Flight) -> list[int]:
+    """The robots from the lowest setpoint up (median over the flight); the first is the
+    bottom robot of a swap."""
+    return [int(k) for k in np.argsort(np.nanmedian(fl.p_d[:, :, 2], axis=0), kind="stable")]
 
 
 def free_air(cfg: Config, flights: list[Flight]) -> dict:
@@ -95,17 +109,15 @@ def free_air(cfg: Config, flights: list[Flight]) -> dict:
 
     acc: dict = {}
     for fl, i, fz in _labels_g(cfg, flights):
-        ok = _alone(fl, i) & np.isfinite(fz)
+        ok = alone(fl, i) & np.isfinite(fz)
         a = acc.setdefault(fl.types[i], {"x": [], "fast": [], "psd": [], "pwm": []})
-        h, hn = HP_WINDOW // 2, NOISE_WINDOW // 2
         for s, e in runs(ok):
             x = fz[s:e]
             a["x"].append(x)
             if e - s > HP_WINDOW:
-                a["fast"].append((x - moving_average(x, HP_WINDOW))[h:-h])
+                a["fast"].append(fast_part(x, HP_WINDOW))
             if e - s > NOISE_WINDOW:
-                pw = fl.pwm[s:e, i]
-                a["pwm"].append((pw - moving_average(pw, NOISE_WINDOW))[hn:-hn])
+                a["pwm"].append(fast_part(fl.pwm[s:e, i], NOISE_WINDOW))
             if e - s >= WELCH_N:
                 f, p = welch(x - x.mean(), fs=1.0 / float(np.median(np.diff(fl.t))), nperseg=WELCH_N)
                 a["psd"].append(p * (e - s))
@@ -152,7 +164,7 @@ def wake_scatter(cfg: Config, flights: list[Flight]) -> dict:
         h = HP_WINDOW // 2
         for s, e in runs(np.isfinite(fz)):
             if e - s > HP_WINDOW:
-                fast[s + h:e - h] = (fz[s:e] - moving_average(fz[s:e], HP_WINDOW))[h:-h]
+                fast[s + h:e - h] = fast_part(fz[s:e], HP_WINDOW)
         key = f"{fl.types[i]} under {fl.types[j]}"
         a = acc.setdefault(key, {"bin": [], "x": [], "fast": []})
         b = np.stack([np.floor(d[ok, 2] / w["bin_gap_m"]), np.floor(r[ok] / w["bin_horizontal_m"]),
@@ -204,11 +216,11 @@ def battery(flights: list[Flight], min_s: float = 10.0) -> dict:
             for ty, a in sorted(acc.items())}
 
 
-def setpoint_derivatives(fl: Flight) -> tuple[np.ndarray, np.ndarray]:
-    """v_d, a_d [T, N, 3] of the logged position setpoint (after a 0.1 s moving average:
-    the real setpoint is logged in millimetres)."""
-    v = np.gradient(moving_average(fl.p_d, NOISE_WINDOW), fl.t, axis=0)
-    return v, np.gradient(moving_average(v, NOISE_WINDOW), fl.t, axis=0)
+def setpoint_derivatives(t: np.ndarray, p_d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """v_d, a_d [T, ...] of a logged position setpoint p_d [T, ...] at times t (each after
+    a 0.1 s moving average: the real setpoint is logged in millimetres)."""
+    v = np.gradient(moving_average(p_d, NOISE_WINDOW), t, axis=0)
+    return v, np.gradient(moving_average(v, NOISE_WINDOW), t, axis=0)
 
 
 def z_loop(cfg: Config, flights: list[Flight]) -> dict:
@@ -224,11 +236,11 @@ def z_loop(cfg: Config, flights: list[Flight]) -> dict:
     for fl in flights:
         if fl.p_d is None or len(fl.t) < 2 * NOISE_WINDOW or not np.isfinite(fl.p_d).all():
             continue
-        v_d, a_d = setpoint_derivatives(fl)
+        v_d, a_d = setpoint_derivatives(fl.t, fl.p_d)
         for i, ty in enumerate(fl.types):
             if fl.labelled is not None and not fl.labelled[i]:
                 continue
-            ok = _alone(fl, i)
+            ok = alone(fl, i)
             if not ok.any():
                 continue
             veh = cfg.vehicle(ty)
@@ -263,8 +275,7 @@ def unpredicted(cfg: Config, flights: list[Flight]) -> dict:
     for fl, i, fz in _labels_g(cfg, flights):
         if fl.p_d is None or fl.fa_onboard_g is None or len(fl.types) < 2:
             continue
-        zd = np.nanmedian(fl.p_d[:, :, 2], axis=0)
-        order = [int(k) for k in np.argsort(zd, kind="stable")]
+        order = bottom_order(fl)
         if i != order[0]:
             continue
         ok = np.isfinite(fz) & np.isfinite(fl.fa_onboard_g[:, i]) & (np.abs(fz) > UNPREDICTED_MIN_G)
@@ -297,11 +308,10 @@ def swap_errors(flights: list[Flight]) -> dict:
     for fl in flights:
         if fl.p_d is None or np.isnan(fl.p_d).all() or len(fl.types) < 2:
             continue
-        zd = np.nanmedian(fl.p_d[:, :, 2], axis=0)
-        order = [int(k) for k in np.argsort(zd, kind="stable")]
+        order = bottom_order(fl)
         bottom = order[0]
         case = swap_case(fl.types, bottom, order)
-        vd = setpoint_derivatives(fl)[0][:, bottom, :2]
+        vd = setpoint_derivatives(fl.t, fl.p_d)[0][:, bottom, :2]
         moving = np.hypot(vd[:, 0], vd[:, 1]) > SWAP_MIN_SPEED
         starts = [s for s, e in runs(moving) if s > 0 and fl.t[e - 1] - fl.t[s] >= SWAP_MIN_S]
         err = np.abs(fl.p[:, bottom, 2] - fl.p_d[:, bottom, 2])

@@ -21,7 +21,7 @@ from ns2codegen.config import Config
 from ns2codegen.data.from_logs import Flight
 
 from .cloop import CLoopSwarm, Setpoints
-from .flightstats import NOISE_WINDOW, moving_average
+from .flightstats import setpoint_derivatives
 from .roughness import Roughness
 from .vehicle import G
 
@@ -48,8 +48,7 @@ def logged_setpoints(pieces: list[Flight]):
     grid = np.arange(t[0], t[-1] + 1e-9, 0.01)
     p = np.stack([np.stack([np.interp(grid, t, p_d[:, i, k]) for k in range(3)], 1)
                   for i in range(p_d.shape[1])], 1)
-    v = np.gradient(moving_average(p, NOISE_WINDOW), grid, axis=0)
-    a = np.gradient(moving_average(v, NOISE_WINDOW), grid, axis=0)
+    v, a = setpoint_derivatives(grid, p)
     n = p.shape[1]
 
     def sp(tau, state=None):
