@@ -134,9 +134,8 @@ def sim_calibrate(logs_dir, data_dir, gen_dir, out_dir, per_scenario, refit, wor
         if not need.is_file():
             raise click.ClickException(f"{need} missing: run `ns2 real data` first")
     cfg = Config.load(data_dir / "real.toml")
-    flights, reports = logs_to_flights(cfg, logs_dir)
-    ids = {r["name"]: r["robots"] for r in reports}
-    type_of = {rid: t for fl in flights for rid, t in zip(ids[fl.name], fl.types)}
+    flights, _ = logs_to_flights(cfg, logs_dir)
+    type_of = {rid: t for fl in flights for rid, t in zip(fl.robots, fl.types)}
     try:
         hover = json.loads((data_dir / "data_report.json").read_text())["hover"]["by_robot"]
     except (KeyError, ValueError) as e:

@@ -27,10 +27,13 @@ from ns2codegen.fileio import atomic_write_bytes
 
 from ns2host.sim import flightstats as fs
 from ns2host.sim.cloop import CLoopSwarm
-from ns2host.sim.replay import pieces_by_flight, replay, z_gains
+from ns2host.sim.replay import pieces_by_flight, replay
 from ns2host.sim.roughness import EFFECTS, Roughness, hp_share
 from ns2host.sim.scenarios import random_walk
 
+# neural-swarm2.tex, flight tests: "in the L2S case [...] the median z-error is reduced
+# from 17 cm to 7 cm" (real flights, BL -> NN, the authors' controller on every robot)
+PAPER_L2S_M = {"BL-authors": 0.17, "NN-authors": 0.07}
 PROBE = {"seconds": 30.0, "acc_g": 0.05, "gyro_dps": 1.0, "cube": ((-1.0, 1.0), (-1.0, 1.0), (0.6, 1.4)), "seed": 1}
 PAIR_SWAPS = ("swap_ss", "swap_sl", "swap_ll")
 FIT_FLIGHTS_PER_PAIR = 3      # pair swap flights replayed for the turbulence fit (the first ones by name)
@@ -48,11 +51,12 @@ def real_statistics(cfg: Config, flights: list[Flight]) -> dict:
             "wake_scatter": fs.wake_scatter(cfg, sw), "swaps": fs.swap_errors(sw)}
 
 
-def probe_flight(cfg: Config, gen_dir, robot_type: str, rough: Roughness | None, z_loop: dict | None = None) -> Flight:
-    """One robot's random walk (PROBE) in the simulator, as the drone logs it."""
+def probe_flight(cfg: Config, gen_dir, robot_type: str, rough: Roughness | None, controller: str = "ns2") -> Flight:
+    """One robot's random walk (PROBE) in the simulator, as the drone logs it
+    (controller: cloop.CONTROLLERS)."""
     sp, start = random_walk(1, cube=PROBE["cube"], seed=PROBE["seed"])
-    gains = None if z_loop is None else [z_gains(cfg, robot_type, z_loop["kp_per_s2"], z_loop["kd_per_s"])]
-    sw = CLoopSwarm(cfg, [robot_type], gen_dir, start, aero=True, rough=rough, seed=PROBE["seed"], gains=gains)
+    sw = CLoopSwarm(cfg, [robot_type], gen_dir, start, aero=True, rough=rough, seed=PROBE["seed"],
+                    controllers=[controller])
     log = sw.run(PROBE["seconds"], sp)
     return Flight([robot_type], *(log[k] for k in ("t", "p", "v", "q", "pwm", "battery_V")), p_d=log["p_d"])
 
@@ -94,9 +98,9 @@ def _vib(base: Roughness, ty: str, acc: float, gyro: float) -> Roughness:
 
 
 def replay_all(cfg: Config, gen_dir, pieces: dict, rough: Roughness | None, workers: int = 1,
-               seed: int = 0, z_loop: dict | None = None) -> list[Flight]:
+               seed: int = 0, controller: str = "ns2") -> list[Flight]:
     """Replay every flight of ``pieces`` (name -> real pieces); ``workers`` processes;
-    ``z_loop``: fly the z gains identified on the real flights (replay.replay)."""
+    ``controller``: replay.replay's."""
     names = sorted(pieces)
     if workers > 1 and len(names) > 1:
         import multiprocessing
@@ -105,13 +109,13 @@ def replay_all(cfg: Config, gen_dir, pieces: dict, rough: Roughness | None, work
         from ns2host.cfhost import load_fly
         load_fly(gen_dir)
         with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("fork")) as ex:
-            return list(ex.map(_replay_one, [(cfg, pieces[n], gen_dir, rough, seed, z_loop) for n in names]))
-    return [_replay_one((cfg, pieces[n], gen_dir, rough, seed, z_loop)) for n in names]
+            return list(ex.map(_replay_one, [(cfg, pieces[n], gen_dir, rough, seed, controller) for n in names]))
+    return [_replay_one((cfg, pieces[n], gen_dir, rough, seed, controller)) for n in names]
 
 
 def _replay_one(args) -> Flight:
-    cfg, pcs, gen_dir, rough, seed, z_loop = args
-    return replay(cfg, pcs, gen_dir, learned="float", rough=rough, seed=seed, z_loop=z_loop)
+    cfg, pcs, gen_dir, rough, seed, controller = args
+    return replay(cfg, pcs, gen_dir, learned="float", rough=rough, seed=seed, controller=controller)
 
 
 def fit_pieces(flights: list[Flight]) -> dict:
@@ -185,15 +189,15 @@ def fit(cfg: Config, gen_dir, flights: list[Flight], hover_by_robot: dict, robot
     return rough, {"real": real, "vibration_probes": vib_rows, "turbulence": turb_rows}
 
 
-VARIANTS = ("clean", "rough", "rough, z loop as identified")
+VARIANTS = ("clean", "rough", "rough, the authors' controller")
 
 
 def compare(cfg: Config, gen_dir, flights: list[Flight], rough: Roughness, names: list[str] | None = None,
             workers: int = 1) -> dict:
     """Statistics of step 1 for the real flights and three simulators: clean, rough
-    (``rough``), rough with the controller's z gains identified on the real flights
-    (flightstats.z_loop, replay.z_gains): free air from the probes, the rest over the
-    replayed swap flights (``names``: a subset; the real side is the same subset)."""
+    (``rough``), rough with the position law and gains of the controller that flew
+    the real flights (host/ctrl_authors.c): free air from the probes, the rest over
+    the replayed swap flights (``names``: a subset; the real side is the same subset)."""
     by = pieces_by_flight(swap_flights(flights))
     if names is not None:
         by = {n: by[n] for n in names}
@@ -205,13 +209,27 @@ def compare(cfg: Config, gen_dir, flights: list[Flight], rough: Roughness, names
                                           "unpredicted": fs.unpredicted(cfg, real_sw)}}
     for label in VARIANTS:
         r = None if label == "clean" else rough
-        z = zl["fit"] if label.endswith("identified") else None
-        probes = [probe_flight(cfg, gen_dir, ty, r, z) for ty in cfg.robot_types]
-        sims = replay_all(cfg, gen_dir, by, r, workers, z_loop=z)
+        ctrl = "authors" if label.endswith("controller") else "ns2"
+        probes = [probe_flight(cfg, gen_dir, ty, r, ctrl) for ty in cfg.robot_types]
+        sims = replay_all(cfg, gen_dir, by, r, workers, controller=ctrl)
         out[label] = {"free_air": {ty: fs.free_air(cfg, [p])[ty] for ty, p in zip(cfg.robot_types, probes)},
                       "z_loop": fs.z_loop(cfg, probes), "battery": fs.battery(sims),
                       "wake_scatter": fs.wake_scatter(cfg, sims), "swaps": fs.swap_errors(sims),
                       "unpredicted": fs.unpredicted(cfg, sims)}
+    return out
+
+
+def paper_l2s(cfg: Config, gen_dir, rough: Roughness | None, swaps: int = 6) -> dict:
+    """The paper's L2S swap (experiments/swarm.py's geometry) flown by the controller
+    that flew the paper's flights on every robot (swarm.AUTHORS_CONTROLLERS): without
+    the learned force (the paper's BL) and with the network of ``gen_dir`` (its NN).
+    Median worst z error of the bottom robot over ``swaps`` swaps, beside the paper's."""
+    from ns2exp.swarm import AUTHORS_CONTROLLERS, run_swaps
+
+    out = {}
+    for c in AUTHORS_CONTROLLERS:
+        w = run_swaps(cfg, gen_dir, "L2S", learned="float", swaps=swaps, controller=c, rough=rough)["worst_z_error_m"]
+        out[c] = {"median_worst_z_error_m": float(np.median(w)), "worst_z_error_m": w, "paper_m": PAPER_L2S_M[c]}
     return out
 
 
@@ -226,7 +244,7 @@ def calibrate(cfg: Config, gen_dir, flights: list[Flight], hover_by_robot: dict,
               rough: Roughness | None = None) -> dict:
     """Fit (unless ``rough`` is given), compare, write out_dir/calibration.json and
     calibration.md; returns the JSON."""
-    from ns2host.sim.calibration import roughness_table, sim_to_real_table
+    from ns2host.sim.calibration import paper_l2s_table, roughness_table, sim_to_real_table
 
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -234,9 +252,12 @@ def calibrate(cfg: Config, gen_dir, flights: list[Flight], hover_by_robot: dict,
     if rough is None:
         rough, fit_report = fit(cfg, gen_dir, flights, hover_by_robot, robot_type_of, workers)
     cmp = compare(cfg, gen_dir, flights, rough, names, workers)
-    res = {"roughness": roughness_dict(rough), "effects": list(EFFECTS), "fit": fit_report, "compare": cmp}
+    l2s = paper_l2s(cfg, gen_dir, rough)
+    res = {"roughness": roughness_dict(rough), "effects": list(EFFECTS), "fit": fit_report, "compare": cmp,
+           "paper_l2s": l2s}
     atomic_write_bytes(out_dir / "calibration.json", json.dumps(res, indent=1, sort_keys=True).encode())
     md = ("# The simulator against the real flights\n\n" + roughness_table(cmp) + "\n\n## Replayed swaps\n\n"
-          + sim_to_real_table(cmp) + "\n")
+          + sim_to_real_table(cmp) + "\n\n## The paper's L2S swap, the authors' controller, rough simulator\n\n"
+          + paper_l2s_table(l2s) + "\n")
     atomic_write_bytes(out_dir / "calibration.md", md.encode())
     return res

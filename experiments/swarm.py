@@ -45,6 +45,9 @@ SWAP_S, REST_S, SPACING_M, BOTTOM_M = 2.5, 0.5, 0.3, 0.5
 
 
 CONTROLLERS = ("BL", "BL-tuned", "NN", "NN-default", "Mellinger")
+# the controller that flew the paper's real flights (host/ctrl_authors.c, the authors' gains) on
+# every robot, without and with the learned force: the paper's own BL and NN
+AUTHORS_CONTROLLERS = ("BL-authors", "NN-authors")
 HOVER_NOISE_LIMIT = 2.0  # BL-tuned in the clean simulator: motor-command noise at hover at most this times BL's
                          # (in the rough one: at most the real robots' in free air, Roughness.hover_motor_noise)
 # gain search, per axis group: Lp (1/s) and Kv per kg (N s/m/kg); default Lp 2 / 2.5, Kv 4 m
@@ -64,14 +67,18 @@ def tuned(veh, tuning: dict | None) -> dict | None:
 def _fly(cfg, team, gen_dir, start, sp, duration, controller: str, tuning, measured, seed: int = 0,
          learned: str = "fixed", rough: Roughness | None = None) -> dict:
     """One flight of ``team``; ``controller`` (one of CONTROLLERS) on the ``measured``
-    robots (indices), the others by BL (Mellinger) or the same controller."""
+    robots (indices), the others by BL (Mellinger) or the same controller; one of
+    AUTHORS_CONTROLLERS on every robot."""
     from ns2host.sim.vehicle import vehicle
 
     n = len(team)
-    learned = learned if controller in ("NN", "NN-default") else None
+    learned = learned if controller in ("NN", "NN-default", "NN-authors") else None
     use = tuning if controller in ("BL-tuned", "NN") else None
     gains = [tuned(vehicle(cfg, t), use) for t in team]
-    ctrls = ["mellinger" if controller == "Mellinger" and i in measured else "ns2" for i in range(n)]
+    if controller in AUTHORS_CONTROLLERS:
+        ctrls = ["authors"] * n
+    else:
+        ctrls = ["mellinger" if controller == "Mellinger" and i in measured else "ns2" for i in range(n)]
     sw = CLoopSwarm(cfg, list(team), gen_dir, start, aero=True, learned=learned, gains=gains, controllers=ctrls,
                     seed=seed, rough=rough)
     return sw.run(duration, sp)
@@ -79,7 +86,7 @@ def _fly(cfg, team, gen_dir, start, sp, duration, controller: str, tuning, measu
 
 def run_swaps(cfg: Config, gen_dir, case: str, learned: str | None = None, swaps: int = 6, seed: int = 0,
               controller: str | None = None, tuning: dict | None = None, rough: Roughness | None = None) -> dict:
-    """The swap ``case``; ``controller`` (CONTROLLERS) or, for short, ``learned`` (None:
+    """The swap ``case``; ``controller`` (CONTROLLERS, AUTHORS_CONTROLLERS) or, for short, ``learned`` (None:
     BL, "fixed"/"float": NN with default gains).  Worst z error of the bottom robot per
     swap, its z error rms and motor-command noise."""
     team = SWAP_CASES[case]

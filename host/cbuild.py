@@ -81,6 +81,7 @@ typedef struct { ns2_vehicle_t veh; ns2_gains_t g; ns2_setpoint_t sp; float int_
 void ns2_ctrl_init(ns2_ctrl_t *c, const ns2_vehicle_t *veh, const ns2_gains_t *g);
 void ns2_ctrl_position(ns2_ctrl_t *c, const ns2_ctrl_state_t *s, const ns2_setpoint_t *sp,
                        const float fa_hat[3], float dt);
+void ns2_ctrl_force(ns2_ctrl_t *c, const ns2_ctrl_state_t *s, const ns2_setpoint_t *sp, const float f_d[3], float dt);
 void ns2_ctrl_attitude(ns2_ctrl_t *c, const ns2_ctrl_state_t *s, float dt, float battery_V);
 void ns2_ctrl_wrench(const ns2_vehicle_t *veh, const float u[4], float eta[4]);
 typedef struct { ns2_ctrl_state_t s; ns2_setpoint_t sp; float fa[3]; float dt_pos, dt_att, battery_V;

@@ -60,7 +60,7 @@ FW_FLAGS = ["-std=gnu11", "-O2", "-fPIC", "-fno-strict-aliasing", "-Wno-address-
 FW_EXTRACTED = [("src/drivers/src/motors.c", "motorsCompensateBatteryVoltage")]
 FW_EXTRACTED_DEFINES = [("src/drivers/interface/motors.h", "NBR_OF_MOTORS")]  # motors.h needs the STM32 HAL
 EXTRACT_PRELUDE = '#include <math.h>\n#include <stdint.h>\n#include "platform_defaults.h"\n#include "cfassert.h"\n'
-HOST_FLY = ["host/ns2_fly.c", "host/ns2_sim.c"]
+HOST_FLY = ["host/ns2_fly.c", "host/ns2_sim.c", "host/ctrl_authors.c"]
 
 FLY_CDEF = CDEF + """
 typedef struct { uint8_t enable; uint8_t fixed; uint8_t self_type; uint8_t phi_per_tick; uint16_t max_age_ms;
@@ -79,9 +79,11 @@ void ns2_pilot_step(ns2_pilot_t *pl, const ns2_ctrl_state_t *s, const ns2_setpoi
 #define NS2_FLY_MAX_PEERS ...
 #define NS2_FLY_PILOT ...
 #define NS2_FLY_MELLINGER ...
+#define NS2_FLY_AUTHORS ...
+typedef struct { float mass_kg; float kp[3]; float kd[3]; float ki[3]; float i_max; } ns2_authors_gains_t;
 typedef struct { uint32_t kind; uint8_t id, type; double par[21]; double psi1[5]; float p0[3];
                  float bias_acc_g[3], bias_gyro_dps[3]; float acc_scale; float sd_acc_g, sd_gyro_dps; float ext_pos_std_m;
-                 ns2_vehicle_t veh; ns2_gains_t gains; ns2_pilot_cfg_t pilot_cfg; } ns2_fly_init_t;
+                 ns2_vehicle_t veh; ns2_gains_t gains; ns2_pilot_cfg_t pilot_cfg; ns2_authors_gains_t authors; } ns2_fly_init_t;
 typedef struct { uint32_t kind; double psi1[5]; float sd_acc_g, sd_gyro_dps; ns2_pilot_t pilot; float pwm[4]; ...; }
     ns2_fly_robot_t;
 typedef struct { uint32_t tick; const float *p; const uint8_t *rx; } ns2_fly_frame_t;
@@ -116,7 +118,7 @@ def load_fly(gen_dir: str | Path):
     ns2_inc = [f"-I{REPO / i}" for i in f["NS2_INCLUDES"]] + [f"-I{gen_dir}", f"-I{REPO / 'host'}"]
     h = hashlib.sha256(_key(gen_dir, f).encode() + FLY_CDEF.encode() + repr(FW_FLAGS).encode())
     for p in [fw / s for s in FW_SOURCES] + [fw / s for s, _ in FW_EXTRACTED + FW_EXTRACTED_DEFINES] + [REPO / s for s in HOST_FLY] \
-            + [REPO / "host" / "ns2_fly.h", auto / "autoconf.h", stock / "autoconf.h"]:
+            + [REPO / "host" / "ns2_fly.h", REPO / "host" / "ctrl_authors.h", auto / "autoconf.h", stock / "autoconf.h"]:
         h.update(p.name.encode() + p.read_bytes())
 
     def build(tmp: Path, name: str) -> None:

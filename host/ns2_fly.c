@@ -14,6 +14,8 @@
  *   peers  the same mocap broadcast fills a per-robot peer-localization table
  *          (timestamp: reception tick, as peer_localization.c);
  *   control  either ns2_pilot (firmware/src, the app's code path) at 500/100 Hz,
+ *          or ns2_pilot with the position law of the controller that flew the
+ *          real flights (ctrl_authors.c: the replay of host/sim/replay.py),
  *          or the firmware's controller_mellinger.c + power_distribution_quadrotor.c
  *          + motorsCompensateBatteryVoltage (stabilizer.c's order; the stock
  *          configuration's battery compensation, host/cfhost.py);
@@ -81,6 +83,7 @@ void ns2_fly_init(ns2_fly_robot_t *r, const ns2_fly_init_t *in)
     kalmanCoreExternalizeState(&r->kc, &r->est, &r->acc_latest);
     r->next_predict_ms = 0u;
     ns2_pilot_init(&r->pilot, &in->pilot_cfg, &in->veh, &in->gains);
+    ns2_authors_init(&r->authors, &in->authors);
     controllerMellingerInit(&r->mel);
     r->mel.mass = in->veh.mass_kg; /* PARAM ctrlMel.mass, as a user sets it for the vehicle */
     r->supply_V = 4.2f;           /* stabilizer.c batteryCompensation's filter state */
@@ -215,7 +218,18 @@ uint32_t ns2_fly_run(ns2_fly_robot_t *rob, uint32_t n, double *x, const double *
                         (void)ns2_pilot_peer(&r->pilot, r->peer_id[j], r->peer_type[j], r->peer_t[j], r->peer_p[j]);
                     }
                 }
-                ns2_pilot_tick(&r->pilot, &s, &sp[i], do_pos, r->id, tick, battery_V);
+                if (r->kind == NS2_FLY_AUTHORS) { /* ns2_pilot_tick with the authors' position law */
+                    if (do_pos) {
+                        ns2_pilot_period(&r->pilot, &s, r->id, tick);
+                        const float fa_z_N = r->pilot.cfg.enable ? r->pilot.fa_hat_g * 1e-3f * (float)G_SIM : 0.0f;
+                        ns2_authors_position(&r->authors, &r->pilot.ctrl, &s, &sp[i], fa_z_N,
+                                             1.0f / (float)NS2_PILOT_POS_HZ);
+                    }
+                    ns2_pilot_slice(&r->pilot);
+                    ns2_pilot_attitude(&r->pilot, &s, battery_V);
+                } else {
+                    ns2_pilot_tick(&r->pilot, &s, &sp[i], do_pos, r->id, tick, battery_V);
+                }
                 memcpy(r->pwm, r->pilot.ctrl.pwm, sizeof(r->pwm));
                 if (tr != NULL && i == tr_robot && n_tr < tr_max) {
                     ns2_fly_trace_t *t = &tr[n_tr++];

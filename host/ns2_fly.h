@@ -12,14 +12,16 @@
 #include "stabilizer_types.h"
 
 #include "ns2_pilot.h"
+#include "ctrl_authors.h"
 
 #define NS2_FLY_MAX_ROBOTS 32u
 #define NS2_FLY_MAX_PEERS 10u /* PEER_LOCALIZATION_MAX_NEIGHBORS */
 #define NS2_FLY_PILOT 0u      /* the app's code path, ns2_pilot */
 #define NS2_FLY_MELLINGER 1u  /* the firmware's controller_mellinger.c */
+#define NS2_FLY_AUTHORS 2u    /* ns2_pilot with the position law of ctrl_authors.c */
 
 typedef struct {
-    uint32_t kind;             /* NS2_FLY_PILOT or NS2_FLY_MELLINGER */
+    uint32_t kind;             /* NS2_FLY_PILOT, NS2_FLY_MELLINGER or NS2_FLY_AUTHORS */
     uint8_t id, type;          /* radio id (not 0), robot type */
     double par[21];            /* ns2_sim.c parameters: m, J, lambda, B0 */
     double psi1[5];            /* PWM -> force (g), Table cfprops */
@@ -31,6 +33,7 @@ typedef struct {
     ns2_vehicle_t veh;
     ns2_gains_t gains;
     ns2_pilot_cfg_t pilot_cfg;
+    ns2_authors_gains_t authors; /* NS2_FLY_AUTHORS only */
 } ns2_fly_init_t;
 
 typedef struct {
@@ -48,6 +51,7 @@ typedef struct {
     state_t est;               /* the estimate every controller sees */
     sensorData_t sensors;      /* filtered IMU of the last tick */
     ns2_pilot_t pilot;
+    ns2_authors_t authors;
     controllerMellinger_t mel;
     control_t control;
     float supply_V;

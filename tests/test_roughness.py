@@ -15,7 +15,7 @@ from ns2codegen.logs.collection import COLLECTION
 from ns2exp.calibrate import _quadrature, thrust_sd
 from ns2host.sim import flightstats as fs
 from ns2host.sim.cloop import CLoopSwarm, hover_setpoints
-from ns2host.sim.replay import logged_setpoints, pieces_by_flight, replay, z_gains
+from ns2host.sim.replay import logged_setpoints, pieces_by_flight, replay
 from ns2host.sim.roughness import Roughness, Turbulence, hp_share
 from ns2host.sim.scenarios import swap
 
@@ -101,15 +101,6 @@ def test_fit_arithmetic():
         thrust_sd({"c": {"median_g": 60.0}}, {"c": "large"})
 
 
-def test_z_gains_make_the_stated_pd_law(cfg):
-    g = z_gains(cfg, "small", 2.4, 3.9)
-    m = cfg.vehicle("small")["mass_g"] / 1000.0
-    lp, kv = g["Lp"][2], g["Kv"][2] / m
-    # f_z = m a_d - (m Lp + Kv) e_v - Kv Lp e_z (ns2_controller.c), per unit mass
-    assert kv * lp == pytest.approx(2.4, rel=1e-9) and lp + kv == pytest.approx(3.9, rel=1e-9)
-    assert g["Gv"][2] == 0.0
-
-
 def test_free_air_statistics_see_the_vibration(cfg, exported):
     """The simulator's free-air statistics move with the effect fitted to them: the
     fast part of the label with the accelerometer's noise, the motor noise with the gyro's."""
@@ -189,3 +180,25 @@ def test_a_real_swap_measured_and_replayed(cfg, exported):
     for u in (ur["S2L"], us["S2L"]):
         assert u["samples"] > 50 and 0 < u["rms_g"] < u["label_rms_g"] + abs(u["mean_g"]) + 10
     assert np.isfinite(sim.fa_onboard_g).all() and np.abs(sim.fa_onboard_g[:, 1]).max() > 1.0   # the bottom robot
+    # the controller that flew it (host/ctrl_authors.c) flies the same replay, every robot known by its id
+    auth = replay(cfg, pieces, exported.gen_dir, learned="float", rough=Roughness(), controller="authors")
+    assert auth.robots == pieces[0].robots == [SL[0], SL[1]]
+    sa = fs.swap_errors([auth])
+    assert list(sa) == ["S2L"] and abs(sa["S2L"]["swaps"] - r["swaps"]) <= 1
+    assert 0 < sa["S2L"]["median_worst_z_error_m"] < 0.5
+    assert sa["S2L"]["median_worst_z_error_m"] != s["S2L"]["median_worst_z_error_m"]
+
+
+def test_sim_to_real_and_paper_tables():
+    from ns2host.sim.calibration import paper_l2s_table, sim_to_real_table
+
+    sw = lambda x: {"L2S": {"median_worst_z_error_m": x, "swaps": 5}}   # noqa: E731
+    cmp = {"flights": [], "real": {"swaps": {"L2S": {"median_worst_z_error_m": 0.059, "swaps": 5},
+                                             "S2L": {"median_worst_z_error_m": 0.038, "swaps": 2}}},
+           "clean": {"swaps": sw(0.015)}, "rough": {"swaps": {**sw(0.070), "S2L": {"median_worst_z_error_m": 0.02}}}}
+    t = sim_to_real_table(cmp).splitlines()
+    assert t[2] == "| L2S | 5 | 5.9 | 1.5 (0.25) | 7.0 (1.19*) |"
+    assert t[3] == "| S2L | 2 | 3.8 | - | 2.0 (0.53) |"
+    assert t[4] == "| within 30 % (*) | | | 0 of 2 | 1 of 2 |"
+    p = paper_l2s_table({"BL-authors": {"median_worst_z_error_m": 0.084, "worst_z_error_m": [0.08] * 6, "paper_m": 0.17}})
+    assert p.splitlines()[2] == "| BL-authors | 6 | 8.4 | 17 | 0.49 | no |"

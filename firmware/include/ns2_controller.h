@@ -76,6 +76,7 @@ extern "C" {
 #define NS2_CTRL_DT_MIN_S 1.0e-5f     /* time step range of both loops */
 #define NS2_CTRL_DT_MAX_S 1.0f
 #define NS2_CTRL_BAT_MAX_V 10.0f      /* battery voltage range [0, 10] V */
+#define NS2_CTRL_F_MAX_N 1.0e2f       /* |f_d| per axis given to ns2_ctrl_force */
 #define NS2_CTRL_RECOVERY_TICKS 50u   /* attitude ticks (0.1 s at 500 Hz) */
 
 typedef struct {
@@ -137,6 +138,12 @@ void ns2_ctrl_init(ns2_ctrl_t *c, const ns2_vehicle_t *veh, const ns2_gains_t *g
 /* 100 Hz: f_d, T_d, R_d; fa_hat (N, world frame, may be NULL = baseline). */
 void ns2_ctrl_position(ns2_ctrl_t *c, const ns2_ctrl_state_t *s, const ns2_setpoint_t *sp,
                        const float fa_hat[3], float dt);
+/* 100 Hz, for another position law (the simulator's replay of the controller that
+ * flew the real flights, host/ctrl_authors.c): T_d, T_d_dot and R_d from a desired
+ * force f_d (N, world frame, gravity included) as ns2_ctrl_position does from its
+ * own; the same checks of config, state, dt and setpoint (its yaw sets R_d), and a
+ * non-finite f_d or one beyond NS2_CTRL_F_MAX_N per axis is a bad state. */
+void ns2_ctrl_force(ns2_ctrl_t *c, const ns2_ctrl_state_t *s, const ns2_setpoint_t *sp, const float f_d[3], float dt);
 /* 500 Hz: tau_d, delay compensation, mixing and PWM (battery voltage in V). */
 void ns2_ctrl_attitude(ns2_ctrl_t *c, const ns2_ctrl_state_t *s, float dt, float battery_V);
 /* eta = B0 u for motor forces u (N): [T, tau_x, tau_y, tau_z]. */

@@ -222,27 +222,39 @@ void ns2_ctrl_wrench(const ns2_vehicle_t *veh, const float u[4], float eta[4])
     eta[3] = veh->kappa_m * (-u[0] + u[1] - u[2] + u[3]);
 }
 
-/* eq. (pos_ctrl) with (v_ref); sets T_d, T_d_dot and R_d. */
-void ns2_ctrl_position(ns2_ctrl_t *c, const ns2_ctrl_state_t *s, const ns2_setpoint_t *sp,
-                       const float fa_hat[3], float dt)
+/* The checks every position tick begins with: config, state, dt (0: motors off,
+ * stop here) and the setpoint (a bad one keeps the last valid). */
+static int position_begin(ns2_ctrl_t *c, const ns2_ctrl_state_t *s, const ns2_setpoint_t *sp, float dt)
 {
-    const ns2_gains_t *g = &c->g;
-    const float m = c->veh.mass_kg;
     c->status = 0;
     if (!c->config_ok) {
         c->status = NS2_CTRL_BAD_CONFIG;
         motors_off(c);
-        return;
+        return 0;
     }
     if (!state_ok(s) || !dt_ok(dt)) {
         fault(c, NS2_CTRL_BAD_STATE);
-        return;
+        return 0;
     }
     if (setpoint_ok(sp)) {
         c->sp = *sp;
         c->sp.yaw = fmodf(sp->yaw, 6.28318548f); /* exact; |yaw| < 2 pi for sincos_det */
     } else {
         c->status |= NS2_CTRL_BAD_SETPOINT;
+    }
+    return 1;
+}
+
+static void force_to_attitude(ns2_ctrl_t *c, const ns2_ctrl_state_t *s, float f_d[3], float dt);
+
+/* eq. (pos_ctrl) with (v_ref); sets T_d, T_d_dot and R_d. */
+void ns2_ctrl_position(ns2_ctrl_t *c, const ns2_ctrl_state_t *s, const ns2_setpoint_t *sp,
+                       const float fa_hat[3], float dt)
+{
+    const ns2_gains_t *g = &c->g;
+    const float m = c->veh.mass_kg;
+    if (!position_begin(c, s, sp, dt)) {
+        return;
     }
     float fa[3] = {0.0f, 0.0f, 0.0f};
     if (fa_hat != NULL && finite_n(fa_hat, 3)) {
@@ -265,6 +277,26 @@ void ns2_ctrl_position(ns2_ctrl_t *c, const ns2_ctrl_state_t *s, const ns2_setpo
         f_d[i] = m * v_r_dot - fa[i] - (g->Kv[i] + m * g->Gv[i]) * ve - g->Kv[i] * g->Gv[i] * c->int_v[i];
     }
     f_d[2] += m * NS2_G;
+    force_to_attitude(c, s, f_d, dt);
+}
+
+void ns2_ctrl_force(ns2_ctrl_t *c, const ns2_ctrl_state_t *s, const ns2_setpoint_t *sp, const float f_d[3], float dt)
+{
+    if (!position_begin(c, s, sp, dt)) {
+        return;
+    }
+    if (f_d == NULL || !finite_n(f_d, 3) || !within_n(f_d, 3, NS2_CTRL_F_MAX_N)) {
+        fault(c, NS2_CTRL_BAD_STATE);
+        return;
+    }
+    float f[3] = {f_d[0], f_d[1], f_d[2]};
+    force_to_attitude(c, s, f, dt);
+}
+
+/* T_d, T_d_dot and R_d from f_d (f_d . e3 raised to min_thrust_N first). */
+static void force_to_attitude(ns2_ctrl_t *c, const ns2_ctrl_state_t *s, float f_d[3], float dt)
+{
+    const ns2_gains_t *g = &c->g;
     if (f_d[2] < g->min_thrust_N) {
         f_d[2] = g->min_thrust_N;
     }

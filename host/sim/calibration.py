@@ -206,21 +206,39 @@ def roughness_table(cmp: dict, judged: str = "rough") -> str:
     return "\n".join(lines) + "\n"
 
 
-def sim_to_real_table(cmp: dict, judged: str = "rough") -> str:
+def sim_to_real_table(cmp: dict) -> str:
     """Per swap scenario of the replayed flights: median worst z error of the bottom
-    robot (cm), real against each simulator, and whether ``judged`` (the simulator
-    `make sim` flies) is within SIM_TO_REAL_TOL of the real."""
+    robot (cm), real against each simulator with its ratio to the real, "*" where
+    within SIM_TO_REAL_TOL; the last row counts the scenarios within it."""
     sims = _variants(cmp)
-    lines = ["| scenario | swaps | real (cm) | " + " | ".join(f"{v} (cm)" for v in sims)
-             + f" | {judged} / real | within 30 % |", "|---|---|---|" + "---|" * (len(sims) + 2)]
-    for case, r in sorted(cmp["real"]["swaps"].items()):
+    lines = ["| scenario | swaps | real (cm) | " + " | ".join(f"{v}: cm (/ real)" for v in sims) + " |",
+             "|---|---|---|" + "---|" * len(sims)]
+    within = dict.fromkeys(sims, 0)
+    cases = sorted(cmp["real"]["swaps"].items())
+    for case, r in cases:
         rv = r["median_worst_z_error_m"]
-        vals = [cmp[v]["swaps"].get(case, {}).get("median_worst_z_error_m") for v in sims]
-        g = cmp[judged]["swaps"].get(case, {}).get("median_worst_z_error_m")
-        ok = g is not None and abs(g / rv - 1.0) <= SIM_TO_REAL_TOL
-        lines.append(f"| {case} | {r['swaps']} | {100 * rv:.1f} | "
-                     + " | ".join(_cell(None if x is None else 100 * x, 1) for x in vals)
-                     + f" | {_ratio(g, rv)} | {'yes' if ok else 'no'} |")
+        cells = []
+        for v in sims:
+            x = cmp[v]["swaps"].get(case, {}).get("median_worst_z_error_m")
+            if x is None:
+                cells.append("-")
+                continue
+            ok = abs(x / rv - 1.0) <= SIM_TO_REAL_TOL
+            within[v] += ok
+            cells.append(f"{100 * x:.1f} ({x / rv:.2f}{'*' if ok else ''})")
+        lines.append(f"| {case} | {r['swaps']} | {100 * rv:.1f} | " + " | ".join(cells) + " |")
+    lines.append(f"| within 30 % (*) | | | " + " | ".join(f"{within[v]} of {len(cases)}" for v in sims) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def paper_l2s_table(l2s: dict) -> str:
+    """experiments/calibrate.py paper_l2s: simulated against the paper's median worst z error."""
+    lines = ["| controller | swaps | simulated (cm) | paper (cm) | simulated / paper | within 30 % |",
+             "|---|---|---|---|---|---|"]
+    for c, r in l2s.items():
+        sim, paper = r["median_worst_z_error_m"], r["paper_m"]
+        lines.append(f"| {c} | {len(r['worst_z_error_m'])} | {100 * sim:.1f} | {100 * paper:.0f} | {sim / paper:.2f} | "
+                     f"{'yes' if abs(sim / paper - 1.0) <= SIM_TO_REAL_TOL else 'no'} |")
     return "\n".join(lines) + "\n"
 
 

@@ -22,11 +22,11 @@ from .aero import calibrated
 from .dynamics import Dynamics, SwarmState
 from .roughness import Roughness, Turbulence
 from .sensing import Sensing
-from .vehicle import G, base_type, default_gains, vehicle
+from .vehicle import G, authors_gains, base_type, default_gains, vehicle
 
 TICK_HZ, ATT_HZ, POS_HZ = 1000, 500, 100
 STEP_TICKS = TICK_HZ // ATT_HZ  # ticks per Python step (the interaction force is held over it)
-CONTROLLERS = ("ns2", "mellinger")
+CONTROLLERS = ("ns2", "mellinger", "authors")
 
 
 @dataclass
@@ -68,11 +68,16 @@ class FlightLog:
 class CLoopSwarm:
     def __init__(self, cfg: Config, types: list[str], gen_dir, positions, learned: str | None = None,
                  aero: bool = False, battery_V: float = 3.9, controllers=None, gains=None,
-                 sensing: Sensing | None = None, seed: int = 0, rough: Roughness | None = None):
+                 sensing: Sensing | None = None, seed: int = 0, rough: Roughness | None = None,
+                 authors=None):
         """learned: None (baseline, f_a = 0), "float" or "fixed"; aero: ground-truth
         interactions (host/sim/aero.py) on or off; controllers: per robot "ns2" (the
-        app's path, default) or "mellinger" (the firmware's); gains: per robot None
-        (default_gains) or a dict of ns2_gains_t fields replacing some defaults;
+        app's path, default), "mellinger" (the firmware's) or "authors" (the app's path
+        with the position law of the controller that flew the real flights,
+        host/ctrl_authors.c; authors: per robot None (vehicle.authors_gains of its type)
+        or a dict of ns2_authors_gains_t); gains: per robot None (default_gains) or a
+        dict of ns2_gains_t fields replacing some defaults (the attitude loop's, for
+        "authors");
         sensing: the figures of host/sim/sensing.py; seed: noise, biases and losses;
         rough: a real Crazyflie's unmodelled effects (host/sim/roughness.py; None: the
         clean simulator)."""
@@ -105,7 +110,12 @@ class CLoopSwarm:
         self.turbulence = Turbulence(rough, n, 1.0 / ATT_HZ, seed) if rough is not None else None
         for i, veh in enumerate(self.vehicles):
             it = ffi.new("ns2_fly_init_t *")
-            it.kind = lib.NS2_FLY_MELLINGER if controllers[i] == "mellinger" else lib.NS2_FLY_PILOT
+            it.kind = {"ns2": lib.NS2_FLY_PILOT, "mellinger": lib.NS2_FLY_MELLINGER,
+                       "authors": lib.NS2_FLY_AUTHORS}[controllers[i]]
+            if controllers[i] == "authors":
+                a = (authors[i] if authors is not None else None) or authors_gains(types[i])
+                it.authors.mass_kg, it.authors.i_max = a["mass_kg"], a["i_max"]
+                it.authors.kp, it.authors.kd, it.authors.ki = list(a["kp"]), list(a["kd"]), list(a["ki"])
             it.id, it.type = i + 1, int(self.type_idx[i])
             it.par, it.psi1, it.p0 = list(self.dyn.par[i]), list(np.asarray(veh.psi1) * thrust[i]), list(self.state.p[i])
             it.bias_acc_g, it.bias_gyro_dps, it.acc_scale = list(acc_b[i]), list(gyro_b[i]), acc_scale[i]

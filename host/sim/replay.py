@@ -7,13 +7,12 @@ the loop (the collection of 16 June 2020 flew the authors' network: import it wi
 both the same way (the sim-to-real table, docs/simulator.md).
 
 What is not the real flight: the controller is the project's (ns2_pilot with its
-default gains; the authors' firmware controller and gains are not published with
-the logs), the robots' masses and thrust maps are the config's (the hover-measured
-masses of experiments/real.py when given its real.toml), and the interactions are
-the simulator's ground truth."""
+default gains), or with controller="authors" the position law and gains of the
+authors' firmware controller (host/ctrl_authors.c, vehicle.authors_gains) under the
+project's attitude loop; the robots' masses and thrust maps are the config's (the
+hover-measured masses of experiments/real.py when given its real.toml), and the
+interactions are the simulator's ground truth."""
 from __future__ import annotations
-
-import math
 
 import numpy as np
 
@@ -23,7 +22,7 @@ from ns2codegen.data.from_logs import Flight
 from .cloop import CLoopSwarm, Setpoints
 from .flightstats import setpoint_derivatives
 from .roughness import Roughness
-from .vehicle import G
+from .vehicle import G, authors_gains
 
 
 def pieces_by_flight(flights: list[Flight]) -> dict[str, list[Flight]]:
@@ -58,35 +57,21 @@ def logged_setpoints(pieces: list[Flight]):
     return sp, p[0], float(grid[0]), float(grid[-1] - grid[0])
 
 
-def z_gains(cfg: Config, robot_type: str, kp_per_s2: float, kd_per_s: float) -> dict:
-    """ns2_gains_t overrides that make the project's controller a PD law in z of the
-    given stiffness per unit mass, without its integral: ns2_controller.c's
-    f_z = m a_d - (m Lp + Kv) e_v - Kv Lp e_z, so with K = Kv / m, kd = Lp + K and
-    kp = Lp K: Lp and K are the roots of x^2 - kd x + kp (Lp the smaller, as in the
-    default gains).  A law with kd^2 < 4 kp has no such split and is refused."""
-    from .vehicle import default_gains, vehicle
-
-    disc = kd_per_s ** 2 - 4.0 * kp_per_s2
-    if kp_per_s2 <= 0 or kd_per_s <= 0 or disc < 0:
-        raise ValueError(f"no ns2 controller gains for kp = {kp_per_s2} 1/s^2, kd = {kd_per_s} 1/s "
-                         "(both positive and kd^2 >= 4 kp needed)")
-    lp = 0.5 * (kd_per_s - math.sqrt(disc))
-    veh = vehicle(cfg, robot_type)
-    g = default_gains(veh)
-    return {"Lp": [*g["Lp"][:2], lp], "Kv": [*g["Kv"][:2], (kd_per_s - lp) * veh.mass],
-            "Gv": [*g["Gv"][:2], 0.0]}
-
-
 def replay(cfg: Config, pieces: list[Flight], gen_dir, learned: str | None = "float",
-           rough: Roughness | None = None, seed: int = 0, z_loop: dict | None = None) -> Flight:
+           rough: Roughness | None = None, seed: int = 0, controller: str = "ns2") -> Flight:
     """Fly one real flight's setpoints with its team in the simulator; the drones'
     log as a Flight (time as the real flight's, estimated states, setpoints).
-    z_loop: {"kp_per_s2", "kd_per_s"} of the controller that flew (flightstats.z_loop's
-    fit) instead of the project's default z gains."""
+    controller: "ns2" (the project's) or "authors" (the one that flew it, each robot
+    with its own gains: vehicle.authors_gains)."""
+    if controller not in ("ns2", "authors"):
+        raise ValueError(f"controller must be 'ns2' or 'authors', got {controller!r}")
     sp, start, t0, duration = logged_setpoints(pieces)
     types = list(pieces[0].types)
-    gains = None if z_loop is None else [z_gains(cfg, t, z_loop["kp_per_s2"], z_loop["kd_per_s"]) for t in types]
-    sw = CLoopSwarm(cfg, types, gen_dir, start, aero=True, learned=learned, seed=seed, rough=rough, gains=gains)
+    robots = pieces[0].robots or [None] * len(types)
+    authors = [authors_gains(t, r) for t, r in zip(types, robots)] if controller == "authors" else None
+    sw = CLoopSwarm(cfg, types, gen_dir, start, aero=True, learned=learned, seed=seed, rough=rough,
+                    controllers=[controller] * len(types), authors=authors)
     log = sw.run(duration, sp)
     return Flight(types, log["t"] + t0, log["p"], log["v"], log["q"], log["pwm"], log["battery_V"],
-                  name=pieces[0].name, p_d=log["p_d"], fa_onboard_g=log["fa_hat"][:, :, 2] * 1e3 / G)
+                  name=pieces[0].name, p_d=log["p_d"], fa_onboard_g=log["fa_hat"][:, :, 2] * 1e3 / G,
+                  robots=pieces[0].robots)

@@ -39,7 +39,7 @@ EFFECTS = ("vibration", "turbulence", "thrust", "battery")
 @dataclass(frozen=True)
 class Roughness:
     # propeller vibration (per 1 kHz sample), by robot type
-    vibration_acc_g: dict = field(default_factory=lambda: {"small": 0.0585, "large": 0.0674})
+    vibration_acc_g: dict = field(default_factory=lambda: {"small": 0.0585, "large": 0.0675})
     vibration_gyro_dps: dict = field(default_factory=lambda: {"small": 0.565, "large": 0.908})
     # rotor-wake turbulence
     turbulence_ratio: float = 0.055

@@ -2,4 +2,33 @@
 the simulator, the controller's gains and the generated firmware header)."""
 from ns2codegen.vehicle import G, STRONG, Vehicle, base_type, default_gains, vehicle
 
-__all__ = ["G", "STRONG", "Vehicle", "base_type", "default_gains", "vehicle"]
+__all__ = ["AUTHORS_GAINS", "G", "STRONG", "Vehicle", "authors_gains", "base_type", "default_gains", "vehicle"]
+
+# The controller that flew the paper's real flights (host/ctrl_authors.c): the position
+# gains of controller_sjc.c in the authors' Crazyswarm configuration
+# (aerorobotics/neural-swarm, hardware/neural-swarm-ros-pkg/launch/crazyflieTypes.yaml,
+# ctrlSJC.mass / Kpos_P / Kpos_D / Kpos_I / Kpos_I_limit), per robot by its
+# allCrazyflies.yaml: cf50-52 CF21SingleMarker, cf101-102 parrotFrameCF21SingleMarker;
+# cf100, the Crazyflie 2.0 on the large frame, parrotFrameSingleMarker.  One stored
+# version of that file (commit 0103346d); which one flew on 16 June 2020 is not recorded.
+AUTHORS_GAINS = {
+    "CF21SingleMarker": {"mass_kg": 0.034, "kp": [20.0, 20.0, 10.0], "kd": [10.0, 10.0, 5.0],
+                         "ki": [3.0, 3.0, 3.0], "i_max": 2.0},
+    "parrotFrameCF21SingleMarker": {"mass_kg": 0.067, "kp": [20.0, 20.0, 10.0], "kd": [10.0, 10.0, 5.0],
+                                    "ki": [3.0, 3.0, 3.0], "i_max": 2.0},
+    "parrotFrameSingleMarker": {"mass_kg": 0.067, "kp": [40.0, 40.0, 30.0], "kd": [20.0, 20.0, 15.0],
+                                "ki": [3.0, 3.0, 3.0], "i_max": 2.0},
+}
+AUTHORS_TYPE = {"small": "CF21SingleMarker", "large": "parrotFrameCF21SingleMarker"}
+AUTHORS_ROBOT_TYPE = {"cf100": "parrotFrameSingleMarker"}
+
+
+def authors_gains(robot_type: str, robot: str | None = None) -> dict:
+    """AUTHORS_GAINS of a robot: by its id where it had its own (cf100), else by its type."""
+    if robot in AUTHORS_ROBOT_TYPE:
+        return AUTHORS_GAINS[AUTHORS_ROBOT_TYPE[robot]]
+    bt = base_type(robot_type)
+    if bt not in AUTHORS_TYPE:
+        raise ValueError(f"robot type {robot_type!r}: the authors' controller gains are known for "
+                         f"{sorted(AUTHORS_TYPE)} only")
+    return AUTHORS_GAINS[AUTHORS_TYPE[bt]]

@@ -34,6 +34,7 @@ class Flight:
     fa_onboard_g: np.ndarray | None = None  # [T, N] the on-board prediction flown, NaN where not logged
     name: str = ""
     p_d: np.ndarray | None = None           # [T, N, 3] the logged position setpoint, NaN where not logged
+    robots: list[str] | None = None         # each robot's id (e.g. "cf100"), where known
 
 
 def labelled_steps(cfg: Config, flights: list[Flight]):

@@ -290,7 +290,8 @@ def align(types: list[str], robots: list[RobotLog], rate_hz: float = 100.0, max_
         st = {k: np.stack([x[k][a:b] for x in res], 1) for k in res[0]}
         flights.append(Flight(list(types), grid[a:b], st["p"], st["v"], st["q"], st["pwm"], st["battery_V"],
                               labelled=list(labelled) if labelled is not None else None,
-                              fa_onboard_g=st["fa_onboard_g"], name=name, p_d=st["p_d"]))
+                              fa_onboard_g=st["fa_onboard_g"], name=name, p_d=st["p_d"],
+                              robots=list(ids)))
     report = {"clock_offsets_s": offsets.tolist(), "sync": method, "alignment_error": err,
               "grid_samples": int(len(grid)), "duration_s": round(float(len(grid)) / rate_hz, 2),
               "used_samples": int(sum(len(f.t) for f in flights)), "pieces": len(flights),
