@@ -53,8 +53,10 @@ export-onboard: deps $(ONBOARD)/model.pt
 	$(NS2) export $(ONBOARD)/model.pt --out $(GEN)
 
 # ---------------------------------------------------------------- checks
+# two workers (pytest-xdist), a test file each at a time: its fixtures are built once
+TEST_WORKERS ?= 2
 test: deps
-	$(PYTHON) -m pytest tests
+	$(PYTHON) -m pytest -n $(TEST_WORKERS) --dist loadfile tests
 
 bench: deps
 	@$(PYTHON) benchmarks/bench_core.py

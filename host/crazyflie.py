@@ -100,16 +100,23 @@ def firmware_dir() -> Path:
 
 def _install(dest: Path, make) -> Path:
     """``make(tmp)`` builds the tree in a temporary folder beside ``dest``, which is
-    then moved into place with its marker: an interrupted run leaves nothing half-made."""
+    then moved into place with its marker: an interrupted run leaves nothing half-made,
+    and of concurrent installers (parallel test workers) the first complete tree stays."""
     made = not BUILD.exists()
     BUILD.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=".cf-", dir=BUILD))
     try:
         root = make(tmp)
         (root / MARKER).write_text(COMMIT + "\n")
+        if (dest / MARKER).is_file():       # another process installed it meanwhile: keep theirs
+            return dest
         if dest.exists():
             shutil.rmtree(dest)
-        root.rename(dest)
+        try:
+            root.rename(dest)
+        except OSError:
+            if not (dest / MARKER).is_file():
+                raise
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
         if made and not any(BUILD.iterdir()):

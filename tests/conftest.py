@@ -35,9 +35,12 @@ REAL_TARBALLS = ("neural-swarm-2020-06-16-swaps.tar.xz", "neural-swarm-2020-06-1
 
 def real_logs(tarball: str, members: list[str]) -> Path:
     """A folder holding ``members`` (paths inside ``tarball`` of ../shared/neural-swarm-data),
-    extracted once into a cache under build/ (the data are never committed)."""
+    extracted once into a cache under build/ (the data are never committed).  Concurrent
+    test workers race safely: each extracts into its own folder, the first rename wins."""
     import hashlib
+    import shutil
     import tarfile
+    import tempfile
 
     from ns2host import crazyflie
 
@@ -45,14 +48,17 @@ def real_logs(tarball: str, members: list[str]) -> Path:
     key = hashlib.sha256(f"{tarball}:{src.stat().st_size}:{sorted(members)}".encode()).hexdigest()[:16]
     root = Path(__file__).resolve().parents[1] / "build" / "test-real" / key
     if not (root / ".done").is_file():
-        tmp = root.with_name(root.name + ".tmp")
+        root.parent.mkdir(parents=True, exist_ok=True)
+        tmp = Path(tempfile.mkdtemp(prefix=f".{key}-", dir=root.parent))
         with tarfile.open(src) as tar:
             tar.extractall(tmp, members=[tar.getmember(m) for m in members], filter="data")
-        if root.exists():
-            import shutil
-            shutil.rmtree(root)
-        tmp.rename(root)
-        (root / ".done").write_text("")
+        (tmp / ".done").write_text("")
+        if root.exists() and not (root / ".done").is_file():
+            shutil.rmtree(root, ignore_errors=True)       # a half-made folder of an older layout
+        try:
+            tmp.rename(root)
+        except OSError:                                    # another worker's folder is in place
+            shutil.rmtree(tmp, ignore_errors=True)
     return root
 
 

@@ -43,7 +43,7 @@ def test_near_field_flights_teach_close_range_downwash(cfg, exported):
     type pair (the baseline-only model of the planner was 40-75 % low there)."""
     from ns2codegen.train import train
 
-    ds = collect(cfg, exported.gen_dir, 0.0, seed=2, team_list=PAIRS, near_field_seconds=120.0)
+    ds = collect(cfg, exported.gen_dir, 0.0, seed=2, team_list=PAIRS, near_field_seconds=120.0, workers=2)
     n = torch.get_num_threads()
     torch.set_num_threads(1)
     try:
