@@ -133,10 +133,12 @@ def test_fingerprint_read_through_cflib_is_the_exports(elf, exported, tmp_path):
         sw_.close_links()
 
 
-def test_a_flight_through_cflib(elf, exported, tmp_path):
-    from ns2host.cfhost import load_pptraj
-    from ns2ground import mission, swarm as sw
-    from ns2plan.output import eval_pieces, poly4d_bytes
+def _fly_two(elf, exported, tmp_path, log_values: dict):
+    """cf1 and cf7 fly _pieces through cflib (ns2ground.mission.fly, radio log
+    tmp_path/flight.jsonl), the test robots answering ``log_values``; returns the swarm,
+    the pieces and their bytes per robot, the test robots and the mission's report."""
+    from ns2ground import mission
+    from ns2plan.output import poly4d_bytes
 
     s = _swarm(tmp_path, exported.cfg)
     pieces = {"cf1": _pieces(1), "cf7": _pieces(2, 4)}
@@ -144,10 +146,20 @@ def test_a_flight_through_cflib(elf, exported, tmp_path):
     robots, sw_, links = _connect(elf, s)
     try:
         for r in robots.values():
-            r.log_values.update({"pm.vbat": 3.9, "ns2.faHat": 1.5, "stateEstimate.z": 0.5})
+            r.log_values.update(log_values)
         rep = mission.fly(links, s, exported.cfg, exported.gen_dir, plans, tmp_path / "flight.jsonl", _fast())
     finally:
         sw_.close_links()
+    return s, pieces, plans, robots, rep
+
+
+def test_a_flight_through_cflib(elf, exported, tmp_path):
+    from ns2host.cfhost import load_pptraj
+    from ns2ground import swarm as sw
+    from ns2plan.output import eval_pieces
+
+    s, pieces, plans, robots, rep = _fly_two(elf, exported, tmp_path,
+                                             {"pm.vbat": 3.9, "ns2.faHat": 1.5, "stateEstimate.z": 0.5})
     names = _hl_commands()
     ffi, lib = load_pptraj()
     for r in s.enabled:
@@ -225,19 +237,10 @@ def test_the_firmwares_commander_flies_what_cflib_sent(elf, exported, tmp_path, 
     the take-off, and the take-off and start addressed to that group, the planner flying the planner's polynomials from
     the start on, landing after; the starts of all robots left in one burst.  Without
     the group, the firmware ignores the start: the group mask is what starts it."""
-    from ns2ground import cf, mission
-    from ns2plan.output import eval_pieces, poly4d_bytes
+    from ns2ground import cf
+    from ns2plan.output import eval_pieces
 
-    s = _swarm(tmp_path, exported.cfg)
-    pieces = {"cf1": _pieces(1), "cf7": _pieces(2, 4)}
-    plans = {n: poly4d_bytes(p) for n, p in pieces.items()}
-    robots, sw_, links = _connect(elf, s)
-    try:
-        for r in robots.values():
-            r.log_values["pm.vbat"] = 3.9
-        mission.fly(links, s, exported.cfg, exported.gen_dir, plans, tmp_path / "f.jsonl", _fast())
-    finally:
-        sw_.close_links()
+    _, pieces, _, robots, _ = _fly_two(elf, exported, tmp_path, {"pm.vbat": 3.9})
     names = {v: k for k, v in _hl_commands().items()}
     start = names["COMMAND_START_TRAJECTORY_2"]
     starts = [i for i, (_, port, _, d) in enumerate(cfrobot.SENT) if port == cfrobot.PORT_HL and d[0] == start]

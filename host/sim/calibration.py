@@ -225,7 +225,7 @@ def sim_to_real_table(cmp: dict) -> str:
                 continue
             ok = abs(x / rv - 1.0) <= SIM_TO_REAL_TOL
             within[v] += ok
-            cells.append(f"{100 * x:.1f} ({x / rv:.2f}{'*' if ok else ''})")
+            cells.append(f"{100 * x:.1f} ({_ratio(x, rv)}{'*' if ok else ''})")
         lines.append(f"| {case} | {r['swaps']} | {100 * rv:.1f} | " + " | ".join(cells) + " |")
     lines.append(f"| within 30 % (*) | | | " + " | ".join(f"{within[v]} of {len(cases)}" for v in sims) + " |")
     return "\n".join(lines) + "\n"
@@ -237,7 +237,7 @@ def paper_l2s_table(l2s: dict) -> str:
              "|---|---|---|---|---|---|"]
     for c, r in l2s.items():
         sim, paper = r["median_worst_z_error_m"], r["paper_m"]
-        lines.append(f"| {c} | {len(r['worst_z_error_m'])} | {100 * sim:.1f} | {100 * paper:.0f} | {sim / paper:.2f} | "
+        lines.append(f"| {c} | {len(r['worst_z_error_m'])} | {100 * sim:.1f} | {100 * paper:.0f} | {_ratio(sim, paper)} | "
                      f"{'yes' if abs(sim / paper - 1.0) <= SIM_TO_REAL_TOL else 'no'} |")
     return "\n".join(lines) + "\n"
 

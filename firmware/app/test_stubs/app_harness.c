@@ -78,24 +78,36 @@ static void tell(int id, float x, float y, float z)
     (void)peerLocalizationTellPosition(id, &m);
 }
 
-static void hover_setpoint(state_t *state, setpoint_t *sp)
+/* What the stabilizer hands the app's controller: a robot hovering at 1 m. */
+typedef struct {
+    state_t state;
+    setpoint_t sp;
+    sensorData_t sensors;
+    control_t control;
+} rig_t;
+
+/* The rig hovering, the app booted (controllerOutOfTreeInit). */
+static void rig_boot(rig_t *r)
 {
-    memset(state, 0, sizeof *state);
-    memset(sp, 0, sizeof *sp);
-    state->position.z = 1.0f;
-    state->attitudeQuaternion.w = 1.0f;
-    sp->position.z = 1.0f;
-    sp->mode.x = sp->mode.y = sp->mode.z = modeAbs;
+    memset(r, 0, sizeof *r);
+    r->state.position.z = 1.0f;
+    r->state.attitudeQuaternion.w = 1.0f;
+    r->sp.position.z = 1.0f;
+    r->sp.mode.x = r->sp.mode.y = r->sp.mode.z = modeAbs;
+    controllerOutOfTreeInit();
+}
+
+/* One stabilizer tick of the app's controller at the clock's millisecond `tick`. */
+static void rig_tick(rig_t *r, uint32_t tick)
+{
+    now_ms = tick;
+    controllerOutOfTree(&r->control, &r->sp, &r->sensors, &r->state, tick);
 }
 
 static int swarm(int n_robots, int per_ms)
 {
-    state_t state;
-    setpoint_t sp;
-    sensorData_t sensors = {0};
-    control_t control = {0};
-    hover_setpoint(&state, &sp);
-    controllerOutOfTreeInit();
+    rig_t r;
+    rig_boot(&r);
     uint16_t n_max = 0;
     int held_max = 0;
     for (uint32_t tick = 1; tick <= 1000u; ++tick) {
@@ -110,7 +122,7 @@ static int swarm(int n_robots, int per_ms)
             held += peerLocalizationGetPositionByIdx(i)->id != 0u;
         }
         held_max = held > held_max ? held : held_max;
-        controllerOutOfTree(&control, &sp, &sensors, &state, tick);
+        rig_tick(&r, tick);
         n_max = nUsed > n_max ? nUsed : n_max;
     }
     printf("{\"robots\": %d, \"per_ms\": %d, \"firmware_table_max\": %d, \"app_peers\": %u, \"n_used\": %u}\n",
@@ -236,12 +248,8 @@ static void print_gains(const char *name, const ns2_gains_t *g)
 static int params(int argc, char **argv)
 {
     _Static_assert(sizeof(ns2_gains_t) % sizeof(float) == 0, "ns2_gains_t is floats");
-    state_t state;
-    setpoint_t sp;
-    sensorData_t sensors = {0};
-    control_t control = {0};
-    hover_setpoint(&state, &sp);
-    controllerOutOfTreeInit();
+    rig_t r;
+    rig_boot(&r);
     uint32_t tick = 0;
     for (int a = 2; a < argc; ++a) {
         char group[32], name[32];
@@ -249,8 +257,7 @@ static int params(int argc, char **argv)
         unsigned n;
         if (sscanf(argv[a], "tick:%u", &n) == 1) {
             for (unsigned k = 0; k < n; ++k, ++tick) {
-                now_ms = tick;
-                controllerOutOfTree(&control, &sp, &sensors, &state, tick);
+                rig_tick(&r, tick);
             }
             continue;
         }
@@ -262,11 +269,8 @@ static int params(int argc, char **argv)
                                 : strcmp(group, "ns2type") == 0 ? __params_ns2type
                                 : strcmp(group, "ns2gain") == 0 ? __params_ns2gain
                                                                 : NULL;
-        const struct param_s *e = table;
-        while (e != NULL && e->type != (PARAM_GROUP | PARAM_STOP) && (e == table || strcmp(e->name, name) != 0)) {
-            ++e;
-        }
-        if (e == NULL || e->type == (PARAM_GROUP | PARAM_STOP)) {
+        const struct param_s *e = table != NULL ? param_find(table, name) : NULL;
+        if (e == NULL) {
             fprintf(stderr, "%s: no such parameter of the app\n", argv[a]);
             return 1;
         }
@@ -309,12 +313,8 @@ int main(int argc, char **argv)
     }
     const uint8_t fixed = (uint8_t)(argc > 1 ? atoi(argv[1]) : 1);
     const uint8_t enable = (uint8_t)(argc > 2 ? atoi(argv[2]) : 1);
-    state_t state;
-    setpoint_t sp;
-    sensorData_t sensors = {0};
-    control_t control = {0};
-    hover_setpoint(&state, &sp);
-    controllerOutOfTreeInit();
+    rig_t r;
+    rig_boot(&r);
     cfg.fixed = fixed;
     cfg.enable = enable;
     typeMask1 = 1u << 2; /* radio id 2 is a large robot */
@@ -325,9 +325,9 @@ int main(int argc, char **argv)
         if (tick == 500u) {
             syncSeq = 42u; /* the broadcast parameter write */
         }
-        controllerOutOfTree(&control, &sp, &sensors, &state, tick);
+        rig_tick(&r, tick);
         for (int m = 0; m < 4; ++m) {
-            sum[m] += control.normalizedForces[m];
+            sum[m] += r.control.normalizedForces[m];
         }
     }
     /* the same prediction, directly */
@@ -345,15 +345,14 @@ int main(int argc, char **argv)
 #error "the harness compares both inference paths: build it with NS2_APP_FIXED=1 NS2_APP_FLOAT=1"
 #endif
     printf("{\"mode\": %d, \"fa_hat_g\": %.9g, \"direct_g\": %.9g, \"n\": %u, \"mean_pwm\": [%.6g, %.6g, %.6g, %.6g]",
-           (int)control.controlMode, (double)faHat, (double)direct, (unsigned)n,
+           (int)r.control.controlMode, (double)faHat, (double)direct, (unsigned)n,
            (double)(sum[0] / 1000.0f), (double)(sum[1] / 1000.0f), (double)(sum[2] / 1000.0f),
            (double)(sum[3] / 1000.0f));
-    sp.mode.z = modeDisable;
-    now_ms = 1000u;
-    controllerOutOfTree(&control, &sp, &sensors, &state, 1000u);
+    r.sp.mode.z = modeDisable;
+    rig_tick(&r, 1000u);
     printf(", \"sync\": [%u, %u]", (unsigned)sync_events, (unsigned)sync_seq);
-    printf(", \"off_pwm\": [%g, %g, %g, %g]}\n", (double)control.normalizedForces[0],
-           (double)control.normalizedForces[1], (double)control.normalizedForces[2],
-           (double)control.normalizedForces[3]);
+    printf(", \"off_pwm\": [%g, %g, %g, %g]}\n", (double)r.control.normalizedForces[0],
+           (double)r.control.normalizedForces[1], (double)r.control.normalizedForces[2],
+           (double)r.control.normalizedForces[3]);
     return 0;
 }

@@ -12,23 +12,32 @@
 
 #include "param.h"
 
+/* The entry `name` of the group, NULL if none. */
+static struct param_s *param_find(struct param_s *group, const char *name)
+{
+    for (struct param_s *p = group + 1; p->type != (PARAM_GROUP | PARAM_STOP); ++p) {
+        if (strcmp(p->name, name) == 0) {
+            return p;
+        }
+    }
+    return NULL;
+}
+
 /* 0 written; -1 no such name in the group; -2 read-only or the size differs */
 static int param_write(struct param_s *group, const char *name, const void *value, size_t size)
 {
-    for (struct param_s *p = group + 1; p->type != (PARAM_GROUP | PARAM_STOP); ++p) {
-        if (strcmp(p->name, name) != 0) {
-            continue;
-        }
-        if ((p->type & PARAM_RONLY) || size != (size_t)(1u << (p->type & PARAM_BYTES_MASK))) {
-            return -2;
-        }
-        memcpy(p->address, value, size);
-        if (p->callback) {
-            p->callback();
-        }
-        return 0;
+    struct param_s *p = param_find(group, name);
+    if (p == NULL) {
+        return -1;
     }
-    return -1;
+    if ((p->type & PARAM_RONLY) || size != (size_t)(1u << (p->type & PARAM_BYTES_MASK))) {
+        return -2;
+    }
+    memcpy(p->address, value, size);
+    if (p->callback) {
+        p->callback();
+    }
+    return 0;
 }
 
 #endif
