@@ -98,9 +98,9 @@ def _vib(base: Roughness, ty: str, acc: float, gyro: float) -> Roughness:
 
 
 def replay_all(cfg: Config, gen_dir, pieces: dict, rough: Roughness | None, workers: int = 1,
-               seed: int = 0, controller: str = "ns2") -> list[Flight]:
+               seed: int = 0, controller: str = "ns2", learned: str = "float") -> list[Flight]:
     """Replay every flight of ``pieces`` (name -> real pieces); ``workers`` processes;
-    ``controller``: replay.replay's."""
+    ``controller``, ``learned``: replay.replay's."""
     names = sorted(pieces)
     if workers > 1 and len(names) > 1:
         import multiprocessing
@@ -109,13 +109,14 @@ def replay_all(cfg: Config, gen_dir, pieces: dict, rough: Roughness | None, work
         from ns2host.cfhost import load_fly
         load_fly(gen_dir)
         with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("fork")) as ex:
-            return list(ex.map(_replay_one, [(cfg, pieces[n], gen_dir, rough, seed, controller) for n in names]))
-    return [_replay_one((cfg, pieces[n], gen_dir, rough, seed, controller)) for n in names]
+            return list(ex.map(_replay_one, [(cfg, pieces[n], gen_dir, rough, seed, controller, learned)
+                                             for n in names]))
+    return [_replay_one((cfg, pieces[n], gen_dir, rough, seed, controller, learned)) for n in names]
 
 
 def _replay_one(args) -> Flight:
-    cfg, pcs, gen_dir, rough, seed, controller = args
-    return replay(cfg, pcs, gen_dir, learned="float", rough=rough, seed=seed, controller=controller)
+    cfg, pcs, gen_dir, rough, seed, controller, learned = args
+    return replay(cfg, pcs, gen_dir, learned=learned, rough=rough, seed=seed, controller=controller)
 
 
 def fit_pieces(flights: list[Flight]) -> dict:
@@ -189,15 +190,21 @@ def fit(cfg: Config, gen_dir, flights: list[Flight], hover_by_robot: dict, robot
     return rough, {"real": real, "vibration_probes": vib_rows, "turbulence": turb_rows}
 
 
-VARIANTS = ("clean", "rough", "rough, the authors' controller")
+# label -> (rough, controller, learned) of the replays (replay.replay)
+VARIANTS = {"clean": (False, "ns2", "float"), "rough": (True, "ns2", "float"),
+            "rough, the authors' controller": (True, "authors", "float"),
+            "rough, the authors' controller, the prediction flown": (True, "authors", "logged")}
 
 
 def compare(cfg: Config, gen_dir, flights: list[Flight], rough: Roughness, names: list[str] | None = None,
             workers: int = 1) -> dict:
-    """Statistics of step 1 for the real flights and three simulators: clean, rough
-    (``rough``), rough with the position law and gains of the controller that flew
-    the real flights (host/ctrl_authors.c): free air from the probes, the rest over
-    the replayed swap flights (``names``: a subset; the real side is the same subset)."""
+    """Statistics of step 1 for the real flights and four simulators (VARIANTS): clean,
+    rough (``rough``), rough with the position law and gains of the controller that
+    flew the real flights (host/ctrl_authors.c) and the network of ``gen_dir`` in the
+    loop, and the same controller flying the prediction the real robots logged
+    instead of a network: free air from the probes (no neighbour, no learned force:
+    the last two share theirs), the rest over the replayed swap flights (``names``: a
+    subset; the real side is the same subset)."""
     by = pieces_by_flight(swap_flights(flights))
     if names is not None:
         by = {n: by[n] for n in names}
@@ -207,11 +214,13 @@ def compare(cfg: Config, gen_dir, flights: list[Flight], rough: Roughness, names
                                           "z_loop": zl, "wake_scatter": fs.wake_scatter(cfg, real_sw),
                                           "swaps": fs.swap_errors(real_sw),
                                           "unpredicted": fs.unpredicted(cfg, real_sw)}}
-    for label in VARIANTS:
-        r = None if label == "clean" else rough
-        ctrl = "authors" if label.endswith("controller") else "ns2"
-        probes = [probe_flight(cfg, gen_dir, ty, r, ctrl) for ty in cfg.robot_types]
-        sims = replay_all(cfg, gen_dir, by, r, workers, controller=ctrl)
+    probed: dict = {}
+    for label, (is_rough, ctrl, learned) in VARIANTS.items():
+        r = rough if is_rough else None
+        if (is_rough, ctrl) not in probed:
+            probed[is_rough, ctrl] = [probe_flight(cfg, gen_dir, ty, r, ctrl) for ty in cfg.robot_types]
+        probes = probed[is_rough, ctrl]
+        sims = replay_all(cfg, gen_dir, by, r, workers, controller=ctrl, learned=learned)
         out[label] = {"free_air": {ty: fs.free_air(cfg, [p])[ty] for ty, p in zip(cfg.robot_types, probes)},
                       "z_loop": fs.z_loop(cfg, probes), "battery": fs.battery(sims),
                       "wake_scatter": fs.wake_scatter(cfg, sims), "swaps": fs.swap_errors(sims),

@@ -221,7 +221,8 @@ uint32_t ns2_fly_run(ns2_fly_robot_t *rob, uint32_t n, double *x, const double *
                 if (r->kind == NS2_FLY_AUTHORS) { /* ns2_pilot_tick with the authors' position law */
                     if (do_pos) {
                         ns2_pilot_period(&r->pilot, &s, r->id, tick);
-                        const float fa_z_N = r->pilot.cfg.enable ? r->pilot.fa_hat_g * 1e-3f * (float)G_SIM : 0.0f;
+                        const float fa_g = r->fa_given ? r->fa_given_g : (r->pilot.cfg.enable ? r->pilot.fa_hat_g : 0.0f);
+                        const float fa_z_N = fa_g * 1e-3f * (float)G_SIM;
                         ns2_authors_position(&r->authors, &r->pilot.ctrl, &s, &sp[i], fa_z_N,
                                              1.0f / (float)NS2_PILOT_POS_HZ);
                     }

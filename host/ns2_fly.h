@@ -56,6 +56,8 @@ typedef struct {
     control_t control;
     float supply_V;
     float pwm[4];              /* motor commands in [0, 1] */
+    uint32_t fa_given;         /* NS2_FLY_AUTHORS: 1 = fly fa_given_g instead of the network's f_a,z-hat */
+    float fa_given_g;          /* a prediction given from outside (a real flight's logged ctrlFa.Faz), g */
     uint32_t n_peers;          /* peer-localization table */
     uint8_t peer_id[NS2_FLY_MAX_PEERS], peer_type[NS2_FLY_MAX_PEERS];
     uint32_t peer_t[NS2_FLY_MAX_PEERS];

@@ -107,3 +107,37 @@ def test_authors_law_holds_the_steady_state_of_its_equation(cfg, exported):
         e_pred = (1.0 / (k * 0.9) - 1.0) * 9.81 / kp
         assert z_error(6.0, mass_kg=0.9 * m, kp=[20.0, 20.0, kp], **no_i) == pytest.approx(e_pred, abs=0.003)
     assert abs(z_error(16.0, mass_kg=0.9 * m)) < 0.005
+
+
+def test_a_given_prediction_is_flown_as_the_law_says(cfg, exported):
+    """fa_given (a real flight's logged prediction, host/sim/replay.py): a given 0 g flies
+    bit for bit as no learned force; a given c g is subtracted from the law's force, so
+    without the integral the robot settles where k (m (g + kp e) - c g0) = m g (k from
+    the 0 g run, as above), below the setpoint; the log records what was flown; a step
+    in the given signal is read at the next position tick."""
+    m = vehicle(cfg, "small").mass
+    p0 = [[0.0, 0.0, 1.0]]
+    gains = dict(authors_gains("small"), mass_kg=m, ki=[0.0] * 3)
+
+    def fly(fa_given, seconds=6.0):
+        sw = CLoopSwarm(cfg, ["small"], exported.gen_dir, p0, controllers=["authors"], authors=[gains], seed=1,
+                        fa_given=fa_given)
+        return sw.run(seconds, hover_setpoints(p0), settle_s=0.5)
+
+    def settled(log):
+        last = log["t"] > log["t"][-1] - 2.0
+        return float(np.mean(log["p_d"][last, 0, 2] - log["p"][last, 0, 2]))
+
+    none, zero = fly(None), fly(lambda t: np.zeros(1))
+    assert np.array_equal(none["p"], zero["p"]) and np.array_equal(none["pwm"], zero["pwm"])
+    k = 1.0 / (1.0 + settled(zero) * 10.0 / 9.81)
+    c = 3.0
+    given = fly(lambda t: np.full(1, c))
+    e_pred = (m * 9.81 / k - m * 9.81 + c * 1e-3 * 9.81) / (m * 10.0)
+    assert e_pred > 0.03 and settled(given) == pytest.approx(e_pred, abs=0.004)
+    assert np.allclose(given["fa_hat"][:, 0, 2], c * 1e-3 * 9.81, rtol=1e-6)
+    step = fly(lambda t: np.full(1, c if t >= 1.0 else 0.0), 2.0)["fa_hat"][:, 0, 2]
+    t = np.arange(len(step)) / 100.0
+    assert np.all(step[t < 0.995] == 0.0) and np.allclose(step[t > 1.005], c * 1e-3 * 9.81, rtol=1e-6)
+    with pytest.raises(ValueError, match="authors"):
+        CLoopSwarm(cfg, ["small"], exported.gen_dir, p0, fa_given=lambda t: np.zeros(1))

@@ -15,7 +15,7 @@ from ns2codegen.logs.collection import COLLECTION
 from ns2exp.calibrate import _quadrature, thrust_sd
 from ns2host.sim import flightstats as fs
 from ns2host.sim.cloop import CLoopSwarm, hover_setpoints
-from ns2host.sim.replay import logged_setpoints, pieces_by_flight, replay
+from ns2host.sim.replay import logged_prediction, logged_setpoints, pieces_by_flight, replay
 from ns2host.sim.roughness import Roughness, Turbulence, hp_share
 from ns2host.sim.scenarios import swap
 
@@ -187,6 +187,19 @@ def test_a_real_swap_measured_and_replayed(cfg, exported):
     assert list(sa) == ["S2L"] and abs(sa["S2L"]["swaps"] - r["swaps"]) <= 1
     assert 0 < sa["S2L"]["median_worst_z_error_m"] < 0.5
     assert sa["S2L"]["median_worst_z_error_m"] != s["S2L"]["median_worst_z_error_m"]
+    # the same controller flying the prediction the real robots logged: what the replay flew is it
+    flown = logged_prediction(pieces)
+    lg = replay(cfg, pieces, exported.gen_dir, learned="logged", rough=Roughness(), controller="authors")
+    want = np.array([flown(tt - t0) for tt in lg.t])
+    assert np.allclose(lg.fa_onboard_g, want.astype(np.float32), atol=1e-4)
+    for p in pieces:                                        # ... and that is the logged one
+        got, ok = np.array([flown(tt - t0) for tt in p.t]), np.isfinite(p.fa_onboard_g)
+        assert ok.mean() > 0.9 and np.abs(got[ok] - p.fa_onboard_g[ok]).max() < 1e-6
+    sl = fs.swap_errors([lg])
+    assert list(sl) == ["S2L"] and abs(sl["S2L"]["swaps"] - r["swaps"]) <= 1
+    assert 0 < fs.unpredicted(cfg, [lg])["S2L"]["slow_rms_g"] < 20
+    with pytest.raises(ValueError, match="authors"):
+        replay(cfg, pieces, exported.gen_dir, learned="logged")
 
 
 def test_sim_to_real_and_paper_tables():

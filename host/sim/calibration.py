@@ -199,7 +199,7 @@ def roughness_table(cmp: dict, judged: str = "rough") -> str:
         for st in ("start_V", "slope_V_per_min"):
             row(f"battery, {ty}: {st}", ("battery", ty, st), 4 if st == "slope_V_per_min" else 3)
     for case in sorted(real.get("unpredicted", {})):
-        for st in ("rms_g", "mean_g", "label_rms_g"):
+        for st in ("rms_g", "mean_g", "slow_rms_g", "label_rms_g"):
             row(f"swap {case}, bottom robot in a wake: label - prediction flown, {st}", ("unpredicted", case, st))
     for case in sorted(real["swaps"]):
         row(f"swap {case}: median worst z error (m)", ("swaps", case, "median_worst_z_error_m"), 4)

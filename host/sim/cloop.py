@@ -69,7 +69,7 @@ class CLoopSwarm:
     def __init__(self, cfg: Config, types: list[str], gen_dir, positions, learned: str | None = None,
                  aero: bool = False, battery_V: float = 3.9, controllers=None, gains=None,
                  sensing: Sensing | None = None, seed: int = 0, rough: Roughness | None = None,
-                 authors=None):
+                 authors=None, fa_given: Callable | None = None):
         """learned: None (baseline, f_a = 0), "float" or "fixed"; aero: ground-truth
         interactions (host/sim/aero.py) on or off; controllers: per robot "ns2" (the
         app's path, default), "mellinger" (the firmware's) or "authors" (the app's path
@@ -80,7 +80,9 @@ class CLoopSwarm:
         "authors");
         sensing: the figures of host/sim/sensing.py; seed: noise, biases and losses;
         rough: a real Crazyflie's unmodelled effects (host/sim/roughness.py; None: the
-        clean simulator)."""
+        clean simulator); fa_given: None, or ``fa_given(t)`` -> f_a,z-hat [N] in g that
+        the "authors" robots fly instead of their network's (read at 100 Hz: a real
+        flight's logged prediction, replay.py)."""
         if learned not in (None, "float", "fixed"):
             raise ValueError(f"learned must be None, 'float' or 'fixed', got {learned!r}")
         self.cfg = cfg
@@ -131,9 +133,18 @@ class CLoopSwarm:
             it.pilot_cfg.fixed = int(learned != "float")
             lib.ns2_fly_init(ffi.addressof(self.robots, i), it)
         self.controllers = controllers
+        if fa_given is not None and "authors" not in controllers:
+            raise ValueError("fa_given is flown by the 'authors' controller only")
+        self.fa_given = fa_given
         self.sps = np.zeros((n, 13), np.float32)      # ns2_setpoint_t: p, v, a, yaw, w
         self.est = ffi.new("float[13]")
         self._ms, self._k, self._frames = 0, 0, deque()   # where a later run() goes on from
+
+    def _fa_flown_g(self, i: int) -> float:
+        r = self.robots[i]
+        if r.fa_given:
+            return float(r.fa_given_g)
+        return float(r.pilot.fa_hat_g) if self.learned else 0.0
 
     def _estimate(self, i: int) -> np.ndarray:
         self.lib.ns2_fly_estimate(self.ffi.addressof(self.robots, i), self.est)
@@ -173,6 +184,11 @@ class CLoopSwarm:
                 sp = hover if k < settle else setpoints(t, st)
                 self.sps[:, 0:3], self.sps[:, 3:6], self.sps[:, 6:9] = sp.p, sp.v, sp.a
                 self.sps[:, 9], self.sps[:, 10:13] = sp.yaw, 0.0
+                if self.fa_given is not None:
+                    fg = np.asarray(self.fa_given(t), float) if k >= settle else np.zeros(n)
+                    for i in range(n):
+                        if self.controllers[i] == "authors":
+                            self.robots[i].fa_given, self.robots[i].fa_given_g = 1, float(fg[i])
             if ms % frame_every == 0:  # a mocap frame of every marker, broadcast after latency_ms
                 p_meas = (st.p + self.rng.normal(0.0, se.mocap_sd_m, st.p.shape)).astype(np.float32)
                 rx = (self.rng.random(n) >= se.loss).astype(np.uint8)
@@ -200,8 +216,7 @@ class CLoopSwarm:
                 log.truth_v.append(st.v.copy())
                 log.truth_fa.append(f_a.copy())
                 log.p_d.append(self.sps[:, 0:3].astype(float))
-                log.fa_hat.append([[0.0, 0.0, self.robots[i].pilot.fa_hat_g * G / 1000.0 if self.learned else 0.0]
-                                   for i in range(n)])
+                log.fa_hat.append([[0.0, 0.0, self._fa_flown_g(i) * G / 1000.0] for i in range(n)])
                 log.status.append([self.robots[i].pilot.ctrl.status for i in range(n)])
                 log.pilot_status.append([self.robots[i].pilot.status for i in range(n)])
             noise = self.rng.standard_normal((STEP_TICKS, n, 6), dtype=np.float32)

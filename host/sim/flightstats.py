@@ -270,7 +270,9 @@ UNPREDICTED_MIN_G = 3.0   # g: the bottom robot is in a wake (or the ground effe
 
 def unpredicted(cfg: Config, flights: list[Flight]) -> dict:
     """Per swap scenario: rms and mean (g) of label - fa_onboard_g of the bottom robot
-    where |label| > UNPREDICTED_MIN_G, the rms of those labels, and the samples."""
+    where |label| > UNPREDICTED_MIN_G, the rms of its slow part there (its HP_WINDOW
+    moving average over the labelled samples: what the z loop has time to follow), the
+    rms of those labels, and the samples."""
     acc: dict = {}
     for fl, i, fz in _labels_g(cfg, flights):
         if fl.p_d is None or fl.fa_onboard_g is None or len(fl.types) < 2:
@@ -279,15 +281,20 @@ def unpredicted(cfg: Config, flights: list[Flight]) -> dict:
         if i != order[0]:
             continue
         ok = np.isfinite(fz) & np.isfinite(fl.fa_onboard_g[:, i]) & (np.abs(fz) > UNPREDICTED_MIN_G)
-        a = acc.setdefault(swap_case(fl.types, i, order), {"d": [], "x": []})
-        a["d"].append(fz[ok] - fl.fa_onboard_g[ok, i])
+        d = fz - fl.fa_onboard_g[:, i]
+        have = np.isfinite(d)
+        slow = moving_average(np.where(have, d, 0.0), HP_WINDOW) / np.maximum(
+            moving_average(have.astype(float), HP_WINDOW), 1e-9)
+        a = acc.setdefault(swap_case(fl.types, i, order), {"d": [], "x": [], "s": []})
+        a["d"].append(d[ok])
         a["x"].append(fz[ok])
+        a["s"].append(slow[ok])
     out = {}
     for case, a in sorted(acc.items()):
-        d, x = np.concatenate(a["d"]), np.concatenate(a["x"])
+        d, x, sl = (np.concatenate(a[k]) for k in ("d", "x", "s"))
         if d.size:
             out[case] = {"samples": int(d.size), "rms_g": _r(np.sqrt((d ** 2).mean())), "mean_g": _r(d.mean()),
-                         "label_rms_g": _r(np.sqrt((x ** 2).mean()))}
+                         "slow_rms_g": _r(np.sqrt((sl ** 2).mean())), "label_rms_g": _r(np.sqrt((x ** 2).mean()))}
     return out
 
 

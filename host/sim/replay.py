@@ -2,7 +2,8 @@
 (``ctrltargetZ``: what the robots' high-level commanders sent to their controllers)
 from the logged start, every robot as a Crazyflie (cloop.py) with a learned f_a in
 the loop (the collection of 16 June 2020 flew the authors' network: import it with
-``ns2 real import-authors`` and export it).  The simulated flight comes back as a
+``ns2 real import-authors`` and export it; or fly the prediction the real robots
+logged, learned="logged").  The simulated flight comes back as a
 ``Flight`` with the same time base and setpoints, so host/sim/flightstats.py measures
 both the same way (the sim-to-real table, docs/simulator.md).
 
@@ -57,20 +58,47 @@ def logged_setpoints(pieces: list[Flight]):
     return sp, p[0], float(grid[0]), float(grid[-1] - grid[0])
 
 
+def logged_prediction(pieces: list[Flight]):
+    """``fa(tau)`` -> [N] g: the on-board prediction each robot flew (ctrlFa.Faz), on
+    the time base of logged_setpoints (tau = 0 at the first logged sample), linear
+    across cut gaps and missing samples."""
+    if any(p.fa_onboard_g is None for p in pieces):
+        raise ValueError(f"flight {pieces[0].name!r}: no on-board prediction logged")
+    t = np.concatenate([p.t for p in pieces])
+    fa = np.concatenate([p.fa_onboard_g for p in pieces])
+    order = np.argsort(t)
+    t, fa = t[order], fa[order]
+    ok = np.isfinite(fa)
+    if not ok.any(axis=0).all():
+        raise ValueError(f"flight {pieces[0].name!r}: a robot's on-board prediction is never logged")
+    grid = np.arange(t[0], t[-1] + 1e-9, 0.01)
+    f = np.stack([np.interp(grid, t[ok[:, i]], fa[ok[:, i], i]) for i in range(fa.shape[1])], 1)
+
+    def fa_at(tau):
+        return f[int(np.clip(round(tau / 0.01), 0, len(grid) - 1))]
+
+    return fa_at
+
+
 def replay(cfg: Config, pieces: list[Flight], gen_dir, learned: str | None = "float",
            rough: Roughness | None = None, seed: int = 0, controller: str = "ns2") -> Flight:
     """Fly one real flight's setpoints with its team in the simulator; the drones'
     log as a Flight (time as the real flight's, estimated states, setpoints).
     controller: "ns2" (the project's) or "authors" (the one that flew it, each robot
-    with its own gains: vehicle.authors_gains)."""
+    with its own gains: vehicle.authors_gains); learned: cloop.CLoopSwarm's, or
+    "logged": the "authors" robots fly the prediction the real robots flew
+    (logged_prediction), not a network of ``gen_dir``."""
     if controller not in ("ns2", "authors"):
         raise ValueError(f"controller must be 'ns2' or 'authors', got {controller!r}")
+    if learned == "logged" and controller != "authors":
+        raise ValueError("learned='logged' is flown by controller='authors' only")
     sp, start, t0, duration = logged_setpoints(pieces)
     types = list(pieces[0].types)
     robots = pieces[0].robots or [None] * len(types)
     authors = [authors_gains(t, r) for t, r in zip(types, robots)] if controller == "authors" else None
-    sw = CLoopSwarm(cfg, types, gen_dir, start, aero=True, learned=learned, seed=seed, rough=rough,
-                    controllers=[controller] * len(types), authors=authors)
+    given = logged_prediction(pieces) if learned == "logged" else None
+    sw = CLoopSwarm(cfg, types, gen_dir, start, aero=True, learned=None if given is not None else learned, seed=seed,
+                    rough=rough, controllers=[controller] * len(types), authors=authors, fa_given=given)
     log = sw.run(duration, sp)
     return Flight(types, log["t"] + t0, log["p"], log["v"], log["q"], log["pwm"], log["battery_V"],
                   name=pieces[0].name, p_d=log["p_d"], fa_onboard_g=log["fa_hat"][:, :, 2] * 1e3 / G,
