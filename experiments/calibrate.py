@@ -158,6 +158,38 @@ def fit_turbulence(cfg: Config, gen_dir, flights: list[Flight], base: Roughness,
     return ratio, tau, {"pairs": rows, "fast_share_of_excess": round(share, 3), "flights": sorted(pieces)}
 
 
+LATERAL_FIT_EVERY = 4   # labelled steps: every 4th (40 ms) for the least squares of lateral_k_xy
+
+
+def lateral_k_xy(cfg: Config, flights: list[Flight]) -> dict:
+    """The ground truth's lateral push constant (host/sim/aero.py K_XY) read off
+    flights: least squares of their horizontal residual labels (less the truth's
+    drag) on the truth's wake push with K_XY = 1 at the same (estimated) states, every
+    robot of the swap flights where that push exceeds 0.5 g, per robot type and
+    pooled.  The labels see a steady lateral force only in part (the EKF reads some of
+    it as tilt), so the reading is compared between real and replayed flights, not
+    with the truth's constant."""
+    from ns2codegen.data.from_logs import labelled_steps
+    from ns2host.sim.aero import C_DRAG, K_XY, calibrated
+    from ns2host.sim.vehicle import G, vehicle
+
+    num: dict = {}
+    for fl, i, steps, fa in labelled_steps(cfg, swap_flights(flights)):
+        steps = steps[::LATERAL_FIT_EVERY]
+        model = calibrated([vehicle(cfg, t) for t in fl.types], vehicle(cfg, cfg.robot_types[0]), k_xy=1.0)
+        drag = -C_DRAG * model.mass[i] * fl.v[steps, i, :2]
+        basis = np.array([model.forces(fl.p[k], fl.v[k])[i, :2] for k in steps]) - drag
+        real = fa[steps, :2] - drag
+        ok = np.isfinite(real).all(1) & (np.linalg.norm(basis, axis=1) * 1e3 / G > 0.5)
+        for key in (fl.types[i], "all"):
+            a = num.setdefault(key, [0.0, 0.0, 0])
+            a[0] += float((basis[ok] * real[ok]).sum())
+            a[1] += float((basis[ok] ** 2).sum())
+            a[2] += int(ok.sum())
+    return {"truth_k_xy": K_XY, **{key: {"k_xy": round(a[0] / a[1], 3) if a[1] > 0 else None, "samples": a[2]}
+                                   for key, a in sorted(num.items())}}
+
+
 def thrust_sd(hover_by_robot: dict, robot_type_of: dict) -> float:
     """Relative standard deviation of the robots' hover thrust within a type, pooled over
     the types with two robots or more (hover_masses' by_robot medians)."""
@@ -197,23 +229,28 @@ VARIANTS = {"clean": (False, "ns2", "float"), "rough": (True, "ns2", "float"),
 
 
 def compare(cfg: Config, gen_dir, flights: list[Flight], rough: Roughness, names: list[str] | None = None,
-            workers: int = 1) -> dict:
+            workers: int = 1, real_all: dict | None = None) -> dict:
     """Statistics of step 1 for the real flights and four simulators (VARIANTS): clean,
     rough (``rough``), rough with the position law and gains of the controller that
     flew the real flights (host/ctrl_authors.c) and the network of ``gen_dir`` in the
     loop, and the same controller flying the prediction the real robots logged
     instead of a network: free air from the probes (no neighbour, no learned force:
     the last two share theirs), the rest over the replayed swap flights (``names``: a
-    subset; the real side is the same subset)."""
+    subset; the real side is the same subset).  real_all: the free-air and battery
+    statistics of every real flight if already measured (fit's)."""
     by = pieces_by_flight(swap_flights(flights))
     if names is not None:
         by = {n: by[n] for n in names}
     real_sw = [p for ps in by.values() for p in ps]
     zl = fs.z_loop(cfg, flights)
-    out = {"flights": sorted(by), "real": {"free_air": fs.free_air(cfg, flights), "battery": fs.battery(flights),
+    if real_all is None:
+        real_all = {"free_air": fs.free_air(cfg, flights), "battery": fs.battery(flights)}
+    out = {"flights": sorted(by), "real": {"free_air": real_all["free_air"], "battery": real_all["battery"],
                                           "z_loop": zl, "wake_scatter": fs.wake_scatter(cfg, real_sw),
-                                          "swaps": fs.swap_errors(real_sw),
-                                          "unpredicted": fs.unpredicted(cfg, real_sw)}}
+                                          "wake_lateral": fs.wake_lateral(cfg, real_sw),
+                                          "swaps": fs.swap_errors(real_sw), "attitude": fs.swap_attitude(real_sw),
+                                          "unpredicted": fs.unpredicted(cfg, real_sw),
+                                          "lateral_k_xy": lateral_k_xy(cfg, real_sw)}}
     probed: dict = {}
     for label, (is_rough, ctrl, learned) in VARIANTS.items():
         r = rough if is_rough else None
@@ -223,7 +260,9 @@ def compare(cfg: Config, gen_dir, flights: list[Flight], rough: Roughness, names
         sims = replay_all(cfg, gen_dir, by, r, workers, controller=ctrl, learned=learned)
         out[label] = {"free_air": {ty: fs.free_air(cfg, [p])[ty] for ty, p in zip(cfg.robot_types, probes)},
                       "z_loop": fs.z_loop(cfg, probes), "battery": fs.battery(sims),
-                      "wake_scatter": fs.wake_scatter(cfg, sims), "swaps": fs.swap_errors(sims),
+                      "wake_scatter": fs.wake_scatter(cfg, sims), "wake_lateral": fs.wake_lateral(cfg, sims),
+                      "swaps": fs.swap_errors(sims),
+                      "attitude": fs.swap_attitude(sims), "lateral_k_xy": lateral_k_xy(cfg, sims),
                       "unpredicted": fs.unpredicted(cfg, sims)}
     return out
 
@@ -260,7 +299,7 @@ def calibrate(cfg: Config, gen_dir, flights: list[Flight], hover_by_robot: dict,
     fit_report = None
     if rough is None:
         rough, fit_report = fit(cfg, gen_dir, flights, hover_by_robot, robot_type_of, workers)
-    cmp = compare(cfg, gen_dir, flights, rough, names, workers)
+    cmp = compare(cfg, gen_dir, flights, rough, names, workers, fit_report["real"] if fit_report else None)
     l2s = paper_l2s(cfg, gen_dir, rough)
     res = {"roughness": roughness_dict(rough), "effects": list(EFFECTS), "fit": fit_report, "compare": cmp,
            "paper_l2s": l2s}

@@ -12,8 +12,9 @@ import pytest
 from conftest import REAL_DATA, needs, real_logs
 from ns2codegen.logs.align import logs_to_flights
 from ns2codegen.logs.collection import COLLECTION
-from ns2exp.calibrate import _quadrature, thrust_sd
+from ns2exp.calibrate import _quadrature, lateral_k_xy, thrust_sd
 from ns2host.sim import flightstats as fs
+from ns2host.sim.aero import K_XY
 from ns2host.sim.cloop import CLoopSwarm, hover_setpoints
 from ns2host.sim.replay import logged_prediction, logged_setpoints, pieces_by_flight, replay
 from ns2host.sim.roughness import Roughness, Turbulence, hp_share
@@ -146,6 +147,20 @@ def test_swap_statistics_by_hand():
     # one (no next start in the flight) not counted: dips 0.01, 0.03, 0.02; 0.05 left out
     assert res["L2S"]["swaps"] == 3 and res["L2S"]["worst_m"] == pytest.approx(0.03)
     assert res["L2S"]["median_worst_z_error_m"] == pytest.approx(0.02, abs=1e-4)
+    # swap_attitude over the same windows: a tilt about x and a sideways error in each
+    for k, (deg, dy) in enumerate([(4.0, 0.01), (12.0, 0.05), (8.0, 0.02), (30.0, 0.09)]):
+        j = int((k * 3 + 1.0) * 100)
+        fl.q[j, 1] = [np.cos(np.radians(deg) / 2), np.sin(np.radians(deg) / 2), 0.0, 0.0]
+        fl.p[j, 1, 1] += dy
+    for k, (spread, rise) in enumerate([(0.1, 0.05), (0.3, 0.02), (0.2, 0.2), (0.4, 0.3)]):
+        j = int((k * 3 + 1.2) * 100)
+        fl.pwm[j, 1] = [0.5 + rise + spread, 0.5 + rise - spread, 0.5 + rise, 0.5 + rise]
+    att = fs.swap_attitude([fl])["L2S"]
+    assert att["swaps"] == 3 and att["median_max_tilt_deg"] == pytest.approx(8.0, abs=0.01)
+    assert att["median_max_xy_error_m"] == pytest.approx(0.02, abs=1e-4)
+    assert att["median_max_motor_spread"] == pytest.approx(0.2, abs=1e-4)
+    assert att["median_mean_pwm_rise"] == pytest.approx(0.05, abs=1e-4)
+    assert fs.tilt_deg(np.array([0.0, 1.0, 0.0, 0.0])) == pytest.approx(180.0)
 
 
 @needs(REAL_DATA)
@@ -187,6 +202,15 @@ def test_a_real_swap_measured_and_replayed(cfg, exported):
     assert list(sa) == ["S2L"] and abs(sa["S2L"]["swaps"] - r["swaps"]) <= 1
     assert 0 < sa["S2L"]["median_worst_z_error_m"] < 0.5
     assert sa["S2L"]["median_worst_z_error_m"] != s["S2L"]["median_worst_z_error_m"]
+    # beside the wake's axis: the truth (K_XY > 0) pushes the replayed robot out; the least
+    # squares of experiments/calibrate.py reads a push out off the replay's labels, in part
+    # only (the EKF takes some of a steady lateral force for tilt)
+    lat = fs.wake_lateral(cfg, [sim])
+    assert list(lat) == ["large under small"] and lat["large under small"]["push_out_g"] > 0
+    assert list(fs.wake_lateral(cfg, pieces)) == ["large under small"]
+    k = lateral_k_xy(cfg, [sim])
+    assert k["truth_k_xy"] == K_XY and k["all"]["samples"] > 100
+    assert 0.0 < k["all"]["k_xy"] < K_XY
     # the same controller flying the prediction the real robots logged: what the replay flew is it
     flown = logged_prediction(pieces)
     lg = replay(cfg, pieces, exported.gen_dir, learned="logged", rough=Roughness(), controller="authors")
@@ -215,3 +239,24 @@ def test_sim_to_real_and_paper_tables():
     assert t[4] == "| within 30 % (*) | | | 0 of 2 | 1 of 2 |"
     p = paper_l2s_table({"BL-authors": {"median_worst_z_error_m": 0.084, "worst_z_error_m": [0.08] * 6, "paper_m": 0.17}})
     assert p.splitlines()[2] == "| BL-authors | 6 | 8.4 | 17 | 0.49 | no |"
+
+
+def test_roughness_table_rows_of_the_wake_and_the_swaps():
+    from ns2host.sim.calibration import roughness_table
+
+    side = lambda push, tilt: {"free_air": {}, "wake_scatter": {}, "battery": {},   # noqa: E731
+                               "wake_lateral": {"large under small": {"push_out_g": push, "fz_g": -4.0}},
+                               "attitude": {"L2S": {"median_max_tilt_deg": tilt, "median_max_xy_error_m": 0.04}},
+                               "swaps": {}}
+    real = side(-0.5, 6.3)
+    real["lateral_k_xy"] = {"truth_k_xy": 0.15, "all": {"k_xy": -0.08}, "small": {"k_xy": -0.02},
+                            "large": {"k_xy": -0.09}}
+    clean, rough = side(0.8, 3.0), side(0.7, 3.15)
+    rough["lateral_k_xy"] = {"truth_k_xy": 0.15, "all": {"k_xy": 0.04}}
+    t = roughness_table({"flights": [], "real": real, "clean": clean, "rough": rough})
+    rows = t.splitlines()
+    assert "| large under small, beside the wake's axis: push_out_g | -0.500 | 0.800 | 0.700 | -1.40 |" in rows
+    assert "| swap L2S, bottom robot: median largest tilt (deg) | 6.3 | 3.0 | 3.1 | 0.50 |" in rows
+    assert ("| wake's lateral push per unit r / sigma read off the labels (aero.py K_XY, the truth's 0.15), "
+            "all robots | -0.080 | - | 0.040 | -0.50 |") in rows
+    assert all(r.count("|") == rows[0].count("|") for r in rows)

@@ -195,12 +195,25 @@ def roughness_table(cmp: dict, judged: str = "rough") -> str:
     for pair in sorted(real["wake_scatter"]):
         for st in ("scatter_g", "fast_scatter_g", "mean_abs_g"):
             row(f"{pair}: {st}", ("wake_scatter", pair, st))
+    for pair in sorted(real.get("wake_lateral", {})):
+        for st in ("push_out_g", "fz_g"):
+            row(f"{pair}, beside the wake's axis: {st}", ("wake_lateral", pair, st))
+    k = real.get("lateral_k_xy")
+    for key in ("all", "small", "large") if k else ():
+        row(f"wake's lateral push per unit r / sigma read off the labels (aero.py K_XY, the truth's "
+            f"{k['truth_k_xy']}), {key} robots", ("lateral_k_xy", key, "k_xy"))
     for ty in sorted(real["battery"]):
         for st in ("start_V", "slope_V_per_min"):
             row(f"battery, {ty}: {st}", ("battery", ty, st), 4 if st == "slope_V_per_min" else 3)
     for case in sorted(real.get("unpredicted", {})):
         for st in ("rms_g", "mean_g", "slow_rms_g", "label_rms_g"):
             row(f"swap {case}, bottom robot in a wake: label - prediction flown, {st}", ("unpredicted", case, st))
+    for case in sorted(real.get("attitude", {})):
+        row(f"swap {case}, bottom robot: median largest tilt (deg)", ("attitude", case, "median_max_tilt_deg"), 1)
+        row(f"swap {case}, bottom robot: median largest xy error (m)", ("attitude", case, "median_max_xy_error_m"), 4)
+        row(f"swap {case}, bottom robot: median largest motor departure from the motors' mean (PWM)",
+            ("attitude", case, "median_max_motor_spread"), 4)
+        row(f"swap {case}, bottom robot: median rise of the motors' mean PWM", ("attitude", case, "median_mean_pwm_rise"), 4)
     for case in sorted(real["swaps"]):
         row(f"swap {case}: median worst z error (m)", ("swaps", case, "median_worst_z_error_m"), 4)
     return "\n".join(lines) + "\n"

@@ -14,12 +14,16 @@ wake_scatter  how the residual under one neighbour scatters around its mean for 
               same relative state (bins of vertical gap, horizontal distance and
               relative horizontal speed): the pooled within-bin standard deviation,
               against the bins' mean |f_a,z|
+wake_lateral  the horizontal residual of a robot beside the axis of the wake above it:
+              pushed out or drawn in, on average
 battery       the battery voltage over a flight: at take-off and its slope
 z_loop        the z tracking of a robot with no neighbour near: the error's mean and
               standard deviation per type, and the closed loop's stiffness identified
               from it (the commanded vertical force against the z and v_z errors)
 swap_errors   the worst z error of the bottom robot of each swap (the paper's metric,
               Fig. swap): per scenario, the median over swaps
+swap_attitude the bottom robot's largest tilt and horizontal error in each swap: per
+              scenario, the medians over swaps (what the wakes do beside the z force)
 unpredicted   what the prediction flown in the loop left of the bottom robot's residual
               in the swaps (label minus the logged on-board f_a,z-hat where |label|
               > UNPREDICTED_MIN_G): the force its controller had to absorb
@@ -140,6 +144,34 @@ def free_air(cfg: Config, flights: list[Flight]) -> dict:
 
 def _r(x, nd: int = 3):
     return None if x is None else round(float(x), nd)
+
+
+LATERAL_R_M = (0.06, 0.22)   # m: beside a wake's axis, where its profile's gradient is steep
+
+
+def wake_lateral(cfg: Config, flights: list[Flight]) -> dict:
+    """Per (robot type, neighbour type) of two-robot flights, the robot under its
+    neighbour (vertical gap in WAKE's range) and LATERAL_R_M beside its axis: the mean
+    horizontal residual force along the direction away from the neighbour (g;
+    positive: pushed out of the wake, negative: drawn in), and the mean f_a,z there."""
+    acc: dict = {}
+    for fl, i, steps, fa in labelled_steps(cfg, flights):
+        if len(fl.types) != 2:
+            continue
+        d = fl.p[steps, i] - fl.p[steps, 1 - i]
+        r = np.hypot(d[:, 0], d[:, 1])
+        ok = ((-d[:, 2] >= WAKE["gap_m"][0]) & (-d[:, 2] <= WAKE["gap_m"][1]) & (r >= LATERAL_R_M[0])
+              & (r <= LATERAL_R_M[1]) & np.isfinite(fa[steps]).all(1))
+        out_dir = d[ok, :2] / r[ok, None]
+        a = acc.setdefault(f"{fl.types[i]} under {fl.types[1 - i]}", {"push": [], "z": []})
+        a["push"].append((fa[steps][ok, :2] * out_dir).sum(1) * 1e3 / G)
+        a["z"].append(fa[steps][ok, 2] * 1e3 / G)
+    out = {}
+    for key, a in sorted(acc.items()):
+        push, z = np.concatenate(a["push"]), np.concatenate(a["z"])
+        if push.size:
+            out[key] = {"samples": int(push.size), "push_out_g": _r(push.mean()), "fz_g": _r(z.mean())}
+    return out
 
 
 def wake_scatter(cfg: Config, flights: list[Flight]) -> dict:
@@ -312,6 +344,16 @@ def swap_errors(flights: list[Flight]) -> dict:
     z from the robot's own estimate, as logged), and their median.  Flights need the
     setpoint ``p_d``."""
     per: dict = {}
+    for fl, bottom, case, a, b in swaps(flights):
+        err = np.abs(fl.p[a:b, bottom, 2] - fl.p_d[a:b, bottom, 2])
+        per.setdefault(case, []).append(float(np.nanmax(err)))
+    return {case: {"swaps": len(w), "median_worst_z_error_m": _r(np.median(w), 4),
+                   "p25_p75_m": [_r(v, 4) for v in np.percentile(w, [25, 75])], "worst_m": _r(max(w), 4)}
+            for case, w in sorted(per.items())}
+
+
+def swaps(flights: list[Flight]):
+    """(flight, bottom robot, swap case, start, end) of every whole swap (swap_errors)."""
     for fl in flights:
         if fl.p_d is None or np.isnan(fl.p_d).all() or len(fl.types) < 2:
             continue
@@ -321,9 +363,31 @@ def swap_errors(flights: list[Flight]) -> dict:
         vd = setpoint_derivatives(fl.t, fl.p_d)[0][:, bottom, :2]
         moving = np.hypot(vd[:, 0], vd[:, 1]) > SWAP_MIN_SPEED
         starts = [s for s, e in runs(moving) if s > 0 and fl.t[e - 1] - fl.t[s] >= SWAP_MIN_S]
-        err = np.abs(fl.p[:, bottom, 2] - fl.p_d[:, bottom, 2])
         for a, b in zip(starts[:-1], starts[1:]):
-            per.setdefault(case, []).append(float(np.nanmax(err[a:b])))
-    return {case: {"swaps": len(w), "median_worst_z_error_m": _r(np.median(w), 4),
-                   "p25_p75_m": [_r(v, 4) for v in np.percentile(w, [25, 75])], "worst_m": _r(max(w), 4)}
-            for case, w in sorted(per.items())}
+            yield fl, bottom, case, a, b
+
+
+def tilt_deg(q: np.ndarray) -> np.ndarray:
+    """Angle (deg) between the body z axis and the vertical, q [..., 4] (w, x, y, z)."""
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    bz = 1.0 - 2.0 * (q[..., 1] ** 2 + q[..., 2] ** 2)
+    return np.degrees(np.arccos(np.clip(bz, -1.0, 1.0)))
+
+
+def swap_attitude(flights: list[Flight]) -> dict:
+    """Per swap scenario, the bottom robot (swap_errors' swaps): the medians over the
+    swaps of its largest tilt (deg), its largest horizontal error |p_xy - p_d,xy| (m),
+    from its own estimate as logged, its largest motor command's departure from the
+    four motors' mean (PWM in [0, 1]: what its attitude loop asked), and how far the
+    four motors' mean rose above its median over the swap (what its z loop got)."""
+    per: dict = {}
+    for fl, bottom, case, a, b in swaps(flights):
+        eh = np.hypot(*(fl.p[a:b, bottom, :2] - fl.p_d[a:b, bottom, :2]).T)
+        pwm = fl.pwm[a:b, bottom]
+        mean = pwm.mean(1)
+        per.setdefault(case, []).append((float(np.nanmax(tilt_deg(fl.q[a:b, bottom]))), float(np.nanmax(eh)),
+                                         float(np.nanmax(np.abs(pwm - mean[:, None]))),
+                                         float(np.nanmax(mean) - np.nanmedian(mean))))
+    keys = ("median_max_tilt_deg", "median_max_xy_error_m", "median_max_motor_spread", "median_mean_pwm_rise")
+    return {case: {"swaps": len(w), **{k: _r(np.median([x[n] for x in w]), 2 if n == 0 else 4)
+                                       for n, k in enumerate(keys)}} for case, w in sorted(per.items())}
