@@ -148,6 +148,25 @@ def test_labels_follow_the_onboard_prediction_and_hover_is_weight(swaps, cfg):
     assert abs(np.median(lab)) < 2.0 and np.percentile(np.abs(lab), 95) < 4.0
 
 
+def test_body_rates_agree_with_the_logged_attitude(swaps, cfg):
+    """stateEstimateZ.rateRoll/Pitch/Yaw decoded as the body rates (rad/s): roll and pitch
+    follow the rate of the logged attitude itself (2 q* dq/dt, the compressed quaternion
+    by central differences) with its sign."""
+    _manifest(swaps, SL, ["cf51", "cf101"], ["small", "large"])
+    flights, _ = logs_to_flights(cfg, swaps)
+    for fl in flights:
+        assert fl.w is not None and fl.w.shape == fl.p.shape and np.isfinite(fl.w).all()
+    fl = max(flights, key=lambda f: len(f.t))
+    for i in range(2):
+        q = fl.q[:, i]
+        dq = (q[2:] - q[:-2]) / (2 * (fl.t[1] - fl.t[0]))
+        w0, x0, y0, z0 = (q[1:-1] * [1, -1, -1, -1]).T
+        dw, dx, dy, dz = dq.T
+        from_q = 2 * np.stack([w0 * dx + x0 * dw + y0 * dz - z0 * dy, w0 * dy - x0 * dz + y0 * dw + z0 * dx], 1)
+        for k in range(2):
+            assert np.corrcoef(from_q[:, k], fl.w[1:-1, i, k])[0, 1] > 0.5, (i, k)
+
+
 def test_ground_touches_cut_and_the_old_imu_robot_never_labelled(swaps, walks, cfg):
     _manifest(walks, LL_TOUCH, ["cf101", "cf102"], ["large", "large"])
     flights, (rep,) = logs_to_flights(cfg, walks)

@@ -219,6 +219,7 @@ def test_a_real_swap_measured_and_replayed(cfg, exported):
     for p in pieces:                                        # ... and that is the logged one
         got, ok = np.array([flown(tt - t0) for tt in p.t]), np.isfinite(p.fa_onboard_g)
         assert ok.mean() > 0.9 and np.abs(got[ok] - p.fa_onboard_g[ok]).max() < 1e-6
+    assert lg.w is not None and lg.w.shape == lg.p.shape and np.isfinite(lg.w).all()   # the gyro, as logged
     sl = fs.swap_errors([lg])
     assert list(sl) == ["S2L"] and abs(sl["S2L"]["swaps"] - r["swaps"]) <= 1
     assert 0 < fs.unpredicted(cfg, [lg])["S2L"]["slow_rms_g"] < 20

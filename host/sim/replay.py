@@ -102,4 +102,4 @@ def replay(cfg: Config, pieces: list[Flight], gen_dir, learned: str | None = "fl
     log = sw.run(duration, sp)
     return Flight(types, log["t"] + t0, log["p"], log["v"], log["q"], log["pwm"], log["battery_V"],
                   name=pieces[0].name, p_d=log["p_d"], fa_onboard_g=log["fa_hat"][:, :, 2] * 1e3 / G,
-                  robots=pieces[0].robots)
+                  robots=pieces[0].robots, w=log["w"])

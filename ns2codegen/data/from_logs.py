@@ -35,6 +35,7 @@ class Flight:
     name: str = ""
     p_d: np.ndarray | None = None           # [T, N, 3] the logged position setpoint, NaN where not logged
     robots: list[str] | None = None         # each robot's id (e.g. "cf100"), where known
+    w: np.ndarray | None = None             # [T, N, 3] body rates (rad/s, the filtered gyro), NaN where not logged
 
 
 def labelled_steps(cfg: Config, flights: list[Flight]):

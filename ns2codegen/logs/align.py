@@ -87,6 +87,7 @@ class RobotLog:
     setpoint_v: np.ndarray | None = None   # [T, 3] m/s, the commanded velocity, if logged
     fa_onboard_g: np.ndarray | None = None  # [T] the on-board prediction, if logged
     setpoint_p: np.ndarray | None = None    # [T, 3] m, the position setpoint, if logged
+    w: np.ndarray | None = None             # [T, 3] rad/s, body rates (the filtered gyro), if logged
 
     @staticmethod
     def from_usd(log: UsdLog, sync_event: str = SYNC_EVENT) -> "RobotLog":
@@ -131,7 +132,7 @@ class RobotLog:
         return RobotLog(t[order], cols["p"], cols["v"], cols["q"], cols["pwm"], cols["battery_V"][:, 0],
                         float(sync[0]) * 1e-6 if sync is not None and len(sync) else None,
                         cols.get("setpoint_v"), ev[ONBOARD_FA] if ONBOARD_FA in ev else None,
-                        cols.get("setpoint_p"))
+                        cols.get("setpoint_p"), cols.get("w"))
 
     def takeoff_s(self) -> float:
         """Time at which the mean PWM first rises through PWM_ON (interpolated)."""
@@ -275,8 +276,9 @@ def align(types: list[str], robots: list[RobotLog], rate_hz: float = 100.0, max_
         x, ok = resample(r, grid + o, max_gap_s)
         x["fa_onboard_g"] = (np.interp(grid + o, r.t, r.fa_onboard_g) if r.fa_onboard_g is not None
                              else np.full(len(grid), np.nan))
-        x["p_d"] = (np.stack([np.interp(grid + o, r.t, c) for c in r.setpoint_p.T], 1) if r.setpoint_p is not None
-                    else np.full((len(grid), 3), np.nan))
+        for key, col in (("p_d", r.setpoint_p), ("w", r.w)):
+            x[key] = (np.stack([np.interp(grid + o, r.t, c) for c in col.T], 1) if col is not None
+                      else np.full((len(grid), 3), np.nan))
         res.append(x)
         for reason, mask in _cut_reasons(x, ok, gz, z_min, rate_hz).items():
             usable &= ~mask
@@ -291,7 +293,7 @@ def align(types: list[str], robots: list[RobotLog], rate_hz: float = 100.0, max_
         flights.append(Flight(list(types), grid[a:b], st["p"], st["v"], st["q"], st["pwm"], st["battery_V"],
                               labelled=list(labelled) if labelled is not None else None,
                               fa_onboard_g=st["fa_onboard_g"], name=name, p_d=st["p_d"],
-                              robots=list(ids)))
+                              robots=list(ids), w=st["w"] if np.isfinite(st["w"]).any() else None))
     report = {"clock_offsets_s": offsets.tolist(), "sync": method, "alignment_error": err,
               "grid_samples": int(len(grid)), "duration_s": round(float(len(grid)) / rate_hz, 2),
               "used_samples": int(sum(len(f.t) for f in flights)), "pieces": len(flights),

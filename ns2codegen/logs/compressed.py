@@ -41,11 +41,16 @@ def quat_decompress(comp) -> np.ndarray:
 
 def state_si(ev: dict) -> dict:
     """SI arrays from the ``stateEstimateZ``/``ctrltargetZ`` columns of a log:
-    p, v [T, 3] (m, m/s); q [T, 4] as (w, x, y, z); setpoint p, v (when logged)."""
+    p, v [T, 3] (m, m/s); q [T, 4] as (w, x, y, z); body rates w [T, 3] (rad/s, when
+    logged; the pitch rate as logged: on the 16 June 2020 logs it has the sign of the
+    logged attitude's own pitch rate, where stock firmware 2a18fc29's stabilizer.c logs
+    ``-gyro.y``: tests/test_real_logs.py); setpoint p, v (when logged)."""
     axis = lambda grp, names, scale: np.stack([ev[f"{grp}.{n}"] for n in names], 1) * scale  # noqa: E731
     out = {"p": axis("stateEstimateZ", "xyz", 1e-3), "v": axis("stateEstimateZ", ("vx", "vy", "vz"), 1e-3)}
     xyzw = quat_decompress(ev["stateEstimateZ.quat"]).astype(np.float64)
     out["q"] = xyzw[:, [3, 0, 1, 2]]
+    if all(f"stateEstimateZ.rate{n}" in ev for n in ("Roll", "Pitch", "Yaw")):
+        out["w"] = axis("stateEstimateZ", ("rateRoll", "ratePitch", "rateYaw"), 1e-3)
     if all(f"ctrltargetZ.{n}" in ev for n in ("x", "y", "z", "vx", "vy", "vz")):
         out["setpoint_p"] = axis("ctrltargetZ", "xyz", 1e-3)
         out["setpoint_v"] = axis("ctrltargetZ", ("vx", "vy", "vz"), 1e-3)
