@@ -213,10 +213,12 @@ def heat_maps(cfg: Config, gen_dir, out: Path) -> None:
 
 
 def swap_experiments(cfg: Config, gen_dir, out_dir, swaps: int = 6, cases=None, controllers=CONTROLLERS,
-                     learned: str = "fixed", progress=None, rough: Roughness | None = None) -> dict:
+                     learned: str = "fixed", progress=None, rough: Roughness | None = None,
+                     tune_swaps: int = 6) -> dict:
     """Every swap case with every controller; out_dir/swaps.json (a row per case and
     controller), swaps.md, box plots, f_a over time, heat maps (``progress(1)`` after
-    every case and controller); ``rough``: the rough simulator (None: the clean one)."""
+    every case and controller); ``rough``: the rough simulator (None: the clean one);
+    ``tune_swaps``: swaps per candidate of BL-tuned's gain search (load_or_tune)."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -224,7 +226,7 @@ def swap_experiments(cfg: Config, gen_dir, out_dir, swaps: int = 6, cases=None, 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     cases = list(cases or SWAP_CASES)
-    tuning = load_or_tune(cfg, gen_dir, out, rough=rough)
+    tuning = load_or_tune(cfg, gen_dir, out, tune_swaps, rough)
     rows, worst, logs = [], {}, {}
     for case in cases:
         for ctrl in controllers:
@@ -301,7 +303,7 @@ def ring_experiments(cfg: Config, gen_dir, out_dir, duration: float = 16.0, cont
     type and controller) and rings.md (``progress(1)`` after every flight)."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    tuning = load_or_tune(cfg, gen_dir, out, rough=rough)
+    tuning = load_or_tune(cfg, gen_dir, out, tune_swaps, rough)
     rows = []
     for name, robots in RING_CASES.items():
         team, sp, start, _ = intertwined_rings(robots)

@@ -124,3 +124,35 @@ def onboard(tmp_path_factory, cfg) -> Exported:
     """The one-tick on-board variant of the network (narrower intermediate layers)."""
     return train_and_export(cfg.with_overrides(**ONBOARD_WIDTHS), tmp_path_factory.mktemp("onboard"),
                             samples=500, epochs=2)
+
+
+class SmallCtl:
+    """The host build and one controller of the small robot as the app initialises it
+    (``ctrl[0]`` owns the vehicle and gains); ``fresh()`` a new ns2_ctrl_t from them
+    (``**gains``: fields to replace), ``hover()`` a state and setpoint at rest at 1 m."""
+
+    def __init__(self, cfg, exported):
+        from ns2codegen.vehicle import vehicle
+
+        self.c = exported.cmodel()
+        self.ffi, self.lib = self.c.ffi, self.c.lib
+        self.ctrl = self.c.controller([vehicle(cfg, "small")])
+
+    def fresh(self, veh=None, **gains):
+        ffi = self.ffi
+        g = ffi.new("ns2_gains_t *", self.ctrl[0].g)
+        for k, v in gains.items():
+            setattr(g, k, v)
+        x = ffi.new("ns2_ctrl_t *")
+        self.lib.ns2_ctrl_init(x, veh if veh is not None else ffi.new("ns2_vehicle_t *", self.ctrl[0].veh), g)
+        return x
+
+    def hover(self):
+        st, sp = self.ffi.new("ns2_ctrl_state_t *"), self.ffi.new("ns2_setpoint_t *")
+        st.q, st.p, sp.p = [1, 0, 0, 0], [0, 0, 1], [0, 0, 1]
+        return st, sp
+
+
+@pytest.fixture(scope="module")
+def small_ctl(cfg, exported) -> SmallCtl:
+    return SmallCtl(cfg, exported)

@@ -15,21 +15,15 @@ def _bits(x) -> list[int]:
     return np.asarray(list(x), np.float32).view(np.uint32).tolist()
 
 
-def test_force_is_the_second_half_of_position_bit_for_bit(cfg, exported):
+def test_force_is_the_second_half_of_position_bit_for_bit(small_ctl):
     """With zero position gains and no f_a, ns2_ctrl_position's desired force is
     m a_d + m g e3 (float32): given that force, ns2_ctrl_force leaves the controller
     in the same state, tick after tick, and the motors get the same commands."""
-    c = exported.cmodel()
-    ffi, lib = c.ffi, c.lib
-    ctls = c.controller([vehicle(cfg, "small")])  # owns the memory ctl points into
-    ctl = ctls[0]
-    veh, g = ffi.new("ns2_vehicle_t *", ctl.veh), ffi.new("ns2_gains_t *", ctl.g)
-    g.Lp, g.Kv, g.Gv = [0.0] * 3, [0.0] * 3, [0.0] * 3
-    a, b = ffi.new("ns2_ctrl_t *"), ffi.new("ns2_ctrl_t *")
-    lib.ns2_ctrl_init(a, veh, g)
-    lib.ns2_ctrl_init(b, veh, g)
+    ffi, lib = small_ctl.ffi, small_ctl.lib
+    zero = {"Lp": [0.0] * 3, "Kv": [0.0] * 3, "Gv": [0.0] * 3}
+    a, b = small_ctl.fresh(**zero), small_ctl.fresh(**zero)
     rng = np.random.default_rng(3)
-    m, g0 = np.float32(veh.mass_kg), np.float32(9.81)
+    m, g0 = np.float32(small_ctl.ctrl[0].veh.mass_kg), np.float32(9.81)
     st, sp = ffi.new("ns2_ctrl_state_t *"), ffi.new("ns2_setpoint_t *")
     f = ffi.new("float[3]")
     for k in range(400):
@@ -53,16 +47,11 @@ def test_force_is_the_second_half_of_position_bit_for_bit(cfg, exported):
 
 
 @pytest.mark.parametrize("bad", [math.nan, math.inf, 1e3])
-def test_a_bad_force_turns_the_motors_off_and_recovers(cfg, exported, bad):
-    c = exported.cmodel()
-    ffi, lib = c.ffi, c.lib
-    ctls = c.controller([vehicle(cfg, "small")])  # owns the memory ctl points into
-    ctl = ctls[0]
-    x = ffi.new("ns2_ctrl_t *")
-    lib.ns2_ctrl_init(x, ffi.new("ns2_vehicle_t *", ctl.veh), ffi.new("ns2_gains_t *", ctl.g))
-    st, sp = ffi.new("ns2_ctrl_state_t *"), ffi.new("ns2_setpoint_t *")
-    st.q, st.p, sp.p = [1, 0, 0, 0], [0, 0, 1], [0, 0, 1]
-    hover = ffi.new("float[3]", [0.0, 0.0, ctl.veh.mass_kg * 9.81])
+def test_a_bad_force_turns_the_motors_off_and_recovers(small_ctl, bad):
+    ffi, lib = small_ctl.ffi, small_ctl.lib
+    x = small_ctl.fresh()
+    st, sp = small_ctl.hover()
+    hover = ffi.new("float[3]", [0.0, 0.0, small_ctl.ctrl[0].veh.mass_kg * 9.81])
     lib.ns2_ctrl_force(x, st, sp, hover, 0.01)
     lib.ns2_ctrl_attitude(x, st, 0.002, 3.9)
     assert x.status == 0 and min(x.pwm) > 0.1

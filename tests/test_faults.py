@@ -6,36 +6,12 @@ import math
 import numpy as np
 import pytest
 
-from ns2codegen.vehicle import vehicle
-
-
-class _Ctl:
-    """The host build and one controller initialised for the small robot, as the app does."""
-
-    def __init__(self, cfg, exported):
-        self.c = exported.cmodel()
-        self.ctrl = self.c.controller([vehicle(cfg, "small")])
-
-
-@pytest.fixture(scope="module")
-def ctl(cfg, exported):
-    return _Ctl(cfg, exported)
-
-
-def _hover(ffi):
-    st, sp = ffi.new("ns2_ctrl_state_t *"), ffi.new("ns2_setpoint_t *")
-    st.q, st.p, sp.p = [1, 0, 0, 0], [0, 0, 1], [0, 0, 1]
-    return st, sp
-
 
 @pytest.mark.parametrize("trigger", ["yaw", "dt_att", "w", "sp_p"])
-def test_one_bad_tick_recovers_within_the_bound(ctl, trigger):
-    ffi, lib = ctl.c.ffi, ctl.c.lib
-    c, fresh = ffi.new("ns2_ctrl_t *"), ffi.new("ns2_ctrl_t *")
-    veh, g = ffi.new("ns2_vehicle_t *", ctl.ctrl[0].veh), ffi.new("ns2_gains_t *", ctl.ctrl[0].g)
-    lib.ns2_ctrl_init(c, veh, g)
-    lib.ns2_ctrl_init(fresh, veh, g)
-    st, sp = _hover(ffi)
+def test_one_bad_tick_recovers_within_the_bound(small_ctl, trigger):
+    ffi, lib = small_ctl.ffi, small_ctl.lib
+    c, fresh = small_ctl.fresh(), small_ctl.fresh()
+    st, sp = small_ctl.hover()
     bound = lib.NS2_CTRL_RECOVERY_TICKS
     flags = []
     for k in range(5 * 100):
@@ -76,13 +52,12 @@ def test_one_bad_tick_recovers_within_the_bound(ctl, trigger):
     np.testing.assert_allclose(list(c.u), list(fresh.u), atol=1e-4)
 
 
-def test_unusable_vehicle_parameters_keep_the_motors_off(ctl):
-    ffi, lib = ctl.c.ffi, ctl.c.lib
-    c = ffi.new("ns2_ctrl_t *")
-    veh = ffi.new("ns2_vehicle_t *", ctl.ctrl[0].veh)
+def test_unusable_vehicle_parameters_keep_the_motors_off(small_ctl):
+    ffi, lib = small_ctl.ffi, small_ctl.lib
+    veh = ffi.new("ns2_vehicle_t *", small_ctl.ctrl[0].veh)
     veh.arm_m = 0.0  # issue 17 D4: arm_length_m = 0 made the controller output NaN at hover
-    lib.ns2_ctrl_init(c, veh, ffi.addressof(ctl.ctrl[0], "g"))
-    st, sp = _hover(ffi)
+    c = small_ctl.fresh(veh)
+    st, sp = small_ctl.hover()
     lib.ns2_ctrl_position(c, st, sp, ffi.NULL, 0.01)
     lib.ns2_ctrl_attitude(c, st, 0.002, 3.9)
     assert c.status & lib.NS2_CTRL_BAD_CONFIG and list(c.pwm) == [0, 0, 0, 0]

@@ -132,13 +132,14 @@ def test_swap_results_rows(cfg, exported, tmp_path, monkeypatch):
     monkeypatch.setattr(swarm, "GAIN_GRID_Z", {"Lp_z": (2.5, 5.0), "Kv_z": (4.0, 8.0)})
     monkeypatch.setattr(swarm, "GAIN_GRID_XY", {"Lp_xy": (2.0,), "Kv_xy": (4.0,)})
     monkeypatch.setattr(swarm, "heat_maps", lambda *a: None)
-    res = swarm.swap_experiments(cfg, exported.gen_dir, tmp_path, swaps=1, cases=["L2S"])
+    res = swarm.swap_experiments(cfg, exported.gen_dir, tmp_path, swaps=1, cases=["L2S"], tune_swaps=2)
     rows = json.loads((tmp_path / "swaps.json").read_text())["rows"]
     assert [r["controller"] for r in rows] == list(swarm.CONTROLLERS) and rows == res["rows"]
     for r in rows:
         assert 0 < r["median_worst_z_error_m"] <= r["max_worst_z_error_m"] < 0.5
         assert 0 < r["z_error_rms_m"] <= r["max_worst_z_error_m"] and 0 < r["motor_cmd_rms"] < 0.1
     search = json.loads((tmp_path / "gain_search.json").read_text())
+    assert search["key"] == swarm._search_key(2, None)          # the search the test asked for
     ok = [c for c in search["candidates"] if c["admissible"]]
     best = min(ok, key=lambda c: c["median_worst_z_error_m"])
     assert {k: best[k] for k in swarm.DEFAULT_TUNING} == search["tuning"] == res["tuning"]
