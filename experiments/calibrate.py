@@ -8,9 +8,11 @@
    noise with the gyro's, each in quadrature), wake turbulence (replays of the pair
    swaps with the other effects on: the real scatter under a neighbour beyond the
    simulator's, per unit of the wake's force; tau from its fast share);
-3. replay the real swap flights in the clean and the rough simulator with what flew
-   them (the authors' network in the loop, host/sim/replay.py) and compare every
-   statistic of step 1: the calibration table and the sim-to-real swap table.
+3. replay the real swap flights in the clean and the rough simulator (VARIANTS:
+   the project's controller or the authors', the authors' published network in the
+   loop or the prediction the real robots logged; host/sim/replay.py) and compare
+   every statistic of step 1, with the truth's lateral constant read off the labels
+   on both sides (lateral_k_xy): the calibration table and the sim-to-real swap table.
 No swap or ring result of the paper is a fitting target."""
 from __future__ import annotations
 

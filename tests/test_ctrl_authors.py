@@ -130,3 +130,24 @@ def test_a_given_prediction_is_flown_as_the_law_says(cfg, exported):
     assert np.all(step[t < 0.995] == 0.0) and np.allclose(step[t > 1.005], c * 1e-3 * 9.81, rtol=1e-6)
     with pytest.raises(ValueError, match="authors"):
         CLoopSwarm(cfg, ["small"], exported.gen_dir, p0, fa_given=lambda t: np.zeros(1))
+
+
+def test_the_authors_attitude_gains_reach_the_controller_and_it_hovers(cfg, exported):
+    """An "authors" robot flies its attitude gains as the project's attitude law
+    (vehicle.AUTHORS_GAINS "att"); an "ns2" robot beside it keeps the defaults; a robot's
+    own gains still override; with them the small robot hovers level on its spot."""
+    from ns2codegen.vehicle import default_gains
+
+    p0 = [[0.0, 0.0, 1.0], [1.5, 0.0, 1.0]]
+    sw = CLoopSwarm(cfg, ["small", "large"], exported.gen_dir, p0, controllers=["authors", "ns2"], seed=2)
+    att = AUTHORS_GAINS["CF21SingleMarker"]["att"]
+    g0, g1 = sw.robots[0].pilot.ctrl.g, sw.robots[1].pilot.ctrl.g
+    for k in ("Lq", "Kw", "Gw"):
+        assert list(getattr(g0, k)) == pytest.approx(att[k], rel=1e-6)
+        assert list(getattr(g1, k)) == pytest.approx(default_gains(vehicle(cfg, "large"))[k], rel=1e-6)
+    assert g0.int_w_max == pytest.approx(att["int_w_max"])
+    log = sw.run(4.0, hover_setpoints(p0), settle_s=1.0)
+    assert np.abs(log["truth_p"][:, 0, :2] - log["p_d"][:, 0, :2]).max() < 0.01   # level, on its spot
+    own = CLoopSwarm(cfg, ["small"], exported.gen_dir, p0[:1], controllers=["authors"], gains=[{"Kw": [1e-3] * 3}])
+    assert list(own.robots[0].pilot.ctrl.g.Kw) == pytest.approx([1e-3] * 3)
+    assert list(own.robots[0].pilot.ctrl.g.Lq) == pytest.approx(att["Lq"])

@@ -75,9 +75,9 @@ class CLoopSwarm:
         app's path, default), "mellinger" (the firmware's) or "authors" (the app's path
         with the position law of the controller that flew the real flights,
         host/ctrl_authors.c; authors: per robot None (vehicle.authors_gains of its type)
-        or a dict of ns2_authors_gains_t); gains: per robot None (default_gains) or a
-        dict of ns2_gains_t fields replacing some defaults (the attitude loop's, for
-        "authors");
+        or a dict of ns2_authors_gains_t, with its attitude gains under "att"); gains:
+        per robot None (default_gains, with the authors' "att" for "authors") or a
+        dict of ns2_gains_t fields replacing some of them;
         sensing: the figures of host/sim/sensing.py; seed: noise, biases and losses;
         rough: a real Crazyflie's unmodelled effects (host/sim/roughness.py; None: the
         clean simulator); fa_given: None, or ``fa_given(t)`` -> f_a,z-hat [N] in g that
@@ -126,6 +126,8 @@ class CLoopSwarm:
             it.sd_acc_g, it.sd_gyro_dps, it.ext_pos_std_m = sd_acc, sd_gyro, se.ext_pos_std_m
             fill_vehicle(it.veh, veh)
             g = default_gains(veh)
+            if controllers[i] == "authors":   # and their attitude gains (vehicle.AUTHORS_GAINS "att")
+                g.update(((authors[i] if authors is not None else None) or authors_gains(types[i])).get("att", {}))
             g.update((gains[i] if gains is not None else None) or {})
             fill_gains(it.gains, g)
             lib.ns2_pilot_default_cfg(ffi.addressof(it, "pilot_cfg"), it.type)
