@@ -1,6 +1,8 @@
 """The controller that flew the real flights, for their replay (host/ctrl_authors.c):
 ns2_ctrl_force is ns2_ctrl_position's second half bit for bit and safe on a bad force;
-the authors' position law holds the steady state its equation predicts in the simulator."""
+the authors' position law holds the steady state its equation predicts in the
+simulator, with a given (logged) prediction too; their attitude gains reach the
+controller."""
 import math
 
 import numpy as np
@@ -13,6 +15,12 @@ from ns2host.sim.vehicle import AUTHORS_GAINS, authors_gains
 
 def _bits(x) -> list[int]:
     return np.asarray(list(x), np.float32).view(np.uint32).tolist()
+
+
+def _settled_z_error(log) -> float:
+    """Mean p_d,z - p_z of robot 0 over the last 2 s of a flight (m)."""
+    last = log["t"] > log["t"][-1] - 2.0
+    return float(np.mean(log["p_d"][last, 0, 2] - log["p"][last, 0, 2]))
 
 
 def test_force_is_the_second_half_of_position_bit_for_bit(small_ctl):
@@ -84,9 +92,7 @@ def test_authors_law_holds_the_steady_state_of_its_equation(cfg, exported):
     def z_error(seconds, **law):
         gains = dict(authors_gains("small"), **law)
         sw = CLoopSwarm(cfg, ["small"], exported.gen_dir, p0, controllers=["authors"], authors=[gains], seed=1)
-        log = sw.run(seconds, hover_setpoints(p0), settle_s=0.5)
-        last = log["t"] > log["t"][-1] - 2.0
-        return float(np.mean(log["p_d"][last, 0, 2] - log["p"][last, 0, 2]))
+        return _settled_z_error(sw.run(seconds, hover_setpoints(p0), settle_s=0.5))
 
     no_i = {"ki": [0.0] * 3}
     e1 = z_error(6.0, mass_kg=m, **no_i)
@@ -113,17 +119,13 @@ def test_a_given_prediction_is_flown_as_the_law_says(cfg, exported):
                         fa_given=fa_given)
         return sw.run(seconds, hover_setpoints(p0), settle_s=0.5)
 
-    def settled(log):
-        last = log["t"] > log["t"][-1] - 2.0
-        return float(np.mean(log["p_d"][last, 0, 2] - log["p"][last, 0, 2]))
-
     none, zero = fly(None), fly(lambda t: np.zeros(1))
     assert np.array_equal(none["p"], zero["p"]) and np.array_equal(none["pwm"], zero["pwm"])
-    k = 1.0 / (1.0 + settled(zero) * 10.0 / 9.81)
+    k = 1.0 / (1.0 + _settled_z_error(zero) * 10.0 / 9.81)
     c = 3.0
     given = fly(lambda t: np.full(1, c))
     e_pred = (m * 9.81 / k - m * 9.81 + c * 1e-3 * 9.81) / (m * 10.0)
-    assert e_pred > 0.03 and settled(given) == pytest.approx(e_pred, abs=0.004)
+    assert e_pred > 0.03 and _settled_z_error(given) == pytest.approx(e_pred, abs=0.004)
     assert np.allclose(given["fa_hat"][:, 0, 2], c * 1e-3 * 9.81, rtol=1e-6)
     step = fly(lambda t: np.full(1, c if t >= 1.0 else 0.0), 2.0)["fa_hat"][:, 0, 2]
     t = np.arange(len(step)) / 100.0

@@ -159,6 +159,10 @@ def _ratio(sim, real) -> str:
     return f"{sim / real:.2f}"
 
 
+def _within(sim: float, real: float) -> bool:
+    return abs(sim / real - 1.0) <= SIM_TO_REAL_TOL
+
+
 def _variants(cmp: dict) -> list[str]:
     return [k for k in cmp if k not in ("flights", "real")]
 
@@ -236,7 +240,7 @@ def sim_to_real_table(cmp: dict) -> str:
             if x is None:
                 cells.append("-")
                 continue
-            ok = abs(x / rv - 1.0) <= SIM_TO_REAL_TOL
+            ok = _within(x, rv)
             within[v] += ok
             cells.append(f"{100 * x:.1f} ({_ratio(x, rv)}{'*' if ok else ''})")
         lines.append(f"| {case} | {r['swaps']} | {100 * rv:.1f} | " + " | ".join(cells) + " |")
@@ -251,7 +255,7 @@ def paper_l2s_table(l2s: dict) -> str:
     for c, r in l2s.items():
         sim, paper = r["median_worst_z_error_m"], r["paper_m"]
         lines.append(f"| {c} | {len(r['worst_z_error_m'])} | {100 * sim:.1f} | {100 * paper:.0f} | {_ratio(sim, paper)} | "
-                     f"{'yes' if abs(sim / paper - 1.0) <= SIM_TO_REAL_TOL else 'no'} |")
+                     f"{'yes' if _within(sim, paper) else 'no'} |")
     return "\n".join(lines) + "\n"
 
 

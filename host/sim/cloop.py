@@ -114,8 +114,9 @@ class CLoopSwarm:
             it = ffi.new("ns2_fly_init_t *")
             it.kind = {"ns2": lib.NS2_FLY_PILOT, "mellinger": lib.NS2_FLY_MELLINGER,
                        "authors": lib.NS2_FLY_AUTHORS}[controllers[i]]
-            if controllers[i] == "authors":
-                a = (authors[i] if authors is not None else None) or authors_gains(types[i])
+            a = (((authors[i] if authors is not None else None) or authors_gains(types[i]))
+                 if controllers[i] == "authors" else None)
+            if a is not None:
                 it.authors.mass_kg, it.authors.i_max = a["mass_kg"], a["i_max"]
                 it.authors.kp, it.authors.kd, it.authors.ki = list(a["kp"]), list(a["kd"]), list(a["ki"])
             it.id, it.type = i + 1, int(self.type_idx[i])
@@ -126,8 +127,8 @@ class CLoopSwarm:
             it.sd_acc_g, it.sd_gyro_dps, it.ext_pos_std_m = sd_acc, sd_gyro, se.ext_pos_std_m
             fill_vehicle(it.veh, veh)
             g = default_gains(veh)
-            if controllers[i] == "authors":   # and their attitude gains (vehicle.AUTHORS_GAINS "att")
-                g.update(((authors[i] if authors is not None else None) or authors_gains(types[i])).get("att", {}))
+            if a is not None:   # and their attitude gains (vehicle.AUTHORS_GAINS "att")
+                g.update(a.get("att", {}))
             g.update((gains[i] if gains is not None else None) or {})
             fill_gains(it.gains, g)
             lib.ns2_pilot_default_cfg(ffi.addressof(it, "pilot_cfg"), it.type)

@@ -34,6 +34,28 @@ def pieces_by_flight(flights: list[Flight]) -> dict[str, list[Flight]]:
     return out
 
 
+GRID_S = 0.01   # s: the replay's time base, the setpoints' and the prediction's
+
+
+def _on_grid(pieces: list[Flight], field: str):
+    """(grid, values [G, ...]) of one logged ``field`` ([T, N, ...]) of all the pieces
+    joined on a GRID_S time base from the first logged sample, each column linear
+    over its finite samples (across the cut gaps and missing ones)."""
+    t = np.concatenate([p.t for p in pieces])
+    x = np.concatenate([getattr(p, field) for p in pieces])
+    order = np.argsort(t)
+    t, x = t[order], x[order]
+    grid = np.arange(t[0], t[-1] + 1e-9, GRID_S)
+    flat = x.reshape(len(x), -1)
+    cols = [np.interp(grid, t[ok], c[ok]) for c, ok in ((c, np.isfinite(c)) for c in flat.T)]
+    return grid, np.stack(cols, 1).reshape((len(grid),) + x.shape[1:])
+
+
+def _at(grid: np.ndarray, tau: float) -> int:
+    """The grid index of the time tau (s) since the grid's start, held at its ends."""
+    return int(np.clip(round(tau / GRID_S), 0, len(grid) - 1))
+
+
 def logged_setpoints(pieces: list[Flight]):
     """(setpoints(t), start positions, t0, duration) of one real flight: the logged
     position setpoints of all its pieces joined (linear across the cut gaps), the
@@ -41,18 +63,12 @@ def logged_setpoints(pieces: list[Flight]):
     average (the setpoint is logged in millimetres)."""
     if any(p.p_d is None for p in pieces) or not all(np.isfinite(p.p_d).all() for p in pieces):
         raise ValueError(f"flight {pieces[0].name!r}: no complete position setpoint logged")
-    t = np.concatenate([p.t for p in pieces])
-    p_d = np.concatenate([p.p_d for p in pieces])
-    order = np.argsort(t)
-    t, p_d = t[order], p_d[order]
-    grid = np.arange(t[0], t[-1] + 1e-9, 0.01)
-    p = np.stack([np.stack([np.interp(grid, t, p_d[:, i, k]) for k in range(3)], 1)
-                  for i in range(p_d.shape[1])], 1)
+    grid, p = _on_grid(pieces, "p_d")
     v, a = setpoint_derivatives(grid, p)
     n = p.shape[1]
 
     def sp(tau, state=None):
-        k = int(np.clip(round(tau / 0.01), 0, len(grid) - 1))
+        k = _at(grid, tau)
         return Setpoints(p[k], v[k], a[k], np.zeros(n))
 
     return sp, p[0], float(grid[0]), float(grid[-1] - grid[0])
@@ -64,18 +80,12 @@ def logged_prediction(pieces: list[Flight]):
     across cut gaps and missing samples."""
     if any(p.fa_onboard_g is None for p in pieces):
         raise ValueError(f"flight {pieces[0].name!r}: no on-board prediction logged")
-    t = np.concatenate([p.t for p in pieces])
-    fa = np.concatenate([p.fa_onboard_g for p in pieces])
-    order = np.argsort(t)
-    t, fa = t[order], fa[order]
-    ok = np.isfinite(fa)
-    if not ok.any(axis=0).all():
+    if not np.concatenate([np.isfinite(p.fa_onboard_g) for p in pieces]).any(axis=0).all():
         raise ValueError(f"flight {pieces[0].name!r}: a robot's on-board prediction is never logged")
-    grid = np.arange(t[0], t[-1] + 1e-9, 0.01)
-    f = np.stack([np.interp(grid, t[ok[:, i]], fa[ok[:, i], i]) for i in range(fa.shape[1])], 1)
+    grid, f = _on_grid(pieces, "fa_onboard_g")
 
     def fa_at(tau):
-        return f[int(np.clip(round(tau / 0.01), 0, len(grid) - 1))]
+        return f[_at(grid, tau)]
 
     return fa_at
 
