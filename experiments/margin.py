@@ -41,6 +41,10 @@ from ns2plan.problem import GRAMS_TO_N, Limits
 # held-out flights per pair of types (kind, seconds); seed HELD_OUT_SEED, never a training seed
 HELD_OUT = (("who", 120.0), ("near", 120.0))
 HELD_OUT_SEED = 7
+# m/s: the bins of the relative speed the margin is conditioned on (ForceModel.rel_speed_np;
+# the last bin is every speed above the last edge); chosen before any run, in quarter steps
+# up to the planner's v_max and one bin to 1.5 m/s, where the held-out passes thin out
+SPEED_EDGES_MPS = (0.25, 0.5, 0.75, 1.0, 1.5)
 
 
 @dataclass
@@ -105,15 +109,19 @@ def in_region(cfg: Config, fl: FlownStates, limits: Limits) -> np.ndarray:
 
 
 def errors(cfg: Config, fm: ForceModel, flights: list, limits: Limits) -> dict:
-    """Per robot type: the true and predicted f_a,z (g) at the held-out states in the
-    planning region, and whether the model's force is within the type's limit."""
-    out = {t: {"true": [], "pred": []} for t in cfg.robot_types}
+    """Per robot type: the true and predicted f_a,z (g) and the robot's relative speed
+    to the neighbours the model sees (m/s, ForceModel.rel_speed_np) at the held-out
+    states in the planning region."""
+    out = {t: {"true": [], "pred": [], "speed": []} for t in cfg.robot_types}
     for fl in flights:
-        pred = fm.team_np([cfg.robot_types.index(t) for t in fl.types], fl.P, fl.V)
+        types = [cfg.robot_types.index(t) for t in fl.types]
+        pred = fm.team_np(types, fl.P, fl.V)
+        speed = fm.rel_speed_np(types, fl.P, fl.V)
         mask = in_region(cfg, fl, limits)
         for i, t in enumerate(fl.types):
             out[t]["true"].append(fl.F[mask[:, i], i])
             out[t]["pred"].append(pred[mask[:, i], i])
+            out[t]["speed"].append(speed[mask[:, i], i])
     return {t: {k: np.concatenate(v) if v else np.zeros(0) for k, v in d.items()} for t, d in out.items()}
 
 
@@ -129,17 +137,43 @@ def error_stats(true: np.ndarray, pred: np.ndarray, fa_max: float | None = None)
             "max_low_g": float((np.abs(t) - np.abs(p)).max()), "p99_low_g": float(np.percentile(np.abs(t) - np.abs(p), 99))}
 
 
-def margin_from_errors(err: dict, fa_max_g: dict, step: float = 0.1) -> dict:
+def _smallest_margin(true: np.ndarray, pred: np.ndarray, lim: float, step: float) -> float:
+    """The smallest multiple of ``step`` m with |true| <= lim wherever |pred| <= lim - m."""
+    need = lim - np.abs(pred)[np.abs(true) > lim]   # m must exceed this at every state over the limit
+    return 0.0 if not len(need) or need.max() < 0 else (math.floor(need.max() / step + 1e-9) + 1) * step
+
+
+def margin_from_errors(err: dict, fa_max_g: dict, step: float = 0.1, speed_edges=None) -> dict:
     """Per robot type the margin m: the smallest multiple of ``step`` such that every
     held-out state with |f_model| <= f_a,max - m has |f_true| <= f_a,max (0 when no
-    state is over the limit where the model reads under it)."""
+    state is over the limit where the model reads under it).  With ``speed_edges``
+    (m/s) a speed table (Limits.fa_margin_g): that margin over the states of each bin
+    of the relative speed, and never less than a slower bin's (a bin's margin is the
+    largest up to it: a sparse fast bin does not undercut the slow ones' evidence)."""
     out = {}
     for t, lim in fa_max_g.items():
-        true, pred = np.abs(err[t]["true"]), np.abs(err[t]["pred"])
+        true, pred = err[t]["true"], err[t]["pred"]
         if not len(true):
             raise ValueError(f"no held-out states of robot type {t!r} in the planning region: cannot measure its margin")
-        need = lim - pred[true > lim]               # m must exceed this at every state over the limit
-        out[t] = 0.0 if not len(need) or need.max() < 0 else (math.floor(need.max() / step + 1e-9) + 1) * step
+        if speed_edges is None:
+            out[t] = _smallest_margin(true, pred, lim, step)
+            continue
+        k = np.searchsorted(np.asarray(speed_edges, float), err[t]["speed"], side="left")
+        per_bin = [_smallest_margin(true[k == b], pred[k == b], lim, step) for b in range(len(speed_edges) + 1)]
+        out[t] = {"speeds_mps": [float(e) for e in speed_edges],
+                  "margins_g": [round(float(m), 10) for m in np.maximum.accumulate(per_bin)]}
+    return out
+
+
+def speed_bins(err: dict, fa_max_g: dict, speed_edges=SPEED_EDGES_MPS) -> dict:
+    """Per robot type and bin of the relative speed: the held-out states, those over the
+    limit and the bin's own margin (before the running maximum of margin_from_errors)."""
+    out = {}
+    for t, lim in fa_max_g.items():
+        k = np.searchsorted(np.asarray(speed_edges, float), err[t]["speed"], side="left")
+        out[t] = [{"states": int((k == b).sum()), "over_limit": int((np.abs(err[t]["true"][k == b]) > lim).sum()),
+                   "own_margin_g": _smallest_margin(err[t]["true"][k == b], err[t]["pred"][k == b], lim, 0.1)}
+                  for b in range(len(speed_edges) + 1)]
     return out
 
 
@@ -200,9 +234,13 @@ def measure(cfg: Config, fm: ForceModel, flights: list, limits: Limits, old_marg
     """The margin per robot type and its evidence (plan.json's ``margin``): error
     statistics per type and flight kind, the spectral-norm bound and what it gives over
     the logs' sample spacing, and the closest hovering gaps per type pair with this
-    margin, with ``old_margin_g`` and with the largest one-sided error as margin."""
+    margin, with ``old_margin_g`` and with the largest one-sided error as margin.  The
+    margin the planner takes (``margin_g``) is conditioned on the relative speed
+    (SPEED_EDGES_MPS, a speed table); ``margin_constant_g`` is the one over all speeds."""
     err = errors(cfg, fm, flights, limits)
-    m = margin_from_errors(err, limits.fa_max_g)
+    m = margin_from_errors(err, limits.fa_max_g, speed_edges=SPEED_EDGES_MPS)
+    m_const = margin_from_errors(err, limits.fa_max_g)
+    rest = Limits(fa_max_g=limits.fa_max_g, fa_margin_g=m)
     evidence = over_limit(err, limits.fa_max_g)
     stats = {}
     for kind in sorted({fl.kind for fl in flights}):
@@ -214,14 +252,17 @@ def measure(cfg: Config, fm: ForceModel, flights: list, limits: Limits, old_marg
     for lower in cfg.robot_types:
         for upper in cfg.robot_types:
             row = {"lower": lower, "upper": upper,
-                   "gap_m": closest_gap(cfg, fm, lower, upper, limits.fa_max_g[lower] - m[lower])}
+                   "gap_m": closest_gap(cfg, fm, lower, upper, limits.fa_max_g[lower] - rest.margin(lower)),
+                   "gap_constant_m": closest_gap(cfg, fm, lower, upper, limits.fa_max_g[lower] - m_const[lower])}
             if old_margin_g is not None:
                 row["gap_old_m"] = closest_gap(cfg, fm, lower, upper, limits.fa_max_g[lower] - old_margin_g)
             row["gap_largest_low_m"] = closest_gap(cfg, fm, lower, upper, limits.fa_max_g[lower]
                                                    - evidence[lower]["largest_low_rule_g"])
             gaps.append(row)
-    return {"margin_g": m, "source": "smallest m (0.1 g grid) with |f_true| <= f_a,max at every held-out state in "
-            "the planning region with |f_model| <= f_a,max - m", "evidence": evidence,
+    return {"margin_g": m, "margin_constant_g": m_const, "speed_bins": speed_bins(err, limits.fa_max_g),
+            "source": "per bin of the relative speed to the neighbours the model sees, the smallest m (0.1 g grid) "
+            "with |f_true| <= f_a,max at every held-out state of the bin in the planning region with |f_model| <= "
+            "f_a,max - m, and at least the slower bins' m", "evidence": evidence,
             "errors": {t: error_stats(err[t]["true"], err[t]["pred"], limits.fa_max_g[t]) for t in cfg.robot_types},
             "errors_by_kind": stats, "lipschitz_g_per_unit": lip, "sample_spacing": h,
             "lipschitz_between_samples_g": {k: v * h / 2 for k, v in lip.items()}, "closest_gaps": gaps,
@@ -233,16 +274,24 @@ def margin_table(rep: dict) -> str:
     errors over the region's states with |f_model| <= f_a,max), and the closest
     hovering gaps it allows."""
     lines = ["| robot type | states | over the limit | RMSE (g) | max \\|error\\| (g) | max one-sided (model low, g) | "
-             "margin (g) |", "|---|---|---|---|---|---|---|"]
+             "margin over all speeds (g) |", "|---|---|---|---|---|---|---|"]
     for t, s in rep["errors"].items():
         ev = rep.get("evidence", {}).get(t, {})
         lines.append(f"| {t} | {ev.get('states', s['states'])} | {ev.get('over_limit', '-')} | {s['rmse_g']:.2f} | "
-                     f"{s['max_abs_g']:.2f} | {s['max_low_g']:.2f} | {rep['margin_g'][t]:.1f} |")
-    lines += ["", "| lower under upper (hovering) | closest gap, measured margin | closest gap, old margin | "
-              "closest gap, margin = largest one-sided error |", "|---|---|---|---|"]
+                     f"{s['max_abs_g']:.2f} | {s['max_low_g']:.2f} | {rep['margin_constant_g'][t]:.1f} |")
+    edges = next(iter(rep["margin_g"].values()))["speeds_mps"]
+    names = [f"<= {edges[0]:g}"] + [f"{a:g}-{b:g}" for a, b in zip(edges, edges[1:])] + [f"> {edges[-1]:g}"]
+    lines += ["", "| robot type: states / over the limit / margin (g) at relative speed (m/s) | " + " | ".join(names)
+              + " |", "|---|" + "---|" * len(names)]
+    for t, bins in rep["speed_bins"].items():
+        cells = [f"{b['states']} / {b['over_limit']} / **{m:.1f}**" for b, m in zip(bins, rep["margin_g"][t]["margins_g"])]
+        lines.append(f"| {t} | " + " | ".join(cells) + " |")
+    lines += ["", "| lower under upper (hovering) | closest gap, margin at rest | closest gap, margin over all speeds | "
+              "closest gap, old margin | closest gap, margin = largest one-sided error |", "|---|---|---|---|---|"]
     for g in rep["closest_gaps"]:
-        old, big = (f"{g[k]:.2f} m" if g.get(k) is not None else "-" for k in ("gap_old_m", "gap_largest_low_m"))
-        lines.append(f"| {g['lower']} under {g['upper']} | {g['gap_m']:.2f} m | {old} | {big} |")
+        const, old, big = (f"{g[k]:.2f} m" if g.get(k) is not None else "-"
+                           for k in ("gap_constant_m", "gap_old_m", "gap_largest_low_m"))
+        lines.append(f"| {g['lower']} under {g['upper']} | {g['gap_m']:.2f} m | {const} | {old} | {big} |")
     return "\n".join(lines)
 
 
@@ -258,8 +307,11 @@ def compare_table(reports: dict) -> str:
             cells = [f"{reports[n]['errors_by_kind'][kind][t].get('rmse_g', float('nan')):.2f} / "
                      f"{reports[n]['errors_by_kind'][kind][t].get('max_low_g', float('nan')):.2f}" for n in names]
             lines.append(f"| {kind} | {t} | {s['states']} | " + " | ".join(cells) + " |")
-    lines.append("| margin (g) | | | " + " | ".join(", ".join(f"{t} {m:.1f}" for t, m in reports[n]["margin_g"].items())
-                                             for n in names) + " |")
+    lines.append("| margin over all speeds (g) | | | " + " | ".join(
+        ", ".join(f"{t} {m:.1f}" for t, m in reports[n]["margin_constant_g"].items()) for n in names) + " |")
+    lines.append("| margin by relative speed (g) | | | " + " | ".join(
+        ", ".join(f"{t} {'/'.join(f'{m:.1f}' for m in tab['margins_g'])}" for t, tab in reports[n]["margin_g"].items())
+        for n in names) + " |")
     return "\n".join(lines)
 
 

@@ -20,7 +20,7 @@ from ns2codegen.config import Config
 from ns2codegen.fileio import atomic_write_bytes, atomic_write_files
 from ns2plan.forces import ForceModel, load_force_model
 from ns2plan.planner import PlanResult, plan
-from ns2plan.problem import Limits, PlanningError, Problem, Robot, RRTParams, SCPParams
+from ns2plan.problem import Limits, PlanningError, Problem, Robot, RRTParams, SCPParams, check_margin
 from ns2plan.verify import check_solution
 
 SCENARIOS = {"SL": ("small", "large"), "SS": ("small", "small"), "LL": ("large", "large"),
@@ -445,6 +445,18 @@ def _point(v, where: str, lim: float = 1000.0) -> tuple:
     return tuple(float(x) for x in v)
 
 
+def _speed_table(v: dict, where: str, hi: float) -> dict:
+    """A margin conditioned on the relative speed: {"speeds_mps": [...], "margins_g": [...]}
+    as Limits.margin reads it, every value within physical bounds."""
+    try:
+        check_margin(where, v)
+    except PlanningError as e:
+        raise ValueError(str(e).removeprefix("limit parameter ")) from None
+    if max(v["margins_g"]) > hi or max(v["speeds_mps"]) > 100.0:
+        raise ValueError(f"{where}: margins must be at most {hi:g} g and speeds at most 100 m/s, got {v!r}")
+    return {"speeds_mps": [float(x) for x in v["speeds_mps"]], "margins_g": [float(x) for x in v["margins_g"]]}
+
+
 def _limit(cfg: Config, key: str, v, where: str):
     kind, hi = PROBLEM_LIMITS[key]
     if kind == "point":
@@ -457,12 +469,18 @@ def _limit(cfg: Config, key: str, v, where: str):
         positive = kind == "per_type"
         if not (isinstance(v, dict) and v):
             raise ValueError(f"{where}: must be a table {{robot type: grams}}, got {v!r}")
+        out = {}
         for t, g in v.items():
             if t not in cfg.robot_types:
                 raise ValueError(f"{where}.{t}: unknown robot type (the config has {cfg.robot_types})")
+            if not positive and isinstance(g, dict):     # a margin's speed table (Limits.margin)
+                out[t] = _speed_table(g, f"{where}.{t}", hi)
+                continue
             if not (_is_number(g) and (g > 0 if positive else g >= 0) and g <= hi):
-                raise ValueError(f"{where}.{t}: must be a number in {'(' if positive else '['}0, {hi:g}], got {g!r}")
-        return {t: float(g) for t, g in v.items()}
+                raise ValueError(f"{where}.{t}: must be a number in {'(' if positive else '['}0, {hi:g}]"
+                                 f"{'' if positive else ' or a speed table'}, got {g!r}")
+            out[t] = float(g)
+        return out
     ok = _is_number(v) and (v > 0 if kind == "positive" else v >= 0) and v <= hi
     if not ok:
         extra = " or a table {robot type: grams}" if kind == "nonneg_or_per_type" else ""

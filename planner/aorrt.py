@@ -65,27 +65,32 @@ class Team:
     planned: np.ndarray     # [N] bool
     trajs: list
     relaxed: np.ndarray     # [N] bool: the robot's path is a relaxed (limit-violating) placeholder
+    BOUND: np.ndarray       # [H+1, N] grams, every robot's force bound at the knots (Problem.fa_plan)
+    BOUNDS: np.ndarray      # [H, m-1, N] inside the steps
 
     @staticmethod
     def empty(problem: Problem, H: int) -> "Team":
         n, m = problem.n, problem.limits.fa_substeps
         P = np.repeat(problem.starts()[None], H + 1, 0)
         PS = np.repeat(P[:H, None], m - 1, 1)
+        rest = problem.fa_plan()
         return Team(P, np.zeros_like(P), np.zeros((H + 1, n)), PS, np.zeros_like(PS), np.zeros((H, m - 1, n)),
-                    np.zeros(n, bool), [None] * n, np.zeros(n, bool))
+                    np.zeros(n, bool), [None] * n, np.zeros(n, bool), np.tile(rest, (H + 1, 1)),
+                    np.tile(rest, (H, m - 1, 1)))
 
     def needs_path(self, i: int) -> bool:
         """Robot i has no valid path yet (none, or a relaxed placeholder)."""
         return self.trajs[i] is None or bool(self.relaxed[i])
 
-    def over_limit(self, i: int, fa_max: float) -> bool:
-        """Robot i's path is over its force limit f_a,max in the current team (a relaxed
+    def over_limit(self, i: int) -> bool:
+        """Robot i's path is over its force bound in the current team (a relaxed
         neighbour pushed it there), at a knot or inside a step."""
-        return bool(self.planned[i]) and bool(np.abs(self.FA[:, i]).max() > fa_max
-                                              or np.abs(self.FAS[:, :, i]).max(initial=0.0) > fa_max)
+        return bool(self.planned[i]) and bool(np.any(np.abs(self.FA[:, i]) > self.BOUND[:, i])
+                                              or np.any(np.abs(self.FAS[:, :, i]) > self.BOUNDS[:, :, i]))
 
-    def set(self, i: int, traj: Trajectory, fm: ForceModel, types, kappa: float, relaxed: bool = False) -> None:
+    def set(self, i: int, traj: Trajectory, fm: ForceModel, pb: Problem, relaxed: bool = False) -> None:
         """Robot i's path (``relaxed``: a placeholder, see AORRT._relax)."""
+        types, kappa = pb.type_index(), float(pb.kappa()[i])
         H, m = len(self.P) - 1, self.PS.shape[1] + 1
         self.relaxed[i] = relaxed
         self.P[:, i], self.V[:, i] = hold_arrays(traj, H)
@@ -97,9 +102,12 @@ class Team:
         self.planned[i] = True
         present = np.repeat(self.planned[None], H + 1, 0)
         self.FA = fm.team_np(types, self.P, self.V, present)
+        self.BOUND = pb.fa_plan(fm.rel_speed_np(types, self.P, self.V, present))
         n = len(self.planned)
-        self.FAS = fm.team_np(types, self.PS.reshape(-1, n, 3), self.VS.reshape(-1, n, 3),
-                              np.repeat(self.planned[None], H * (m - 1), 0)).reshape(H, m - 1, n)
+        PS, VS = self.PS.reshape(-1, n, 3), self.VS.reshape(-1, n, 3)
+        present = np.repeat(self.planned[None], H * (m - 1), 0)
+        self.FAS = fm.team_np(types, PS, VS, present).reshape(H, m - 1, n)
+        self.BOUNDS = pb.fa_plan(fm.rel_speed_np(types, PS, VS, present)).reshape(H, m - 1, n)
 
 
 @dataclass
@@ -167,7 +175,7 @@ class AORRT:
         self.types = problem.type_index()
         self.kappa = problem.kappa()
         self.r = problem.r_pair()
-        self.fa_max = problem.fa_plan()      # f_a,max less the model-error margin
+        self.fa_max = problem.fa_plan()      # f_a,max less the model-error margin at rest (the sampled range)
         self.lo, self.hi = problem.box()
         self.ax = list(problem.axes)
         self.rng = np.random.default_rng(params.seed)
@@ -176,8 +184,9 @@ class AORRT:
     # ------------------------------------------------------------------ checks
     def _forces(self, team: Team, i: int, k: np.ndarray, q: np.ndarray, p: np.ndarray, v: np.ndarray):
         """Joint forces [B, N] of the planned robots and robot i (at p, v) at knot k
-        (q = 0) or at point q of step k -> k+1 (q >= 1), and the planned robots'
-        previous forces [B, N] there."""
+        (q = 0) or at point q of step k -> k+1 (q >= 1), the planned robots'
+        previous forces [B, N] there, and every robot's force bound [B, N] there (g:
+        f_a,max less the margin at its relative speed, Problem.fa_plan)."""
         kc, qc = np.minimum(k, len(team.PS) - 1), np.maximum(q, 1) - 1
         knot = (q == 0)[:, None]
         P = np.where(knot[..., None], team.P[k], team.PS[kc, qc])
@@ -186,7 +195,8 @@ class AORRT:
         P[:, i], V[:, i] = p, v
         present = np.repeat(team.planned[None], len(k), 0)
         present[:, i] = True
-        return self.fm.team_np(self.types, P, V, present), FA
+        bound = self.pb.fa_plan(self.fm.rel_speed_np(self.types, P, V, present))
+        return self.fm.team_np(self.types, P, V, present), FA, bound
 
     def _excess(self, team: Team, i: int, k_prev, p_prev, v_prev, a, k, p, v):
         """StateValid (line state_valid) for candidates of robot i that move from
@@ -213,10 +223,10 @@ class AORRT:
         P = np.concatenate([p[idx][:, None], ps], 1).reshape(-1, 3)
         V = np.concatenate([v[idx][:, None], vs], 1).reshape(-1, 3)
         q = np.tile(np.arange(m), b)
-        F, FA = self._forces(team, i, np.repeat(kk, m) - (q > 0), q, P, V)
-        F, FA = F.reshape(b, m, -1), FA.reshape(b, m, -1)
+        F, FA, bound = self._forces(team, i, np.repeat(kk, m) - (q > 0), q, P, V)
+        F, FA, over = F.reshape(b, m, -1), FA.reshape(b, m, -1), (np.abs(F) - bound).reshape(b, m, -1)
         fa_i[idx] = F[:, 0, i]
-        own[idx] = np.abs(F[:, :, i]).max(1) - self.fa_max[i]
+        own[idx] = over[:, :, i].max(1)
         good = np.ones(b, bool)
         ex = np.full(b, -np.inf)
         for j in np.flatnonzero(team.planned):
@@ -224,7 +234,7 @@ class AORRT:
                 continue
             d = segment_distance(p_prev[idx], p[idx], team.P[k_prev[idx], j], team.P[kk, j])
             good &= d >= self.r[i, j]
-            ex = np.maximum(ex, np.abs(F[:, :, j]).max(1) - self.fa_max[j])
+            ex = np.maximum(ex, over[:, :, j].max(1))
             if not team.relaxed[j]:
                 ex = np.maximum(ex, np.abs(F[:, :, j] - FA[:, :, j]).max(1) - lim.b_fa_g)
         hard[idx] = good
@@ -387,7 +397,7 @@ class AORRT:
             if traj is None:
                 break
             best, excess = traj, ex
-        team.set(i, best, self.fm, self.types, float(self.kappa[i]), relaxed=True)
+        team.set(i, best, self.fm, self.pb, relaxed=True)
         return float(excess)
 
     def _joint(self, st: "_Stage1State", deadline: float) -> bool:
@@ -404,7 +414,7 @@ class AORRT:
             if trajs is not None:
                 break
         for j, tr in enumerate(trajs or []):
-            st.team.set(j, tr, self.fm, self.types, float(self.kappa[j]))
+            st.team.set(j, tr, self.fm, self.pb)
             st.costs[j] = tr.effort()
         for j in range(self.pb.n):
             st.per_robot[j] += (time.perf_counter() - t0) / self.pb.n
@@ -427,7 +437,7 @@ class AORRT:
         u = tr.accel(self.kappa[i]) - accel(np.zeros_like(tr.u), fa[:-1], self.kappa[i])
         if np.abs(u).max(initial=0.0) > self.pb.limits.u_max:
             return None
-        if any(team.over_limit(j, self.fa_max[j]) for j in range(self.pb.n)):
+        if any(team.over_limit(j) for j in range(self.pb.n)):
             return None
         return Trajectory(tr.p.copy(), tr.v.copy(), fa, u, tr.dt)
 
@@ -478,7 +488,7 @@ class AORRT:
         ts = time.perf_counter()
         deadline = min(ts + self.par.search.time_s, deadline_total)
         outcome = "improved" if self._new_path(st, i, deadline) else None
-        if outcome is None and (st.team.needs_path(i) or st.team.over_limit(i, self.fa_max[i])):
+        if outcome is None and (st.team.needs_path(i) or st.team.over_limit(i)):
             if not st.joint_tried and self.par.joint.tries > 0:
                 st.joint_tried = True
                 st.per_robot[i] += time.perf_counter() - ts
@@ -509,7 +519,7 @@ class AORRT:
         st.costs[i] = traj.effort()
         if tree is not None:
             st.trees[i] = tree.trimmed()
-        team.set(i, traj, self.fm, self.types, float(self.kappa[i]))
+        team.set(i, traj, self.fm, self.pb)
         return True
 
     def _finished(self, st: "_Stage1State", improved: bool, deadline: float) -> bool:

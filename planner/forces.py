@@ -113,6 +113,24 @@ class ForceModel:
                           torch.as_tensor(np.ascontiguousarray(V), dtype=torch.float32), pr)
         return f.double().numpy()
 
+    def rel_speed_np(self, types, P, V, present=None) -> np.ndarray:
+        """Every robot's relative speed to the neighbours the model sees: types [N],
+        P, V [..., N, 3] (numpy), present [..., N] bool.  Returns [..., N] m/s, the
+        largest ||v_j - v_i|| over the present robots j != i with p_j - p_i inside
+        the interaction volume V(type_i, type_j) (0 with none): the speed the
+        planning margin is conditioned on (Limits.fa_margin_g, ns2exp.margin)."""
+        P, V = np.asarray(P, float), np.asarray(V, float)
+        n = P.shape[-2]
+        types = np.asarray(types, int)
+        vol = self.vol.double().numpy()[types[:, None], types[None, :]]          # [N, N, 2, 3]
+        rel = P[..., None, :, :] - P[..., :, None, :]                            # [..., i, j, 3]: p_j - p_i
+        inside = ((rel >= vol[..., 0, :]) & (rel <= vol[..., 1, :])).all(-1) & ~np.eye(n, dtype=bool)
+        if present is not None:
+            pr = np.asarray(present, bool)
+            inside &= pr[..., None, :] & pr[..., :, None]
+        speed = np.linalg.norm(V[..., None, :, :] - V[..., :, None, :], axis=-1)
+        return np.where(inside, speed, 0.0).max(-1)
+
     def jacobians(self, types, P, V, i: int):
         """Linearization around a team trajectory, for robot i (Stage 2):
         F [T, N] (g), dF_j/dp_i and dF_j/dv_i as [N, T, 3] for every robot j

@@ -123,7 +123,7 @@ def _actions(s, pr, p0, v0, f0):
 def _valid(s, tree: _CompositeTree, near, u, p1, v1):
     """The valid extensions (indices) and their joint forces [c, m, n] at the new knot
     and inside the step: horizon, box, speed, pairwise collision over the step, every
-    robot's |f_a,z-hat| <= f_a,max."""
+    robot's |f_a,z-hat| within its bound at its relative speed (Problem.fa_plan)."""
     sp, lim, ax, n = s.par.search, s.pb.limits, s.ax, s.pb.n
     p0, v0, f0 = tree.P[near], tree.V[near], tree.FA[near]
     ok = (tree.K[near] + 1 <= sp.max_steps) & np.all((p1[..., ax] >= s.lo[ax]) & (p1[..., ax] <= s.hi[ax]), (1, 2))
@@ -138,8 +138,10 @@ def _valid(s, tree: _CompositeTree, near, u, p1, v1):
     ps, vs = substates(p0[idx], v0[idx], accel(u[idx], f0[idx], s.kappa), sp.dt, m)    # [c, n, m-1, 3]
     Ps = np.concatenate([p1[idx][:, None], ps.transpose(0, 2, 1, 3)], 1)              # [c, m, n, 3]
     Vs = np.concatenate([v1[idx][:, None], vs.transpose(0, 2, 1, 3)], 1)
-    F = s.fm.team_np(s.types, Ps.reshape(-1, n, 3), Vs.reshape(-1, n, 3)).reshape(len(idx), m, n)
-    good = np.all(np.abs(F) <= s.fa_max, (1, 2))
+    Ps, Vs = Ps.reshape(-1, n, 3), Vs.reshape(-1, n, 3)
+    F = s.fm.team_np(s.types, Ps, Vs).reshape(len(idx), m, n)
+    bound = s.pb.fa_plan(s.fm.rel_speed_np(s.types, Ps, Vs)).reshape(len(idx), m, n)
+    good = np.all(np.abs(F) <= bound, (1, 2))
     return idx[good], F[good]
 
 

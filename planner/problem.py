@@ -31,6 +31,26 @@ class Robot:
     goal: tuple               # p_f (m), v_f = 0
 
 
+def check_margin(name: str, m) -> None:
+    """A margin (g): a finite number >= 0, or a speed table {"speeds_mps": s, "margins_g":
+    m} with s strictly increasing and > 0 and len(m) = len(s) + 1 (Limits.margin)."""
+    def number(x):
+        return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
+
+    if isinstance(m, dict):
+        s, g = m.get("speeds_mps"), m.get("margins_g")
+        if set(m) != {"speeds_mps", "margins_g"} or not isinstance(s, (list, tuple)) \
+                or not isinstance(g, (list, tuple)) or len(g) != len(s) + 1:
+            raise PlanningError(f"limit parameter {name} must be a number or a table {{speeds_mps: [s_1..s_n], "
+                                f"margins_g: [m_0..m_n]}}, got {m!r}")
+        if not all(number(x) and x > 0 for x in s) or any(b <= a for a, b in zip(s, s[1:])):
+            raise PlanningError(f"limit parameter {name}.speeds_mps must be finite, > 0 and increasing, got {s!r}")
+        if not all(number(x) and x >= 0 for x in g):
+            raise PlanningError(f"limit parameter {name}.margins_g must be finite numbers >= 0, got {g!r}")
+    elif not (number(m) and m >= 0):
+        raise PlanningError(f"limit parameter {name} must be a finite number >= 0, got {m!r}")
+
+
 def _require(owner: str, obj, ints=(), counts=(), positive=(), nonneg=()) -> None:
     """Refuse bad parameters where they are constructed (PlanningError naming the field):
     ``ints`` positive integers, ``counts`` integers >= 0, ``positive`` finite numbers > 0,
@@ -60,7 +80,8 @@ class Limits:
     b_fa_g: float = 3.0                      # trust region on a neighbour's force change
     fa_substeps: int = 4                     # force limits also checked at dt/4, dt/2, 3dt/4 of every step
     clearance_m: float = 0.0                 # added to the tight collision distance of every pair (see r_pair)
-    fa_margin_g: float | dict = 0.0          # g of f_a,max kept free for model error, one value or per type (fa_plan)
+    fa_margin_g: float | dict = 0.0          # g of f_a,max kept free for model error: one value, or per type a
+    #                                          value or a speed table {"speeds_mps": [...], "margins_g": [...]} (margin)
 
     def __post_init__(self):
         if not all(isinstance(x, (int, float)) and x > 0 for x in (self.v_max, self.u_max, self.b_fa_g)):
@@ -69,9 +90,7 @@ class Limits:
         _require("limit", self, ints=("fa_substeps",), nonneg=("clearance_m",))
         margins = self.fa_margin_g.items() if isinstance(self.fa_margin_g, dict) else [(None, self.fa_margin_g)]
         for t, m in margins:
-            if not (isinstance(m, (int, float)) and not isinstance(m, bool) and math.isfinite(m) and m >= 0):
-                raise PlanningError(f"limit parameter fa_margin_g{'' if t is None else f'[{t}]'} must be a finite "
-                                    f"number >= 0, got {m!r}")
+            check_margin(f"fa_margin_g{'' if t is None else f'[{t}]'}", m)
         if not (len(self.pos_lo) == 3 and len(self.pos_hi) == 3):
             raise PlanningError(f"the state box needs 3-D pos_lo and pos_hi, got {self.pos_lo} .. {self.pos_hi}")
         bad = {t: f for t, f in self.fa_max_g.items() if not (isinstance(f, (int, float)) and f > 0)}
@@ -82,10 +101,19 @@ class Limits:
             raise PlanningError(f"infeasible limits: f_a,max - fa_margin_g must be positive, got {tight}")
 
 
-    def margin(self, robot_type: str) -> float:
-        """fa_margin_g of a robot type (0 for a type a per-type table leaves out)."""
+    def margin(self, robot_type: str, speed=0.0):
+        """fa_margin_g of a robot type (0 for a type a per-type table leaves out) at the
+        robot's relative speed to the neighbours the model sees (m/s, a number or an
+        array: ForceModel.rel_speed_np).  A speed table gives margins_g[k] for speeds in
+        (speeds_mps[k-1], speeds_mps[k]], the first at or below speeds_mps[0], the last
+        above speeds_mps[-1]; a number holds at every speed."""
         m = self.fa_margin_g
-        return float(m.get(robot_type, 0.0)) if isinstance(m, dict) else float(m)
+        m = m.get(robot_type, 0.0) if isinstance(m, dict) else m
+        if isinstance(m, dict):
+            k = np.searchsorted(np.asarray(m["speeds_mps"], float), speed, side="left")
+            out = np.asarray(m["margins_g"], float)[k]
+            return float(out) if np.ndim(out) == 0 else out
+        return float(m) if np.ndim(speed) == 0 else np.full(np.shape(speed), float(m))
 
 
 MAX_SAMPLES = 40000
@@ -218,11 +246,17 @@ class Problem:
         except KeyError as e:
             raise PlanningError(f"no interaction force limit f_a,max for robot type {e}") from e
 
-    def fa_plan(self) -> np.ndarray:
+    def fa_plan(self, speeds=None) -> np.ndarray:
         """The force bound the planner enforces: f_a,max - fa_margin_g (per type), so that
         a model that reads low by up to that margin still keeps the flight within f_a,max
-        (the limit every result is reported against; ns2exp.margin measures it)."""
-        return self.fa_max() - np.array([self.limits.margin(r.type) for r in self.robots])
+        (the limit every result is reported against; ns2exp.margin measures it).
+        ``speeds`` [..., N] (m/s, ForceModel.rel_speed_np): the bound [..., N] at those
+        relative speeds; None: [N] at rest."""
+        if speeds is None:
+            speeds = np.zeros(self.n)
+        speeds = np.asarray(speeds, float)
+        margin = np.stack([self.limits.margin(r.type, speeds[..., i]) for i, r in enumerate(self.robots)], -1)
+        return self.fa_max() - margin
 
     def starts(self) -> np.ndarray:
         return np.array([r.start for r in self.robots], float)

@@ -6,14 +6,16 @@ One convex program per robot per iteration, eq. (scp), the others fixed:
     min  sum_k ||u_k||^2 + lambda_1 ||x_T - x_f||_inf + lambda_2 delta
     s.t. p, v: eq. (planning-discreteDynamics) with a_k = u_k + kappa fa_k e_z
          fa_k = f_a-hat(x_bar_k) + A_k (x_k - x_bar_k)                 eq. (planning-xdot-approx)
-         u_k in U;  x_k in X_delta (box + |fa_k| <= f_a,max, widened by delta >= 0)
+         u_k in U;  x_k in X_delta (box + |fa_k| <= f_a,max less the margin, widened by delta >= 0)
          <p_bar^(ij)_k, p_k - p_bar^(j)_k> >= r^(I(i)I(j)) ||p_bar^(ij)_k||   (convexified collision,
                                                  also at the points inside the steps)
          x_0 = x_s
          |C^(j)_k (x_k - x_bar_k)| <= b_fa, |f_a^(j)(x_bar_k) + C^(j)_k (x_k - x_bar_k)| <= f_a,max^(j) + delta
          |x_k - x_bar_k| <= b_x,  |u_k - u_bar_k| <= b_u                   (trust regions)
 
-The force rows are also imposed at fa_substeps - 1 points inside every step
+The force bound is f_a,max less the model-error margin at the robot's relative speed
+(Problem.fa_plan), taken at the previous solution's speeds in the program and at the
+candidate's in the merit.  The force rows are also imposed at fa_substeps - 1 points inside every step
 (the states there are affine in the variables), where a crossing's force peaks.
 A_k and C^(j)_k are Jacobians of the learned force from torch autograd
 (eq. planning-Fa-approx).  Solved with cvxpy and Clarabel.  A step is accepted only
@@ -56,10 +58,15 @@ def _team_arrays(trajs: list) -> tuple[np.ndarray, np.ndarray]:
 def merit(pb: Problem, fm: ForceModel, trajs: list, par: SCPParams) -> tuple[float, dict]:
     """Team merit with the true (nonlinear) learned forces of the whole team."""
     P, V = _team_arrays(trajs)
-    F = fm.team_np(pb.type_index(), P, V)
-    kappa, fa_max, r = pb.kappa(), pb.fa_plan(), pb.r_pair()
-    F_sub = fm.team_np(pb.type_index(), *team_substates(trajs, kappa, pb.limits.fa_substeps)) \
-        if pb.limits.fa_substeps > 1 else np.zeros((0, pb.n))
+    types = pb.type_index()
+    F = fm.team_np(types, P, V)
+    kappa, r = pb.kappa(), pb.r_pair()
+    bound = pb.fa_plan(fm.rel_speed_np(types, P, V))
+    if pb.limits.fa_substeps > 1:
+        Ps, Vs = team_substates(trajs, kappa, pb.limits.fa_substeps)
+        F_sub, bound_sub = fm.team_np(types, Ps, Vs), pb.fa_plan(fm.rel_speed_np(types, Ps, Vs))
+    else:
+        F_sub, bound_sub = np.zeros((0, pb.n)), np.zeros((0, pb.n))
     lo, hi = pb.box()
     ax = list(pb.axes)
     goals = pb.goals()
@@ -69,8 +76,8 @@ def merit(pb: Problem, fm: ForceModel, trajs: list, par: SCPParams) -> tuple[flo
         parts["effort"] += float((tr.u ** 2).sum())
         parts["goal"] += par.lambda_goal * float(np.abs(np.concatenate([tr.p[-1, ax] - goals[i, ax], tr.v[-1, ax]])).max())
         viol = max(0.0, float(np.max(tr.p[:, ax] - hi[ax])), float(np.max(lo[ax] - tr.p[:, ax])),
-                   float(np.max(np.abs(tr.v) - pb.limits.v_max)), float(np.max(np.abs(F[:, i]) - fa_max[i])),
-                   float(np.max(np.abs(F_sub[:, i]) - fa_max[i], initial=0.0)))
+                   float(np.max(np.abs(tr.v) - pb.limits.v_max)), float(np.max(np.abs(F[:, i]) - bound[:, i])),
+                   float(np.max(np.abs(F_sub[:, i]) - bound_sub[:, i], initial=0.0)))
         for j in range(i + 1, pb.n):
             d = segment_distance(tr.p[:-1], tr.p[1:], trajs[j].p[:-1], trajs[j].p[1:])
             viol += float(np.clip(r[i, j] - d, 0.0, None).sum())
@@ -136,7 +143,8 @@ class _Program:
         types = pb.type_index()
         self.P, V = _team_arrays(trajs)
         self.F, self.dP, self.dV = fm.jacobians(types, self.P, V, i)
-        self.kappa, self.fa_max, self.r = pb.kappa()[i], pb.fa_plan(), pb.r_pair()
+        self.kappa, self.r = pb.kappa()[i], pb.r_pair()
+        self.bound = pb.fa_plan(fm.rel_speed_np(types, self.P, V))     # [T+1, N] at the previous solution's speeds
         T, d, ax = self.T, self.d, self.ax
         self.pbar, self.vbar, self.ubar = tr.p[:, ax], tr.v[:, ax], tr.u[:, ax]
         self.p, self.v = cp.Variable((T + 1, d)), cp.Variable((T + 1, d))
@@ -155,6 +163,7 @@ class _Program:
         if m > 1:
             self.Ps, Vs = team_substates(trajs, self.pb.kappa(), m)
             self.Fs, self.dPs, self.dVs = fm.jacobians(types, self.Ps, Vs, i)
+            self.bounds = self.pb.fa_plan(fm.rel_speed_np(types, self.Ps, Vs))
             for q in range(1, m):
                 sq, rows = q / m * self.dt, slice(q - 1, None, m - 1)
                 pq = self.p[:-1] + sq * self.v[:-1] + 0.5 * sq * sq * acc
@@ -189,11 +198,10 @@ class _Program:
         pb, i, T, d, ax, dt = self.pb, self.i, self.T, self.d, self.ax, self.dt
         p, v, fa, u, lim, par = self.p, self.v, self.fa, self.u, pb.limits, self.par
         lo, hi = pb.box()
-        fa_max = self.fa_max[i]
         cons = [p[0] == pb.starts()[i, ax], v[0] == 0.0, fa == self.F[:, i] + self.lin(i)]
         for rows, dpq, dvq in self.subs:
             cons.append(cp.abs(self.Fs[rows, i] + self.lin(i, self.dPs, self.dVs, rows, dpq, dvq))
-                        <= fa_max + self.slack(T))
+                        <= self.bounds[rows, i] + self.slack(T))
         zc = ax.index(2)
         for c in range(d):
             a = u[:, c] + self.kappa * fa[:-1] if c == zc else u[:, c]
@@ -202,7 +210,7 @@ class _Program:
             cp.abs(u) <= lim.u_max,
             p >= np.tile(lo[ax], (T + 1, 1)) - self.slack((T + 1, d)),
             p <= np.tile(hi[ax], (T + 1, 1)) + self.slack((T + 1, d)),
-            cp.abs(v) <= lim.v_max + self.slack((T + 1, d)), cp.abs(fa) <= fa_max + self.slack(T + 1),
+            cp.abs(v) <= lim.v_max + self.slack((T + 1, d)), cp.abs(fa) <= self.bound[:, i] + self.slack(T + 1),
             cp.abs(self.dp) <= self.rho * par.b_p, cp.abs(self.dv) <= self.rho * par.b_v,
             cp.abs(u - self.ubar) <= self.rho * par.b_u]
 
@@ -224,11 +232,11 @@ class _Program:
                             >= r[i, j] + par.collision_margin)
         if np.any(self.dP[j]) or np.any(self.dV[j]):
             cons += [cp.abs(self.lin(j)) <= lim.b_fa_g,
-                     cp.abs(self.F[:, j] + self.lin(j)) <= self.fa_max[j] + self.slack(T + 1)]
+                     cp.abs(self.F[:, j] + self.lin(j)) <= self.bound[:, j] + self.slack(T + 1)]
         for rows, dpq, dvq in self.subs:
             if np.any(self.dPs[j][rows]) or np.any(self.dVs[j][rows]):
                 cj = self.lin(j, self.dPs, self.dVs, rows, dpq, dvq)
-                cons += [cp.abs(cj) <= lim.b_fa_g, cp.abs(self.Fs[rows, j] + cj) <= self.fa_max[j] + self.slack(T)]
+                cons += [cp.abs(cj) <= lim.b_fa_g, cp.abs(self.Fs[rows, j] + cj) <= self.bounds[rows, j] + self.slack(T)]
         return cons
 
 

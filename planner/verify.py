@@ -11,7 +11,9 @@ from .problem import Problem
 
 def check_solution(pb: Problem, fm: ForceModel, trajs: list) -> dict:
     """Per robot: box and speed violation (m, m/s), worst |f_a,z-hat| with the whole
-    team (g, at the knots and at least 3 points inside every step) against f_a,max, closest approach to every other robot (continuous over
+    team (g, at the knots and at least 3 points inside every step) against f_a,max and how
+    far it comes over the planning bound (f_a,max less the margin at the robot's relative
+    speed: <= 0 when the plan keeps it), closest approach to every other robot (continuous over
     each step, m) against r, goal error, and the nonlinear dynamics defect."""
     H = max(t.T for t in trajs)
     P = np.stack([np.concatenate([t.p, np.repeat(t.p[-1:], H - t.T, 0)]) for t in trajs], 1)
@@ -19,7 +21,10 @@ def check_solution(pb: Problem, fm: ForceModel, trajs: list) -> dict:
     F = fm.team_np(pb.type_index(), P, V)
     held = [Trajectory(P[:, i], V[:, i], F[:, i], np.concatenate([t.u, np.zeros((H - t.T, 3))]), t.dt)
             for i, t in enumerate(trajs)]
-    F_sub = fm.team_np(pb.type_index(), *team_substates(held, pb.kappa(), max(pb.limits.fa_substeps, 4)))
+    Ps, Vs = team_substates(held, pb.kappa(), max(pb.limits.fa_substeps, 4))
+    F_sub = fm.team_np(pb.type_index(), Ps, Vs)
+    over = np.concatenate([np.abs(F) - pb.fa_plan(fm.rel_speed_np(pb.type_index(), P, V)),
+                           np.abs(F_sub) - pb.fa_plan(fm.rel_speed_np(pb.type_index(), Ps, Vs))])
     lo, hi = pb.box()
     ax = list(pb.axes)
     r, fa_max, kappa, goals = pb.r_pair(), pb.fa_max(), pb.kappa(), pb.goals()
@@ -34,6 +39,7 @@ def check_solution(pb: Problem, fm: ForceModel, trajs: list) -> dict:
             "action_violation": float(max(0.0, np.max(np.abs(tr.u) - pb.limits.u_max))),
             "worst_fa_g": float(max(np.abs(F[:, i]).max(), np.abs(F_sub[:, i]).max(initial=0.0))),
             "fa_max_g": float(fa_max[i]),
+            "fa_over_bound_g": float(over[:, i].max()),
             "min_clearance_m": min(clear) if clear else float("inf"),
             "goal_error_m": float(np.linalg.norm(tr.p[-1] - goals[i])),
             "goal_speed_mps": float(np.linalg.norm(tr.v[-1])),

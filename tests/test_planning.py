@@ -299,6 +299,27 @@ def test_joint_search_solves_an_exchange_that_sequential_planning_cannot(cfg):
     _assert_team_within_limits(pb, fm, res.trajs)
 
 
+def test_margin_by_relative_speed_is_kept(cfg):
+    """A margin conditioned on the relative speed (issue 24): Stage 1 and SCP keep every
+    robot within f_a,max less the margin at its relative speed; the plan made with the
+    margin at rest only breaks that bound (a large robot under the small one while they
+    move apart), so the check has teeth."""
+    from ns2plan.planner import plan
+
+    tab = {"small": {"speeds_mps": [0.3], "margins_g": [0.5, 4.0]},
+           "large": {"speeds_mps": [0.3], "margins_g": [0.5, 9.0]}}
+    pb = Problem(cfg, SWAP_SL, replace(LIMITS, fa_margin_g=tab))
+    fm = ForceModel(cfg, StrongDownwash(cfg))
+    par = RRTParams(SearchParams(max_nodes=4000, max_samples=20000), ao_iterations=1, seed=2)
+    with single_thread():
+        res = plan(pb, fm, par, SCPParams(max_iterations=4))
+        rest = plan(Problem(cfg, SWAP_SL, replace(LIMITS, fa_margin_g=0.5)), fm, par, SCPParams(max_iterations=4))
+    for trajs in (res.stage1.trajs, res.trajs):
+        for rep in check_solution(pb, fm, trajs)["robots"]:
+            assert rep["fa_over_bound_g"] <= 1e-4, rep
+    assert max(r["fa_over_bound_g"] for r in check_solution(pb, fm, rest.trajs)["robots"]) > 1.0
+
+
 def test_force_margin_and_clearance_are_kept(cfg):
     """Limits.fa_margin_g: the planner keeps f_a,max - margin (Stage 1 and SCP);
     Limits.clearance_m: every pair stays that much beyond the tight spheres."""

@@ -238,6 +238,61 @@ def test_per_type_margin_in_limits_and_problem_files(cfg, tmp_path):
         load_problem(cfg, f)
 
 
+def test_margin_conditioned_on_the_relative_speed(cfg, tmp_path):
+    """The margin by relative speed (issue 24): the speed is read to the neighbours the
+    model sees; each bin keeps its own promise and is never below a slower bin's; the
+    planner's bound follows the table; problem files and Limits refuse bad tables."""
+    import json
+
+    from ns2exp.margin import margin_from_errors, speed_bins
+    from ns2exp.planning import load_problem
+    from ns2plan.problem import Limits, PlanningError, Problem, Robot
+
+    fm = ForceModel(cfg, None)
+    P = np.array([[[0, 0, 1.0], [0.3, 0, 1.5], [0, 0, 4.0], [0, 0, 0.5]]])   # 1 over 0, 2 far above, 3 0.5 m below
+    V = np.zeros_like(P)
+    V[0, 1] = [0.3, 0.0, 0.4]        # 0.5 m/s relative to robot 0
+    V[0, 2] = [3.0, 0.0, 0.0]        # outside every volume: not counted
+    V[0, 3] = [0.0, 2.0, 0.0]        # more than 0.2 m below robot 0: outside its volume, robot 0 inside robot 3's
+    s = fm.rel_speed_np([0, 1, 0, 0], P, V)
+    np.testing.assert_allclose(s[0], [0.5, 0.0, 0.0, np.sqrt(0.3 ** 2 + 2.0 ** 2 + 0.4 ** 2)])   # 3: the faster of 0, 1
+    np.testing.assert_allclose(fm.rel_speed_np([0, 1, 0, 0], P, V, np.array([[True, False, True, True]]))[0],
+                               [0.0, 0.0, 0.0, 2.0])
+    # per bin the smallest margin that keeps its states within the limit, then the running maximum
+    true = np.array([-5.5, -4.0, -6.0, -7.0, -2.0, -5.2])
+    pred = np.array([-4.6, -3.0, -3.0, -2.0, -1.0, -4.9])
+    speed = np.array([0.1, 0.2, 0.6, 0.9, 1.2, 2.0])
+    err = {"small": {"true": true, "pred": pred, "speed": speed}}
+    tab = margin_from_errors(err, {"small": 5.0}, speed_edges=(0.5, 1.0, 1.5))["small"]
+    assert tab["speeds_mps"] == [0.5, 1.0, 1.5]
+    np.testing.assert_allclose(tab["margins_g"], [0.5, 3.1, 3.1, 3.1])   # own: 0.5, 3.1, 0 (not over), 0.2
+    bins = speed_bins(err, {"small": 5.0}, (0.5, 1.0, 1.5))["small"]
+    assert [b["states"] for b in bins] == [2, 2, 1, 1] and [b["over_limit"] for b in bins] == [1, 2, 0, 1]
+    np.testing.assert_allclose([b["own_margin_g"] for b in bins], [0.5, 3.1, 0.0, 0.2])
+    assert margin_from_errors(err, {"small": 5.0})["small"] == pytest.approx(3.1)      # over all speeds
+    lim = Limits(fa_margin_g={"small": tab})
+    for v, m in ((0.0, 0.5), (0.5, 0.5), (0.51, 3.1), (3.0, 3.1)):
+        assert lim.margin("small", v) == pytest.approx(m)
+    np.testing.assert_allclose(lim.margin("small", np.array([0.2, 0.7])), [0.5, 3.1])
+    pb = Problem(cfg, [Robot("small", (0, -0.4, 1.0), (0, 0.4, 1.0)), Robot("large", (0, 0.4, 1.0), (0, -0.4, 1.0))],
+                 lim)
+    np.testing.assert_allclose(pb.fa_plan(), [4.5, 10.0])
+    np.testing.assert_allclose(pb.fa_plan(np.array([[0.7, 0.7], [0.0, 2.0]])), [[1.9, 10.0], [4.5, 10.0]])
+    for bad, msg in (({"speeds_mps": [0.5], "margins_g": [1.0]}, "must be a number or a table"),
+                     ({"speeds_mps": [0.5, 0.5], "margins_g": [1.0, 1.0, 1.0]}, "increasing"),
+                     ({"speeds_mps": [0.5], "margins_g": [1.0, -1.0]}, "margins_g must be finite"),
+                     ({"speeds_mps": [0.5], "margins_g": [5.0, 6.0]}, "must be positive")):
+        with pytest.raises(PlanningError, match=msg):
+            Limits(fa_margin_g={"small": bad})
+    f = tmp_path / "p.json"
+    base = {"robots": [{"type": "small", "start": [0, -0.4, 1.0], "goal": [0, 0.4, 1.0]}], "axes": "yz"}
+    f.write_text(json.dumps({**base, "limits": {"fa_margin_g": {"small": tab}}}))
+    assert load_problem(cfg, f).limits.margin("small", 0.8) == pytest.approx(3.1)
+    f.write_text(json.dumps({**base, "limits": {"fa_margin_g": {"small": {"speeds_mps": [0.5], "margins_g": [1, "x"]}}}}))
+    with pytest.raises(PlanningError, match=r"p.json: limits.fa_margin_g.small.margins_g"):
+        load_problem(cfg, f)
+
+
 def test_profile_table_means_the_planned_trials():
     from ns2exp.planning import PROFILE_COLUMNS, profile_table
 
