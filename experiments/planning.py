@@ -20,7 +20,7 @@ from ns2codegen.config import Config
 from ns2codegen.fileio import atomic_write_bytes, atomic_write_files
 from ns2plan.forces import ForceModel, load_force_model
 from ns2plan.planner import PlanResult, plan
-from ns2plan.problem import Limits, PlanningError, Problem, Robot, RRTParams, SCPParams, check_margin
+from ns2plan.problem import GRAMS_TO_N, Limits, PlanningError, Problem, Robot, RRTParams, SCPParams, check_margin
 from ns2plan.verify import check_solution
 
 SCENARIOS = {"SL": ("small", "large"), "SS": ("small", "small"), "LL": ("large", "large"),
@@ -69,8 +69,6 @@ def downwash_check(cfg: Config, fm: ForceModel, gaps=CHECK_GAPS, z: float = HEIG
     f_a,z of the lower robot in grams."""
     from ns2host.sim.aero import calibrated
     from ns2host.sim.vehicle import vehicle
-
-    from ns2plan.problem import GRAMS_TO_N
 
     rows = []
     for lower in cfg.robot_types:
@@ -176,7 +174,10 @@ def _summary(trials: list, pb: Problem) -> dict:
         planned = np.array([max(t["check"]["robots"][i]["worst_fa_g"] for i in idx) for t in ok])
         out[kind] = {"max_worst_fa_g": float(worst.max()), "median_worst_fa_g": float(np.median(worst)),
                      "limit_g": float(fa_max[idx[0]]), "trials_over_limit": int((worst > fa_max[idx[0]]).sum()),
-                     "planned_max_fa_g": float(planned.max())}
+                     "planned_max_fa_g": float(planned.max()),
+                     "over_limit_states": int(sum(t["track"]["over_limit_states"][i] for t in ok for i in idx)),
+                     "over_limit_in_bound_states": int(sum(t["track"]["over_limit_in_bound_states"][i]
+                                                           for t in ok for i in idx))}
     out["trials_any_over_limit"] = int(sum(any(t["track"]["worst_fa_g"][i] > fa_max[i] for i in range(pb.n)) for t in ok))
     out["trials_hit_time_limit"] = int(sum(t["stage1_hit_time_limit"] for t in ok))
     out["stage1_s_per_robot"] = float(np.mean([np.mean(t["timings"]["stage1_per_robot_s"]) for t in ok]))
@@ -204,8 +205,23 @@ def run_trial(pb: Problem, fm: ForceModel, gen_dir, seed: int, rrt: RRTParams, s
            "scp_iterations": res.stage2.iterations, "scp_converged": res.stage2.converged,
            "profile": res.profile(),
            "check": {"robots": chk["robots"]},
-           "track": {"worst_error_m": tr["worst_error_m"], "worst_fa_g": tr["worst_fa_g"]}}
+           "track": {"worst_error_m": tr["worst_error_m"], "worst_fa_g": tr["worst_fa_g"],
+                     **unforeseen(pb, fm, tr["log"])}}
     return rec, res, tr["log"]
+
+
+def unforeseen(pb: Problem, fm: ForceModel, log: dict, t_pre: float = 1.0) -> dict:
+    """Per robot, over a flown plan (from its start): the logged states over f_a,max
+    (``over_limit_states``) and those of them where the model at the flown state was
+    within the planning bound at the flown relative speed (``over_limit_in_bound_states``:
+    the margin's promise broken in flight; the rest the tracking took over the bound)."""
+    w = log["t"] >= t_pre
+    P, V = log["truth_p"][w], log["truth_v"][w]
+    types = pb.type_index()
+    true = np.abs(log["truth_fa"][w, :, 2]) / GRAMS_TO_N
+    over = true > pb.fa_max()
+    in_bound = np.abs(fm.team_np(types, P, V)) <= pb.fa_plan(fm.rel_speed_np(types, P, V))
+    return {"over_limit_states": over.sum(0).tolist(), "over_limit_in_bound_states": (over & in_bound).sum(0).tolist()}
 
 
 def measured_margin(cfg: Config, fm: ForceModel, gen_dir, cache=None, log=print) -> dict:

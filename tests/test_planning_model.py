@@ -293,6 +293,26 @@ def test_margin_conditioned_on_the_relative_speed(cfg, tmp_path):
         load_problem(cfg, f)
 
 
+def test_unforeseen_counts_the_flown_states_over_the_limit_that_the_bound_let_through(cfg):
+    """ns2exp.planning.unforeseen: a flown plan's states over f_a,max, and those where
+    the model at the flown state was within the bound at the flown relative speed."""
+    from ns2exp.planning import unforeseen
+    from ns2plan.problem import GRAMS_TO_N, Limits, Problem, Robot
+
+    tab = {"speeds_mps": [0.3], "margins_g": [1.0, 6.0]}       # bound 4 g at rest, -1 g (nothing) above 0.3 m/s
+    pb = Problem(cfg, [Robot("small", (0, -0.4, 1.0), (0, 0.4, 1.0)), Robot("small", (0, 0.4, 1.0), (0, -0.4, 1.0))],
+                 Limits(fa_margin_g={"small": tab}))
+    t = np.arange(6) * 0.5                                        # the first row is before the plan (t_pre 1 s)
+    P = np.tile(np.array([[0.0, 0.0, 1.0], [0.0, 0.1, 1.5]]), (6, 1, 1))
+    V = np.zeros_like(P)
+    V[4:, 1, 1] = 1.0                                             # robot 1 moves over robot 0 at the end
+    fa = np.zeros((6, 2, 3))
+    fa[[0, 2, 3, 4], 0, 2] = -6.0 * GRAMS_TO_N                    # robot 0 over its 5 g limit
+    fa[5, 1, 2] = -5.5 * GRAMS_TO_N                               # robot 1 too (it sees no neighbour: at rest)
+    rep = unforeseen(pb, ForceModel(cfg, None), {"t": t, "truth_p": P, "truth_v": V, "truth_fa": fa})
+    assert rep == {"over_limit_states": [3, 1], "over_limit_in_bound_states": [2, 1]}
+
+
 def test_profile_table_means_the_planned_trials():
     from ns2exp.planning import PROFILE_COLUMNS, profile_table
 
