@@ -240,7 +240,6 @@ def measure(cfg: Config, fm: ForceModel, flights: list, limits: Limits, old_marg
     err = errors(cfg, fm, flights, limits)
     m = margin_from_errors(err, limits.fa_max_g, speed_edges=SPEED_EDGES_MPS)
     m_const = margin_from_errors(err, limits.fa_max_g)
-    rest = Limits(fa_max_g=limits.fa_max_g, fa_margin_g=m)
     evidence = over_limit(err, limits.fa_max_g)
     stats = {}
     for kind in sorted({fl.kind for fl in flights}):
@@ -252,7 +251,7 @@ def measure(cfg: Config, fm: ForceModel, flights: list, limits: Limits, old_marg
     for lower in cfg.robot_types:
         for upper in cfg.robot_types:
             row = {"lower": lower, "upper": upper,
-                   "gap_m": closest_gap(cfg, fm, lower, upper, limits.fa_max_g[lower] - rest.margin(lower)),
+                   "gap_m": closest_gap(cfg, fm, lower, upper, limits.fa_max_g[lower] - m[lower]["margins_g"][0]),
                    "gap_constant_m": closest_gap(cfg, fm, lower, upper, limits.fa_max_g[lower] - m_const[lower])}
             if old_margin_g is not None:
                 row["gap_old_m"] = closest_gap(cfg, fm, lower, upper, limits.fa_max_g[lower] - old_margin_g)
@@ -289,9 +288,9 @@ def margin_table(rep: dict) -> str:
     lines += ["", "| lower under upper (hovering) | closest gap, margin at rest | closest gap, margin over all speeds | "
               "closest gap, old margin | closest gap, margin = largest one-sided error |", "|---|---|---|---|---|"]
     for g in rep["closest_gaps"]:
-        const, old, big = (f"{g[k]:.2f} m" if g.get(k) is not None else "-"
-                           for k in ("gap_constant_m", "gap_old_m", "gap_largest_low_m"))
-        lines.append(f"| {g['lower']} under {g['upper']} | {g['gap_m']:.2f} m | {const} | {old} | {big} |")
+        rest, const, old, big = ("-" if g.get(k) is None else "none" if math.isinf(g[k]) else f"{g[k]:.2f} m"
+                                 for k in ("gap_m", "gap_constant_m", "gap_old_m", "gap_largest_low_m"))
+        lines.append(f"| {g['lower']} under {g['upper']} | {rest} | {const} | {old} | {big} |")
     return "\n".join(lines)
 
 

@@ -293,6 +293,31 @@ def test_margin_conditioned_on_the_relative_speed(cfg, tmp_path):
         load_problem(cfg, f)
 
 
+def test_measure_reports_the_margin_by_speed_and_its_tables(cfg):
+    """ns2exp.margin.measure on held-out states (f_a = 0 model: the error is the truth):
+    the speed table the planner takes, the constant beside it, the bins' evidence, and
+    the markdown tables that print them."""
+    from ns2exp.margin import compare_table, margin_table, measure
+    from ns2plan.problem import Limits
+
+    lim = Limits(pos_lo=(-1, -1, 0.3), pos_hi=(1, 1, 2.0), clearance_m=0.15, fa_max_g={"small": 5.0, "large": 10.0})
+    P = np.tile(np.array([[0.0, 0.0, 1.0], [0.0, 0.0, 1.6]]), (4, 1, 1))
+    V = np.zeros_like(P)
+    V[2:, 1, 1] = 0.6                                  # the upper robot passes at 0.6 m/s in the last two states
+    F = np.array([[-4.5, 0.0], [-5.4, 0.0], [-1.0, -2.0], [-7.0, -1.0]])
+    rep = measure(cfg, ForceModel(cfg, None), [_flight(P, V, F)], lim, old_margin_g=2.0)
+    assert rep["margin_constant_g"] == {"small": pytest.approx(5.1), "large": 0.0}
+    np.testing.assert_allclose(rep["margin_g"]["small"]["margins_g"], [5.1] * 6)     # rest 5.4 g read as 0: 5.1
+    assert rep["margin_g"]["large"]["margins_g"] == [0.0] * 6
+    assert [b["states"] for b in rep["speed_bins"]["small"]] == [2, 0, 2, 0, 0, 0]
+    assert [b["over_limit"] for b in rep["speed_bins"]["small"]] == [1, 0, 1, 0, 0, 0]
+    md = margin_table(rep)
+    assert "| small | 2 / 1 / **5.1** | 0 / 0 / **5.1** | 2 / 1 / **5.1** |" in md
+    assert "| small under small | none |" in md         # 5 - 5.1 g: no bound a hovering small robot can keep
+    assert "| large under small | 0.10 m |" in md       # f_a = 0 within 10 g everywhere: every gap of the grid
+    assert "small 5.1/5.1/5.1/5.1/5.1/5.1, large 0.0/0.0/0.0/0.0/0.0/0.0" in compare_table({"m": rep})
+
+
 def test_unforeseen_counts_the_flown_states_over_the_limit_that_the_bound_let_through(cfg):
     """ns2exp.planning.unforeseen: a flown plan's states over f_a,max, and those where
     the model at the flown state was within the bound at the flown relative speed."""
