@@ -39,7 +39,8 @@ from .common import (
                    "iteration counts stop them first, so a seed gives the same plan on any machine)")
 @click.option("--fa-margin", default="measured", show_default=True,
               help="experiments: g of every force limit kept free for model error, a number or 'measured' (per "
-                   "robot type from the model's error on held-out simulated flights, ns2exp.margin)")
+                   "robot type and bin of the relative speed from the model's error on held-out simulated flights, "
+                   "ns2exp.margin)")
 @_quiet_option
 @_json_option
 def plan_cmd(checkpoint, model_dir, config_path, problem_path, baseline, out_dir, scenarios, dims, trials,
