@@ -36,7 +36,7 @@ import numpy as np
 from ns2codegen.config import Config
 from ns2codegen.fileio import atomic_write_bytes
 from ns2plan.forces import ForceModel
-from ns2plan.problem import GRAMS_TO_N, Limits
+from ns2plan.problem import GRAMS_TO_N, Limits, speed_bin
 
 # held-out flights per pair of types (kind, seconds); seed HELD_OUT_SEED, never a training seed
 HELD_OUT = (("who", 120.0), ("near", 120.0))
@@ -158,21 +158,22 @@ def margin_from_errors(err: dict, fa_max_g: dict, step: float = 0.1, speed_edges
         if speed_edges is None:
             out[t] = _smallest_margin(true, pred, lim, step)
             continue
-        k = np.searchsorted(np.asarray(speed_edges, float), err[t]["speed"], side="left")
-        per_bin = [_smallest_margin(true[k == b], pred[k == b], lim, step) for b in range(len(speed_edges) + 1)]
+        per_bin = [b["own_margin_g"] for b in speed_bins(err, {t: lim}, speed_edges, step)[t]]
         out[t] = {"speeds_mps": [float(e) for e in speed_edges],
                   "margins_g": [round(float(m), 10) for m in np.maximum.accumulate(per_bin)]}
     return out
 
 
-def speed_bins(err: dict, fa_max_g: dict, speed_edges=SPEED_EDGES_MPS) -> dict:
-    """Per robot type and bin of the relative speed: the held-out states, those over the
-    limit and the bin's own margin (before the running maximum of margin_from_errors)."""
+def speed_bins(err: dict, fa_max_g: dict, speed_edges=SPEED_EDGES_MPS, step: float = 0.1) -> dict:
+    """Per robot type and bin of the relative speed (ns2plan.problem.speed_bin): the
+    held-out states, those over the limit and the bin's own margin (before the running
+    maximum of margin_from_errors)."""
     out = {}
     for t, lim in fa_max_g.items():
-        k = np.searchsorted(np.asarray(speed_edges, float), err[t]["speed"], side="left")
-        out[t] = [{"states": int((k == b).sum()), "over_limit": int((np.abs(err[t]["true"][k == b]) > lim).sum()),
-                   "own_margin_g": _smallest_margin(err[t]["true"][k == b], err[t]["pred"][k == b], lim, 0.1)}
+        k = speed_bin(speed_edges, err[t]["speed"])
+        true, pred = err[t]["true"], err[t]["pred"]
+        out[t] = [{"states": int((k == b).sum()), "over_limit": int((np.abs(true[k == b]) > lim).sum()),
+                   "own_margin_g": _smallest_margin(true[k == b], pred[k == b], lim, step)}
                   for b in range(len(speed_edges) + 1)]
     return out
 

@@ -31,6 +31,12 @@ class Robot:
     goal: tuple               # p_f (m), v_f = 0
 
 
+def speed_bin(speeds_mps, speed):
+    """The bin of a speed table (Limits.margin): k for speeds in (speeds_mps[k-1],
+    speeds_mps[k]], 0 at or below speeds_mps[0], len(speeds_mps) above the last."""
+    return np.searchsorted(np.asarray(speeds_mps, float), speed, side="left")
+
+
 def check_margin(name: str, m) -> None:
     """A margin (g): a finite number >= 0, or a speed table {"speeds_mps": s, "margins_g":
     m} with s strictly increasing and > 0 and len(m) = len(s) + 1 (Limits.margin)."""
@@ -110,8 +116,7 @@ class Limits:
         m = self.fa_margin_g
         m = m.get(robot_type, 0.0) if isinstance(m, dict) else m
         if isinstance(m, dict):
-            k = np.searchsorted(np.asarray(m["speeds_mps"], float), speed, side="left")
-            out = np.asarray(m["margins_g"], float)[k]
+            out = np.asarray(m["margins_g"], float)[speed_bin(m["speeds_mps"], speed)]
             return float(out) if np.ndim(out) == 0 else out
         return float(m) if np.ndim(speed) == 0 else np.full(np.shape(speed), float(m))
 
