@@ -468,7 +468,7 @@ def _speed_table(v: dict, where: str, hi: float) -> dict:
         check_margin(where, v)
     except PlanningError as e:
         raise ValueError(str(e).removeprefix("limit parameter ")) from None
-    if max(v["margins_g"]) > hi or max(v["speeds_mps"]) > 100.0:
+    if max(v["margins_g"]) > hi or max(v["speeds_mps"], default=0.0) > 100.0:
         raise ValueError(f"{where}: margins must be at most {hi:g} g and speeds at most 100 m/s, got {v!r}")
     return {"speeds_mps": [float(x) for x in v["speeds_mps"]], "margins_g": [float(x) for x in v["margins_g"]]}
 

@@ -288,6 +288,8 @@ def test_margin_conditioned_on_the_relative_speed(cfg, tmp_path):
     base = {"robots": [{"type": "small", "start": [0, -0.4, 1.0], "goal": [0, 0.4, 1.0]}], "axes": "yz"}
     f.write_text(json.dumps({**base, "limits": {"fa_margin_g": {"small": tab}}}))
     assert load_problem(cfg, f).limits.margin("small", 0.8) == pytest.approx(3.1)
+    f.write_text(json.dumps({**base, "limits": {"fa_margin_g": {"small": {"speeds_mps": [], "margins_g": [1.5]}}}}))
+    assert load_problem(cfg, f).limits.margin("small", 3.0) == pytest.approx(1.5)     # one bin: every speed
     f.write_text(json.dumps({**base, "limits": {"fa_margin_g": {"small": {"speeds_mps": [0.5], "margins_g": [1, "x"]}}}}))
     with pytest.raises(PlanningError, match=r"p.json: limits.fa_margin_g.small.margins_g"):
         load_problem(cfg, f)
