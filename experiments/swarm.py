@@ -297,10 +297,12 @@ RING_CASES = {"5-robot rings": 5, "16-robot three rings": 16}
 
 
 def ring_experiments(cfg: Config, gen_dir, out_dir, duration: float = 16.0, controllers=CONTROLLERS,
-                     learned: str = "fixed", progress=None, rough: Roughness | None = None) -> dict:
+                     learned: str = "fixed", progress=None, rough: Roughness | None = None,
+                     tune_swaps: int = 6) -> dict:
     """Worst z error of every robot after 2 s, per robot type and controller (Mellinger
     flies the small robots, BL the large); out_dir/rings.json (a row per case, robot
-    type and controller) and rings.md (``progress(1)`` after every flight)."""
+    type and controller) and rings.md (``progress(1)`` after every flight);
+    ``tune_swaps``: swaps per candidate of BL-tuned's gain search (load_or_tune)."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     tuning = load_or_tune(cfg, gen_dir, out, tune_swaps, rough)

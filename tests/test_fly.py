@@ -146,6 +146,14 @@ def test_swap_results_rows(cfg, exported, tmp_path, monkeypatch):
     by = {r["controller"]: r for r in rows}
     assert by["BL-tuned"]["median_worst_z_error_m"] <= by["BL"]["median_worst_z_error_m"]
     assert "| L2S |" in (tmp_path / "swaps.md").read_text()
+    # the rings reuse that search (same key: no new one) and fly BL-tuned with its tuning
+    monkeypatch.setattr(swarm, "RING_CASES", {"5-robot rings": 5})
+    before = (tmp_path / "gain_search.json").read_text()
+    rings = swarm.ring_experiments(cfg, exported.gen_dir, tmp_path, duration=3.0, controllers=("BL-tuned",),
+                                   tune_swaps=2)
+    assert (tmp_path / "gain_search.json").read_text() == before and rings["tuning"] == search["tuning"]
+    assert rings["rows"] and all(r["controller"] == "BL-tuned" and 0 < r["max_worst_z_error_m"] < 0.5
+                                 for r in rings["rows"])
 
 
 @pytest.mark.parametrize("fixed", [1, 0])
