@@ -220,7 +220,7 @@ def unforeseen(pb: Problem, fm: ForceModel, log: dict, t_pre: float = 1.0) -> di
     types = pb.type_index()
     true = np.abs(log["truth_fa"][w, :, 2]) / GRAMS_TO_N
     over = true > pb.fa_max()
-    in_bound = np.abs(fm.team_np(types, P, V)) <= pb.fa_plan(fm.rel_speed_np(types, P, V))
+    in_bound = np.abs(fm.team_np(types, P, V)) <= pb.fa_bound(fm, P, V)
     return {"over_limit_states": over.sum(0).tolist(), "over_limit_in_bound_states": (over & in_bound).sum(0).tolist()}
 
 

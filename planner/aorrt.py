@@ -102,12 +102,12 @@ class Team:
         self.planned[i] = True
         present = np.repeat(self.planned[None], H + 1, 0)
         self.FA = fm.team_np(types, self.P, self.V, present)
-        self.BOUND = pb.fa_plan(fm.rel_speed_np(types, self.P, self.V, present))
+        self.BOUND = pb.fa_bound(fm, self.P, self.V, present)
         n = len(self.planned)
         PS, VS = self.PS.reshape(-1, n, 3), self.VS.reshape(-1, n, 3)
         present = np.repeat(self.planned[None], H * (m - 1), 0)
         self.FAS = fm.team_np(types, PS, VS, present).reshape(H, m - 1, n)
-        self.BOUNDS = pb.fa_plan(fm.rel_speed_np(types, PS, VS, present)).reshape(H, m - 1, n)
+        self.BOUNDS = pb.fa_bound(fm, PS, VS, present).reshape(H, m - 1, n)
 
 
 @dataclass
@@ -195,7 +195,7 @@ class AORRT:
         P[:, i], V[:, i] = p, v
         present = np.repeat(team.planned[None], len(k), 0)
         present[:, i] = True
-        bound = self.pb.fa_plan(self.fm.rel_speed_np(self.types, P, V, present))
+        bound = self.pb.fa_bound(self.fm, P, V, present)
         return self.fm.team_np(self.types, P, V, present), FA, bound
 
     def _excess(self, team: Team, i: int, k_prev, p_prev, v_prev, a, k, p, v):

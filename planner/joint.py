@@ -140,7 +140,7 @@ def _valid(s, tree: _CompositeTree, near, u, p1, v1):
     Vs = np.concatenate([v1[idx][:, None], vs.transpose(0, 2, 1, 3)], 1)
     Ps, Vs = Ps.reshape(-1, n, 3), Vs.reshape(-1, n, 3)
     F = s.fm.team_np(s.types, Ps, Vs).reshape(len(idx), m, n)
-    bound = s.pb.fa_plan(s.fm.rel_speed_np(s.types, Ps, Vs)).reshape(len(idx), m, n)
+    bound = s.pb.fa_bound(s.fm, Ps, Vs).reshape(len(idx), m, n)
     good = np.all(np.abs(F) <= bound, (1, 2))
     return idx[good], F[good]
 

@@ -263,6 +263,11 @@ class Problem:
         margin = np.stack([self.limits.margin(r.type, speeds[..., i]) for i, r in enumerate(self.robots)], -1)
         return self.fa_max() - margin
 
+    def fa_bound(self, fm, P, V, present=None) -> np.ndarray:
+        """fa_plan at team states P, V [..., N, 3] (``present`` [..., N]): every robot's
+        bound [..., N] at its relative speed to the neighbours ``fm`` (a ForceModel) sees."""
+        return self.fa_plan(fm.rel_speed_np(self.type_index(), P, V, present))
+
     def starts(self) -> np.ndarray:
         return np.array([r.start for r in self.robots], float)
 

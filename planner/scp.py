@@ -61,10 +61,10 @@ def merit(pb: Problem, fm: ForceModel, trajs: list, par: SCPParams) -> tuple[flo
     types = pb.type_index()
     F = fm.team_np(types, P, V)
     kappa, r = pb.kappa(), pb.r_pair()
-    bound = pb.fa_plan(fm.rel_speed_np(types, P, V))
+    bound = pb.fa_bound(fm, P, V)
     if pb.limits.fa_substeps > 1:
         Ps, Vs = team_substates(trajs, kappa, pb.limits.fa_substeps)
-        F_sub, bound_sub = fm.team_np(types, Ps, Vs), pb.fa_plan(fm.rel_speed_np(types, Ps, Vs))
+        F_sub, bound_sub = fm.team_np(types, Ps, Vs), pb.fa_bound(fm, Ps, Vs)
     else:
         F_sub, bound_sub = np.zeros((0, pb.n)), np.zeros((0, pb.n))
     lo, hi = pb.box()
@@ -144,7 +144,7 @@ class _Program:
         self.P, V = _team_arrays(trajs)
         self.F, self.dP, self.dV = fm.jacobians(types, self.P, V, i)
         self.kappa, self.r = pb.kappa()[i], pb.r_pair()
-        self.bound = pb.fa_plan(fm.rel_speed_np(types, self.P, V))     # [T+1, N] at the previous solution's speeds
+        self.bound = pb.fa_bound(fm, self.P, V)     # [T+1, N] at the previous solution's speeds
         T, d, ax = self.T, self.d, self.ax
         self.pbar, self.vbar, self.ubar = tr.p[:, ax], tr.v[:, ax], tr.u[:, ax]
         self.p, self.v = cp.Variable((T + 1, d)), cp.Variable((T + 1, d))
@@ -163,7 +163,7 @@ class _Program:
         if m > 1:
             self.Ps, Vs = team_substates(trajs, self.pb.kappa(), m)
             self.Fs, self.dPs, self.dVs = fm.jacobians(types, self.Ps, Vs, i)
-            self.bounds = self.pb.fa_plan(fm.rel_speed_np(types, self.Ps, Vs))
+            self.bounds = self.pb.fa_bound(fm, self.Ps, Vs)
             for q in range(1, m):
                 sq, rows = q / m * self.dt, slice(q - 1, None, m - 1)
                 pq = self.p[:-1] + sq * self.v[:-1] + 0.5 * sq * sq * acc

@@ -23,8 +23,8 @@ def check_solution(pb: Problem, fm: ForceModel, trajs: list) -> dict:
             for i, t in enumerate(trajs)]
     Ps, Vs = team_substates(held, pb.kappa(), max(pb.limits.fa_substeps, 4))
     F_sub = fm.team_np(pb.type_index(), Ps, Vs)
-    over = np.concatenate([np.abs(F) - pb.fa_plan(fm.rel_speed_np(pb.type_index(), P, V)),
-                           np.abs(F_sub) - pb.fa_plan(fm.rel_speed_np(pb.type_index(), Ps, Vs))])
+    over = np.concatenate([np.abs(F) - pb.fa_bound(fm, P, V),
+                           np.abs(F_sub) - pb.fa_bound(fm, Ps, Vs)])
     lo, hi = pb.box()
     ax = list(pb.axes)
     r, fa_max, kappa, goals = pb.r_pair(), pb.fa_max(), pb.kappa(), pb.goals()
