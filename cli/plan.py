@@ -38,13 +38,16 @@ from .common import (
               help="wall-clock safety net in seconds for Stage 1 and again for Stage 2, per plan (the sample and "
                    "iteration counts stop them first, so a seed gives the same plan on any machine)")
 @click.option("--fa-margin", default="measured", show_default=True,
-              help="experiments: g of every force limit kept free for model error, a number or 'measured' (per "
+              help="experiments: g of every force limit kept free for model error, a number, 'measured' (per "
                    "robot type and bin of the relative speed from the model's error on held-out simulated flights, "
-                   "ns2exp.margin)")
+                   "ns2exp.margin) or 'calibrated' (measured on those and on the NN's own flown plans of "
+                   "calibration seeds, raised round by round until they keep it: ns2exp.planning.calibrated_margin)")
+@click.option("--workers", type=click.IntRange(min=1), default=2, show_default=True,
+              help="with --fa-margin calibrated: calibration trials planned and flown at once")
 @_quiet_option
 @_json_option
 def plan_cmd(checkpoint, model_dir, config_path, problem_path, baseline, out_dir, scenarios, dims, trials,
-             max_samples, time_limit, fa_margin, quiet, as_json):
+             max_samples, time_limit, fa_margin, workers, quiet, as_json):
     """Interaction-aware motion planning (AO-RRT + SCP): the paper's experiments, or one problem.
     The config is the checkpoint's; --config only without a checkpoint."""
     from dataclasses import replace
@@ -61,9 +64,9 @@ def plan_cmd(checkpoint, model_dir, config_path, problem_path, baseline, out_dir
     if unknown:
         raise click.UsageError(f"unknown scenarios {unknown}; choose from {list(ex.SCENARIOS)}")
     try:
-        margin = None if fa_margin == "measured" else float(fa_margin)
+        margin = None if fa_margin in ("measured", "calibrated") else float(fa_margin)
     except ValueError:
-        raise click.UsageError(f"--fa-margin: a number of grams or 'measured', got {fa_margin!r}") from None
+        raise click.UsageError(f"--fa-margin: a number of grams, 'measured' or 'calibrated', got {fa_margin!r}") from None
     if margin is not None and not (0.0 <= margin < 1000.0):
         raise click.UsageError(f"--fa-margin: must be in [0, 1000) g, got {fa_margin!r}")
     if checkpoint is not None and config_path is not None:
@@ -95,7 +98,7 @@ def plan_cmd(checkpoint, model_dir, config_path, problem_path, baseline, out_dir
     with _progress(quiet, len(dim_list) * len(names) * 2 * trials, "trial", "plan") as update:
         res = ex.planning_experiments(cfg, checkpoint, gen, out_dir, names, dim_list, trials, rrt, scp_params,
                                       log=lambda msg: None if quiet else click.echo(msg, err=True), progress=update,
-                                      fa_margin_g=margin)
+                                      fa_margin_g=margin, calibrate=fa_margin == "calibrated", workers=workers)
     _emit(as_json, {k: {m: r["summary"] for m, r in v.items()} for k, v in res.items()},
           (Path(out_dir) / "plan.md").read_text())
 

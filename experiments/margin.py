@@ -79,12 +79,17 @@ def held_out_flights(cfg: Config, gen_dir, flights=HELD_OUT, seed: int = HELD_OU
             if progress is not None:
                 progress(1)
     if cache is not None:
-        buf = io.BytesIO()
-        arrays = {f"{k}{i}": getattr(fl, k) for i, fl in enumerate(out) for k in ("P", "V", "F")}
-        np.savez_compressed(buf, key=np.array(key), meta=np.array(json.dumps([{"types": fl.types, "kind": fl.kind}
-                                                                              for fl in out])), **arrays)
-        atomic_write_bytes(Path(cache), buf.getvalue())
+        save_flights(cache, out, key)
     return out
+
+
+def save_flights(path, flights: list, key: str = "") -> None:
+    """Flights as load_flights reads them (.npz), written atomically."""
+    buf = io.BytesIO()
+    arrays = {f"{k}{i}": getattr(fl, k) for i, fl in enumerate(flights) for k in ("P", "V", "F")}
+    np.savez_compressed(buf, key=np.array(key), meta=np.array(json.dumps([{"types": fl.types, "kind": fl.kind}
+                                                                          for fl in flights])), **arrays)
+    atomic_write_bytes(Path(path), buf.getvalue())
 
 
 def load_flights(path) -> tuple[list[FlownStates], str]:
@@ -292,7 +297,23 @@ def margin_table(rep: dict) -> str:
         rest, const, old, big = ("-" if g.get(k) is None else "none" if math.isinf(g[k]) else f"{g[k]:.2f} m"
                                  for k in ("gap_m", "gap_constant_m", "gap_old_m", "gap_largest_low_m"))
         lines.append(f"| {g['lower']} under {g['upper']} | {rest} | {const} | {old} | {big} |")
+    if rep.get("rounds"):
+        lines += ["", f"Calibration on the NN's own flown plans (seeds {rep['calibration_seeds']}; "
+                  f"{'converged' if rep['converged'] else 'NOT converged'}): margins in g per speed bin, "
+                  + ", ".join(rep["margin_g"]) + ":", "",
+                  "| round | margin planned with | planned | trials over a limit in flight | flown states over the limit "
+                  "within the bound | margin after |", "|---|---|---|---|---|---|"]
+        for r in rep["rounds"]:
+            ok = [t for t in r["trials"] if t["planned"]]
+            lines.append(f"| {r['round']} | {_margins(r['margin_g'])} | {len(ok)}/{len(r['trials'])} | "
+                         f"{sum(t['over_limit'] for t in ok)} | {sum(t['over_limit_in_bound_states'] for t in ok)} | "
+                         f"{_margins(r['margin_after_g'])} |")
     return "\n".join(lines)
+
+
+def _margins(m: dict) -> str:
+    """Per robot type its margin table as 'm_0/m_1/...' (g), types separated by '; '."""
+    return "; ".join("/".join(f"{x:.1f}" for x in tab["margins_g"]) for tab in m.values())
 
 
 def compare_table(reports: dict) -> str:

@@ -45,6 +45,11 @@ CHECK_GAPS = (0.15, 0.3, 0.5, 1.0, 1.4)      # m, vertical gaps of downwash_chec
 NEAR_FIELD_SECONDS = 600.0              # close-range passes per pair of types in default_checkpoint
 NEAR_GAP_MAX = 1.5                      # m, largest vertical gap of the close-range passes in default_checkpoint
 WHO_MOVES_SECONDS = 300.0               # one robot moving past the other, hovering one, per pair (issue 24)
+# the margin's calibration on the planner's own flown plans (calibrated_margin): seeds never used by
+# an experiment (those are 0 .. trials - 1) and the most rounds of plan, fly, re-measure
+CALIBRATION_SEEDS = (1000, 1001)
+CALIBRATION_ROUNDS = 4
+_CAL_MODEL = None                       # the calibration workers' force model (_calibration_init)
 
 
 def scenario_problem(cfg: Config, name: str, dims: int, fa_margin_g=None) -> Problem:
@@ -224,24 +229,118 @@ def unforeseen(pb: Problem, fm: ForceModel, log: dict, t_pre: float = 1.0) -> di
     return {"over_limit_states": over.sum(0).tolist(), "over_limit_in_bound_states": (over & in_bound).sum(0).tolist()}
 
 
-def measured_margin(cfg: Config, fm: ForceModel, gen_dir, cache=None, log=print) -> dict:
+def measured_margin(cfg: Config, fm: ForceModel, gen_dir, cache=None, log=print, calibration: dict | None = None) -> dict:
     """The planning margin per robot type from the model's error on held-out flights
-    (ns2exp.margin; flown once, kept in ``cache``), with its evidence."""
+    (ns2exp.margin; flown once, kept in ``cache``), with its evidence; with
+    ``calibration`` (calibrated_margin's keyword arguments, the checkpoint among
+    them) also on the NN's own flown plans."""
     from . import margin
 
     log(f"measuring the model's error on held-out flights ({', '.join(f'{k} {s:.0f} s' for k, s in margin.HELD_OUT)} "
         f"per pair of types, seed {margin.HELD_OUT_SEED})")
     flights = margin.held_out_flights(cfg, gen_dir, gap_max=NEAR_GAP_MAX, cache=cache)
+    if calibration is not None:
+        return calibrated_margin(cfg, fm, gen_dir=gen_dir, held_out=flights, log=log, **calibration)
     return margin.measure(cfg, fm, flights, LIMITS_3D, old_margin_g=FA_MARGIN_G)
+
+
+def _calibration_init(checkpoint) -> None:
+    global _CAL_MODEL
+    from ns2codegen.checkpoint import load_checkpoint
+
+    _CAL_MODEL = load_force_model(load_checkpoint(checkpoint).cfg, checkpoint)
+
+
+def _calibration_trial(name: str, dims: int, seed: int, fa_margin_g, gen_dir, rrt: RRTParams, scp_params: SCPParams,
+                       t_pre: float = 1.0):
+    """One NN plan of a calibration seed, flown (run_trial): its record and the flown
+    states from the plan's start (None without a plan), with the worker's model."""
+    from .margin import FlownStates
+
+    fm = _CAL_MODEL
+    pb = scenario_problem(fm.cfg, name, dims, fa_margin_g)
+    rec, _, log = run_trial(pb, fm, gen_dir, seed, rrt, scp_params)
+    if log is None:
+        return rec, None
+    w = log["t"] >= t_pre
+    return rec, FlownStates(list(SCENARIOS[name]), log["truth_p"][w], log["truth_v"][w],
+                            log["truth_fa"][w, :, 2] / GRAMS_TO_N, f"plan {dims}D")
+
+
+def calibrated_margin(cfg: Config, fm: ForceModel, checkpoint, gen_dir, held_out: list, scenarios, dims,
+                      seeds=CALIBRATION_SEEDS, rounds: int = CALIBRATION_ROUNDS, rrt: RRTParams = RRTParams(),
+                      scp_params: SCPParams = SCPParams(), workers: int = 2, log=print, cache=None) -> dict:
+    """The margin measured on the held-out flights and on the planner's own flown
+    plans (ns2exp.margin): the planner drives each robot to its bound, i.e. to the
+    states where the model reads lowest, which held-out flights it did not choose need
+    not contain.  Round r measures the margin m_r on the held-out flights and every
+    plan flown so far, plans every scenario x dims with the NN for the calibration
+    ``seeds`` (never an experiment seed) with m_r, flies the plans (run_trial) and adds
+    their states; it stops when no new state raises the margin (m_r kept every flown
+    plan state of its own round within its promise: converged) or after ``rounds``.
+    Returns the ``measure`` report on all those flights (its margin is the last
+    round's m_r when converged, the raised one otherwise) with the ``rounds``; with
+    ``cache`` (.npz) the flown plans are kept there (ns2exp.margin.load_flights)."""
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+    from contextlib import nullcontext
+
+    from ns2host.cfhost import load_fly
+
+    from . import margin
+
+    global _CAL_MODEL
+    load_fly(gen_dir)                                 # build once, before any worker loads it
+    flights, history = list(held_out), []
+    rep = margin.measure(cfg, fm, flights, LIMITS_3D, old_margin_g=FA_MARGIN_G)
+    tasks = [(name, d, s) for d in dims for name in scenarios for s in seeds]
+    if workers <= 1:
+        _CAL_MODEL = fm
+    pool = (ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("fork"), initializer=_calibration_init,
+                                initargs=(str(checkpoint),)) if workers > 1 else nullcontext())
+    with pool:
+        for r in range(rounds):
+            m = rep["margin_g"]
+            log(f"margin calibration round {r}: {len(tasks)} NN trials of seeds {list(seeds)} with margin {m}")
+            args = [(n, d, s, m, str(gen_dir), rrt, scp_params) for n, d, s in tasks]
+            done = ([f.result() for f in [pool.submit(_calibration_trial, *a) for a in args]] if workers > 1
+                    else [_calibration_trial(*a) for a in args])
+            flights += [fl for _, fl in done if fl is not None]
+            rep = margin.measure(cfg, fm, flights, LIMITS_3D, old_margin_g=FA_MARGIN_G)
+            trials = [{"case": f"{d}D {n}", "seed": s, "planned": fl is not None,
+                       **({"worst_fa_g": rec["track"]["worst_fa_g"],
+                           "over_limit": any(f > lim for f, lim in zip(rec["track"]["worst_fa_g"],
+                                                                       scenario_problem(cfg, n, d).fa_max())),
+                           "over_limit_in_bound_states": int(sum(rec["track"]["over_limit_in_bound_states"]))}
+                          if fl is not None else {"error": rec["error"]})}
+                      for (n, d, s), (rec, fl) in zip(tasks, done)]
+            history.append({"round": r, "margin_g": m, "margin_after_g": rep["margin_g"], "trials": trials})
+            ok = [t for t in trials if t["planned"]]
+            log(f"  planned {len(ok)}/{len(trials)}, {sum(t['over_limit'] for t in ok)} over a limit in flight, "
+                f"{sum(t['over_limit_in_bound_states'] for t in ok)} flown states over a limit within the bound; "
+                f"margin after: {rep['margin_g']}")
+            if cache is not None:
+                margin.save_flights(cache, flights[len(held_out):], "calibration plans")
+            if rep["margin_g"] == m:
+                break
+    rep["rounds"] = history
+    rep["converged"] = history[-1]["margin_after_g"] == history[-1]["margin_g"] if history else True
+    rep["calibration_seeds"] = list(seeds)
+    rep["source"] += (f"; on the held-out flights and the NN's own flown plans of calibration seeds {list(seeds)} "
+                      f"({len(history)} round(s), {'converged' if rep['converged'] else 'NOT converged'})")
+    return rep
 
 
 def planning_experiments(cfg: Config, checkpoint, gen_dir, out_dir, scenarios=None, dims=(2, 3), trials: int = 5,
                          rrt: RRTParams = RRTParams(), scp_params: SCPParams = SCPParams(), log=print,
-                         progress=None, fa_margin_g=None, modes=("NN", "BL")) -> dict:
+                         progress=None, fa_margin_g=None, modes=("NN", "BL"), calibrate: bool = False,
+                         workers: int = 2) -> dict:
     """Every scenario in every dimension, ``trials`` seeds with NN and with BL (or
     ``modes``; ``progress(1)`` after every trial); writes plan.json, plan.md and the
     figures.  ``fa_margin_g`` None: the margin measured on held-out flights
-    (measured_margin), else this one (g, one value or per type)."""
+    (measured_margin; with ``calibrate`` also on the NN's flown plans of calibration
+    seeds, calibrated_margin, ``workers`` trials at once), else this one (g, one value
+    or per type)."""
     from ns2plan.output import write_plan
 
     from .margin import margin_table
@@ -253,7 +352,10 @@ def planning_experiments(cfg: Config, checkpoint, gen_dir, out_dir, scenarios=No
     nn = models.get("NN") or load_force_model(cfg, checkpoint)
     rep = None
     if fa_margin_g is None:
-        rep = measured_margin(cfg, nn, gen_dir, cache=out / "held_out_flights.npz", log=log)
+        cal = (dict(checkpoint=checkpoint, scenarios=list(scenarios or SCENARIOS), dims=dims, rrt=rrt,
+                    scp_params=scp_params, workers=workers, cache=out / "calibration_flights.npz")
+               if calibrate else None)
+        rep = measured_margin(cfg, nn, gen_dir, cache=out / "held_out_flights.npz", log=log, calibration=cal)
         fa_margin_g = rep["margin_g"]
         log(f"planning margin (g): {fa_margin_g}")
     results = {}

@@ -353,3 +353,54 @@ def test_profile_table_means_the_planned_trials():
     assert len(rows) == 4                               # header, rule, 2D BL, 2D NN; 3-D NN planned nothing
     assert rows[2].startswith("| 2D | BL | 1 | 2.00 | 1.00 | 300 |")
     assert rows[3].startswith("| 2D | NN | 2 | 3.00 | 1.00 | 200 |")
+
+
+def test_calibrated_margin_adds_the_planners_own_flown_states_until_they_keep_it(cfg, exported, monkeypatch,
+                                                                                 tmp_path):
+    """ns2exp.planning.calibrated_margin: round r plans the calibration seeds with the
+    margin measured so far, adds their flown states and measures again; it stops when a
+    round's flown states leave the margin where it was (converged), or after ``rounds``
+    (not converged, the raised margin returned).  The trials are stand-ins here (the
+    loop's rule is under test; run_trial has its own tests): round 0's plan flies the
+    small robot to 6 g where the f_a = 0 model reads 0, which needs 5.1 g of margin; with
+    it, the next round's plan keeps the robots apart."""
+    from ns2exp import planning as ex
+
+    P = np.tile(np.array([[0.0, 0.0, 1.0], [0.0, 0.0, 1.6]]), (4, 1, 1))
+    held = [_flight(P, np.zeros_like(P), np.array([[-4.0, 0.0]] * 4))]      # within the limits: no margin
+    seen = []
+
+    def trial(name, dims, seed, fa_margin_g, gen_dir, rrt, scp_params):
+        seen.append((name, dims, seed, fa_margin_g["small"]["margins_g"][0]))
+        bad = fa_margin_g["small"]["margins_g"][0] < 5.0
+        F = np.array([[-6.0 if bad else -1.0, 0.0]] * 4)
+        rec = {"error": None, "track": {"worst_fa_g": [float(np.abs(F[:, 0]).max()), 0.0],
+                                        "over_limit_in_bound_states": [4 if bad else 0, 0]}}
+        fl = _flight(P, np.zeros_like(P), F)
+        fl.kind = f"plan {dims}D"
+        return rec, fl
+
+    monkeypatch.setattr(ex, "_calibration_trial", trial)
+    rep = ex.calibrated_margin(cfg, ForceModel(cfg, None), exported.checkpoint, exported.gen_dir, held, ["SL"], (2,),
+                               seeds=(1000,), rounds=3, workers=1, log=lambda m: None, cache=tmp_path / "cal.npz")
+    assert seen == [("SL", 2, 1000, 0.0), ("SL", 2, 1000, pytest.approx(5.1))]
+    assert rep["converged"] and len(rep["rounds"]) == 2
+    np.testing.assert_allclose(rep["margin_g"]["small"]["margins_g"], [5.1] * 6)
+    assert rep["rounds"][0]["trials"][0]["over_limit"] and not rep["rounds"][1]["trials"][0]["over_limit"]
+    assert rep["rounds"][1]["margin_g"] == rep["rounds"][1]["margin_after_g"] == rep["margin_g"]
+    assert set(rep["errors_by_kind"]) == {"who", "plan 2D"} and "converged" in rep["source"]
+    from ns2exp.margin import load_flights
+
+    kept = load_flights(tmp_path / "cal.npz")[0]                       # the flown plans, not the held-out flights
+    assert [fl.kind for fl in kept] == ["plan 2D"] * 2 and kept[0].F[0, 0] == -6.0 and kept[1].F[0, 0] == -1.0
+    # one round only: the raised margin comes back, marked as not converged
+    seen.clear()
+    rep1 = ex.calibrated_margin(cfg, ForceModel(cfg, None), exported.checkpoint, exported.gen_dir, held, ["SL"], (2,),
+                                seeds=(1000,), rounds=1, workers=1, log=lambda m: None)
+    assert not rep1["converged"] and "NOT converged" in rep1["source"]
+    np.testing.assert_allclose(rep1["margin_g"]["small"]["margins_g"], [5.1] * 6)
+    from ns2exp.margin import margin_table
+
+    md = margin_table(rep)
+    assert "| 0 | 0.0/0.0/0.0/0.0/0.0/0.0; 0.0/0.0/0.0/0.0/0.0/0.0 | 1/1 | 1 | 4 | 5.1/5.1/5.1/5.1/5.1/5.1; 0.0/0.0/0.0/0.0/0.0/0.0 |" in md
+    assert "| 1 | 5.1/5.1/5.1/5.1/5.1/5.1; 0.0/0.0/0.0/0.0/0.0/0.0 | 1/1 | 0 | 0 | 5.1/5.1/5.1/5.1/5.1/5.1; 0.0/0.0/0.0/0.0/0.0/0.0 |" in md
