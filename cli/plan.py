@@ -42,12 +42,16 @@ from .common import (
                    "robot type and bin of the relative speed from the model's error on held-out simulated flights, "
                    "ns2exp.margin) or 'calibrated' (measured on those and on the NN's own flown plans of "
                    "calibration seeds, raised round by round until they keep it: ns2exp.planning.calibrated_margin)")
+@click.option("--plan-data-rounds", type=click.IntRange(min=0), default=0, show_default=True,
+              help="experiments: first train the model on its own flown plans too, this many rounds (plan the "
+                   "training seeds, fly, add the logs, retrain: ns2exp.planning.plan_trained_checkpoint; the checkpoint "
+                   "needs its data_files beside it, as the default planning model has)")
 @click.option("--workers", type=click.IntRange(min=1), default=2, show_default=True,
-              help="with --fa-margin calibrated: calibration trials planned and flown at once")
+              help="with --fa-margin calibrated or --plan-data-rounds: trials planned and flown at once")
 @_quiet_option
 @_json_option
 def plan_cmd(checkpoint, model_dir, config_path, problem_path, baseline, out_dir, scenarios, dims, trials,
-             max_samples, time_limit, fa_margin, workers, quiet, as_json):
+             max_samples, time_limit, fa_margin, plan_data_rounds, workers, quiet, as_json):
     """Interaction-aware motion planning (AO-RRT + SCP): the paper's experiments, or one problem.
     The config is the checkpoint's; --config only without a checkpoint."""
     from dataclasses import replace
@@ -92,9 +96,19 @@ def plan_cmd(checkpoint, model_dir, config_path, problem_path, baseline, out_dir
         return
     from ns2codegen.export import export as run_export
 
+    if plan_data_rounds:
+        ex.training_data_files(checkpoint)            # refuse a checkpoint without its data before any flight
     gen = Path(out_dir) / "gen"
     run_export(checkpoint, gen)
     dim_list = (2, 3) if dims == "both" else (int(dims),)
+    if plan_data_rounds:
+        from ns2exp.margin import held_out_flights
+
+        held = held_out_flights(cfg, gen, gap_max=ex.NEAR_GAP_MAX, cache=Path(out_dir) / "held_out_flights.npz")
+        checkpoint = ex.plan_trained_checkpoint(cfg, checkpoint, gen, held, names, dim_list, rounds=plan_data_rounds,
+                                                rrt=rrt, scp_params=scp_params, workers=workers,
+                                                log=lambda msg: None if quiet else click.echo(msg, err=True))
+        run_export(checkpoint, gen)
     with _progress(quiet, len(dim_list) * len(names) * 2 * trials, "trial", "plan") as update:
         res = ex.planning_experiments(cfg, checkpoint, gen, out_dir, names, dim_list, trials, rrt, scp_params,
                                       log=lambda msg: None if quiet else click.echo(msg, err=True), progress=update,

@@ -49,6 +49,10 @@ WHO_MOVES_SECONDS = 300.0               # one robot moving past the other, hover
 # an experiment (those are 0 .. trials - 1) and the most rounds of plan, fly, re-measure
 CALIBRATION_SEEDS = (1000, 1001)
 CALIBRATION_ROUNDS = 4
+# the planning model trained on its own flown plans too (plan_trained_checkpoint): seeds 2000 + 100 r
+# in round r, never an experiment or calibration seed
+PLAN_DATA_SEEDS = (2000, 2001, 2002, 2003)
+PLAN_DATA_ROUNDS = 2
 _CAL_MODEL = None                       # the calibration workers' force model (_calibration_init)
 
 
@@ -251,20 +255,63 @@ def _calibration_init(checkpoint) -> None:
     _CAL_MODEL = load_force_model(load_checkpoint(checkpoint).cfg, checkpoint)
 
 
-def _calibration_trial(name: str, dims: int, seed: int, fa_margin_g, gen_dir, rrt: RRTParams, scp_params: SCPParams,
-                       t_pre: float = 1.0):
-    """One NN plan of a calibration seed, flown (run_trial): its record and the flown
-    states from the plan's start (None without a plan), with the worker's model."""
+def _flown_plan(name: str, dims: int, seed: int, fa_margin_g, gen_dir, rrt: RRTParams, scp_params: SCPParams,
+                t_pre: float = 1.0):
+    """One NN plan, flown (run_trial) with the worker's model: its record, the true
+    states from the plan's start (FlownStates) and the drones' log of the whole
+    flight (from_logs.Flight: estimates, as training data is logged), both None
+    without a plan."""
+    from ns2codegen.data.from_logs import Flight
+
     from .margin import FlownStates
 
     fm = _CAL_MODEL
     pb = scenario_problem(fm.cfg, name, dims, fa_margin_g)
     rec, _, log = run_trial(pb, fm, gen_dir, seed, rrt, scp_params)
     if log is None:
-        return rec, None
+        return rec, None, None
     w = log["t"] >= t_pre
-    return rec, FlownStates(list(SCENARIOS[name]), log["truth_p"][w], log["truth_v"][w],
-                            log["truth_fa"][w, :, 2] / GRAMS_TO_N, f"plan {dims}D")
+    team = list(SCENARIOS[name])
+    return (rec, FlownStates(team, log["truth_p"][w], log["truth_v"][w], log["truth_fa"][w, :, 2] / GRAMS_TO_N,
+                             f"plan {dims}D"),
+            Flight(team, *(log[k] for k in ("t", "p", "v", "q", "pwm", "battery_V")), p_d=log["p_d"],
+                   name=f"plan {dims}D {name} seed {seed}"))
+
+
+def fly_plans(fm: ForceModel, checkpoint, gen_dir, tasks: list, fa_margin_g, rrt: RRTParams, scp_params: SCPParams,
+              workers: int = 2, pool=None) -> list:
+    """_flown_plan for every (scenario, dims, seed) of ``tasks``: in ``pool`` (forked
+    workers that loaded ``checkpoint``, _calibration_init), else in this process
+    with ``fm``."""
+    global _CAL_MODEL
+    args = [(n, d, s, fa_margin_g, str(gen_dir), rrt, scp_params) for n, d, s in tasks]
+    if pool is not None:
+        return [f.result() for f in [pool.submit(_flown_plan, *a) for a in args]]
+    _CAL_MODEL = fm
+    return [_flown_plan(*a) for a in args]
+
+
+def _plan_pool(checkpoint, gen_dir, workers: int):
+    """Forked workers holding the model of ``checkpoint`` (None with one worker)."""
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    from ns2host.cfhost import load_fly
+
+    load_fly(gen_dir)                                 # build once, before any worker loads it
+    if workers <= 1:
+        return None
+    return ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("fork"), initializer=_calibration_init,
+                               initargs=(str(checkpoint),))
+
+
+def _trial_rows(cfg: Config, tasks: list, done: list) -> list:
+    return [{"case": f"{d}D {n}", "seed": s, "planned": fl is not None,
+             **({"worst_fa_g": rec["track"]["worst_fa_g"],
+                 "over_limit": any(f > lim for f, lim in zip(rec["track"]["worst_fa_g"], scenario_problem(cfg, n, d).fa_max())),
+                 "over_limit_in_bound_states": int(sum(rec["track"]["over_limit_in_bound_states"]))}
+                if fl is not None else {"error": rec["error"]})}
+            for (n, d, s), (rec, fl, _) in zip(tasks, done)]
 
 
 def calibrated_margin(cfg: Config, fm: ForceModel, checkpoint, gen_dir, held_out: list, scenarios, dims,
@@ -281,39 +328,22 @@ def calibrated_margin(cfg: Config, fm: ForceModel, checkpoint, gen_dir, held_out
     Returns the ``measure`` report on all those flights (its margin is the last
     round's m_r when converged, the raised one otherwise) with the ``rounds``; with
     ``cache`` (.npz) the flown plans are kept there (ns2exp.margin.load_flights)."""
-    import multiprocessing
-    from concurrent.futures import ProcessPoolExecutor
     from contextlib import nullcontext
-
-    from ns2host.cfhost import load_fly
 
     from . import margin
 
-    global _CAL_MODEL
-    load_fly(gen_dir)                                 # build once, before any worker loads it
     flights, history = list(held_out), []
     rep = margin.measure(cfg, fm, flights, LIMITS_3D, old_margin_g=FA_MARGIN_G)
     tasks = [(name, d, s) for d in dims for name in scenarios for s in seeds]
-    if workers <= 1:
-        _CAL_MODEL = fm
-    pool = (ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("fork"), initializer=_calibration_init,
-                                initargs=(str(checkpoint),)) if workers > 1 else nullcontext())
-    with pool:
+    pool = _plan_pool(checkpoint, gen_dir, workers)
+    with pool or nullcontext():
         for r in range(rounds):
             m = rep["margin_g"]
             log(f"margin calibration round {r}: {len(tasks)} NN trials of seeds {list(seeds)} with margin {m}")
-            args = [(n, d, s, m, str(gen_dir), rrt, scp_params) for n, d, s in tasks]
-            done = ([f.result() for f in [pool.submit(_calibration_trial, *a) for a in args]] if workers > 1
-                    else [_calibration_trial(*a) for a in args])
-            flights += [fl for _, fl in done if fl is not None]
+            done = fly_plans(fm, checkpoint, gen_dir, tasks, m, rrt, scp_params, workers, pool)
+            flights += [fl for _, fl, _ in done if fl is not None]
             rep = margin.measure(cfg, fm, flights, LIMITS_3D, old_margin_g=FA_MARGIN_G)
-            trials = [{"case": f"{d}D {n}", "seed": s, "planned": fl is not None,
-                       **({"worst_fa_g": rec["track"]["worst_fa_g"],
-                           "over_limit": any(f > lim for f, lim in zip(rec["track"]["worst_fa_g"],
-                                                                       scenario_problem(cfg, n, d).fa_max())),
-                           "over_limit_in_bound_states": int(sum(rec["track"]["over_limit_in_bound_states"]))}
-                          if fl is not None else {"error": rec["error"]})}
-                      for (n, d, s), (rec, fl) in zip(tasks, done)]
+            trials = _trial_rows(cfg, tasks, done)
             history.append({"round": r, "margin_g": m, "margin_after_g": rep["margin_g"], "trials": trials})
             ok = [t for t in trials if t["planned"]]
             log(f"  planned {len(ok)}/{len(trials)}, {sum(t['over_limit'] for t in ok)} over a limit in flight, "
@@ -329,6 +359,77 @@ def calibrated_margin(cfg: Config, fm: ForceModel, checkpoint, gen_dir, held_out
     rep["source"] += (f"; on the held-out flights and the NN's own flown plans of calibration seeds {list(seeds)} "
                       f"({len(history)} round(s), {'converged' if rep['converged'] else 'NOT converged'})")
     return rep
+
+
+def training_data_files(checkpoint) -> list:
+    """The data sets a checkpoint was trained on (its ``data_files``, kept beside it,
+    as default_checkpoint writes them); PlanningError naming the checkpoint and the
+    field when they are not there."""
+    from ns2codegen.checkpoint import load_checkpoint
+
+    names = load_checkpoint(checkpoint).meta.get("data_files")
+    if not isinstance(names, list) or not names:
+        raise PlanningError(f"{checkpoint}: data_files: the checkpoint does not list the data it was trained on "
+                            "(train it with ns2 plan's default planning model, or plan without --plan-data-rounds)")
+    missing = [f for f in names if not (Path(checkpoint).parent / str(f)).is_file()]
+    if missing:
+        raise PlanningError(f"{checkpoint}: data_files: {missing[0]} is not beside the checkpoint")
+    return list(names)
+
+
+def plan_trained_checkpoint(cfg: Config, checkpoint, gen_dir, held_out: list, scenarios, dims,
+                            seeds=PLAN_DATA_SEEDS, rounds: int = PLAN_DATA_ROUNDS, rrt: RRTParams = RRTParams(),
+                            scp_params: SCPParams = SCPParams(), workers: int = 2, log=print) -> Path:
+    """The planning model trained on its own plans too (data aggregation, as DAgger):
+    round r measures model r's margin on the held-out flights (ns2exp.margin), plans
+    every scenario x dims with it for the round's training seeds (``seeds`` + 100 r,
+    never an experiment or calibration seed), flies the plans and adds the drones'
+    logs (estimated states, labelled as every simulated flight) to the training data
+    of ``checkpoint`` (its ``data_files`` in its folder); model r + 1 is trained on it
+    all.  The planner drives each robot to where the model reads lowest; these are
+    the states its training flights lacked.  The models and the plans' data sets are
+    kept beside ``checkpoint`` (``model_r<r>.pt``, ``data_plans_r<r>.npz``) and reused;
+    returns the last model."""
+    from contextlib import nullcontext
+
+    from ns2codegen.checkpoint import load_checkpoint, save_checkpoint
+    from ns2codegen.data.dataset import Dataset
+    from ns2codegen.data.from_logs import flights_to_dataset
+    from ns2codegen.train import train
+
+    from . import margin
+
+    folder = Path(checkpoint).parent
+    names = training_data_files(checkpoint)
+    parts = [Dataset.load(folder / f, cfg.neighbor_types) for f in names]
+    ck = Path(checkpoint)
+    for r in range(rounds):
+        nxt = folder / f"model_r{r + 1}.pt"
+        data = folder / f"data_plans_r{r}.npz"
+        if not data.is_file():
+            fm = load_force_model(cfg, ck)
+            m = margin.measure(cfg, fm, held_out, LIMITS_3D)["margin_g"]
+            tasks = [(n, d, s + 100 * r) for d in dims for n in scenarios for s in seeds]
+            log(f"plan data round {r}: {len(tasks)} NN plans of {ck.name} with its held-out margin {m}")
+            pool = _plan_pool(ck, gen_dir, workers)
+            with pool or nullcontext():
+                done = fly_plans(fm, ck, gen_dir, tasks, m, rrt, scp_params, workers, pool)
+            rows = _trial_rows(cfg, tasks, done)
+            ok = [t for t in rows if t["planned"]]
+            log(f"  planned {len(ok)}/{len(rows)}, {sum(t['over_limit'] for t in ok)} over a limit in flight")
+            flights = [f for _, _, f in done if f is not None]
+            if not flights:
+                raise PlanningError(f"plan data round {r}: no plan of {ck.name} in {len(tasks)} trials to train on")
+            flights_to_dataset(cfg, flights).save(data)
+        parts.append(Dataset.load(data, cfg.neighbor_types))
+        names.append(data.name)
+        if not (nxt.is_file() and load_checkpoint(nxt).meta.get("data_files") == names):
+            ds = Dataset.concat(parts)
+            model, rep = train(cfg, ds)
+            save_checkpoint(nxt, model, cfg, {"seed": rep["seed"], "data_hash": ds.content_hash(), "report": rep,
+                                              "data_files": names, "plan_data_of": str(ck)})
+        ck = nxt
+    return ck
 
 
 def planning_experiments(cfg: Config, checkpoint, gen_dir, out_dir, scenarios=None, dims=(2, 3), trials: int = 5,

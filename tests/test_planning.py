@@ -469,3 +469,8 @@ def test_cli_plan_problem_file(cfg, exported, tmp_path):
         r = CliRunner().invoke(main, ["plan", "--checkpoint", str(exported.checkpoint), "--out", str(tmp_path / "o4"),
                                       "--fa-margin", bad])
         assert r.exit_code == 2 and "--fa-margin" in r.output and not (tmp_path / "o4").exists(), r.output
+    # --plan-data-rounds trains on the checkpoint's own data: one without it is refused before any flight
+    r = CliRunner().invoke(main, ["plan", "--checkpoint", str(exported.checkpoint), "--out", str(tmp_path / "o5"),
+                                  "--plan-data-rounds", "1"])
+    assert r.exit_code == 1 and f"{exported.checkpoint}: data_files:" in r.output, r.output
+    assert not (tmp_path / "o5").exists()

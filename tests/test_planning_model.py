@@ -378,9 +378,9 @@ def test_calibrated_margin_adds_the_planners_own_flown_states_until_they_keep_it
                                         "over_limit_in_bound_states": [4 if bad else 0, 0]}}
         fl = _flight(P, np.zeros_like(P), F)
         fl.kind = f"plan {dims}D"
-        return rec, fl
+        return rec, fl, None
 
-    monkeypatch.setattr(ex, "_calibration_trial", trial)
+    monkeypatch.setattr(ex, "_flown_plan", trial)
     rep = ex.calibrated_margin(cfg, ForceModel(cfg, None), exported.checkpoint, exported.gen_dir, held, ["SL"], (2,),
                                seeds=(1000,), rounds=3, workers=1, log=lambda m: None, cache=tmp_path / "cal.npz")
     assert seen == [("SL", 2, 1000, 0.0), ("SL", 2, 1000, pytest.approx(5.1))]
@@ -404,3 +404,48 @@ def test_calibrated_margin_adds_the_planners_own_flown_states_until_they_keep_it
     md = margin_table(rep)
     assert "| 0 | 0.0/0.0/0.0/0.0/0.0/0.0; 0.0/0.0/0.0/0.0/0.0/0.0 | 1/1 | 1 | 4 | 5.1/5.1/5.1/5.1/5.1/5.1; 0.0/0.0/0.0/0.0/0.0/0.0 |" in md
     assert "| 1 | 5.1/5.1/5.1/5.1/5.1/5.1; 0.0/0.0/0.0/0.0/0.0/0.0 | 1/1 | 0 | 0 | 5.1/5.1/5.1/5.1/5.1/5.1; 0.0/0.0/0.0/0.0/0.0/0.0 |" in md
+
+
+def test_plan_trained_checkpoint_adds_the_flown_plans_to_the_training_data(cfg, exported, monkeypatch, tmp_path):
+    """ns2exp.planning.plan_trained_checkpoint: each round plans the round's training
+    seeds with the current model and its held-out margin, and trains the next model on
+    the base checkpoint's data plus the drones' logs of every plan flown so far (the
+    plans are stand-ins here: two real simulated flights, labelled as any flight)."""
+    from ns2codegen.checkpoint import load_checkpoint, save_checkpoint
+    from ns2codegen.data.dataset import Dataset
+    from ns2codegen.data.from_logs import flights_to_dataset
+    from ns2codegen.train import train
+    from ns2exp import planning as ex
+    from ns2exp.margin import FlownStates
+
+    base = flights_to_dataset(cfg, [fly(cfg, ("small", "large"), exported.gen_dir, "near", 2.0, seed=3)])
+    base.save(tmp_path / "data_base.npz")
+    model, rep = train(cfg, base, epochs=1)
+    save_checkpoint(tmp_path / "model.pt", model, cfg, {"seed": 0, "data_hash": base.content_hash(), "report": rep,
+                                                         "data_files": ["data_base.npz"]})
+    plans = {s: fly(cfg, ("small", "large"), exported.gen_dir, "who", 2.0, seed=s) for s in (2000, 2100)}
+    seen = []
+
+    def trial(name, dims, seed, fa_margin_g, gen_dir, rrt, scp_params):
+        seen.append((name, dims, seed))
+        fl = plans[seed]
+        truth = FlownStates(list(fl.types), fl.p, fl.v, np.zeros(fl.p.shape[:2]), f"plan {dims}D")
+        return {"error": None, "track": {"worst_fa_g": [0.0, 0.0], "over_limit_in_bound_states": [0, 0]}}, truth, fl
+
+    monkeypatch.setattr(ex, "_flown_plan", trial)
+    P = np.tile(np.array([[0.0, 0.0, 1.0], [0.0, 0.0, 1.6]]), (4, 1, 1))
+    held = [_flight(P, np.zeros_like(P), np.array([[-4.0, 0.0]] * 4))]
+    ck = ex.plan_trained_checkpoint(cfg, tmp_path / "model.pt", exported.gen_dir, held, ["SL"], (2,), seeds=(2000,),
+                                    rounds=2, workers=1, log=lambda m: None)
+    assert ck == tmp_path / "model_r2.pt" and seen == [("SL", 2, 2000), ("SL", 2, 2100)]
+    meta = load_checkpoint(ck).meta
+    assert meta["data_files"] == ["data_base.npz", "data_plans_r0.npz", "data_plans_r1.npz"]
+    r0 = Dataset.load(tmp_path / "data_plans_r0.npz", cfg.neighbor_types)
+    assert r0.content_hash() == flights_to_dataset(cfg, [plans[2000]]).content_hash()
+    ds = Dataset.concat([base, r0, Dataset.load(tmp_path / "data_plans_r1.npz", cfg.neighbor_types)])
+    assert meta["data_hash"] == ds.content_hash()
+    # kept and reused: a second call plans and trains nothing
+    seen.clear()
+    again = ex.plan_trained_checkpoint(cfg, tmp_path / "model.pt", exported.gen_dir, held, ["SL"], (2,),
+                                       seeds=(2000,), rounds=2, workers=1, log=lambda m: None)
+    assert again == ck and seen == [] and load_checkpoint(ck).meta["data_hash"] == meta["data_hash"]
