@@ -53,7 +53,7 @@ CALIBRATION_ROUNDS = 4
 # in round r, never an experiment or calibration seed
 PLAN_DATA_SEEDS = (2000, 2001, 2002, 2003)
 PLAN_DATA_ROUNDS = 2
-_CAL_MODEL = None                       # the calibration workers' force model (_calibration_init)
+_WORKER_MODEL = None                    # the model of the planning workers (_worker_init, _set_worker_model)
 
 
 def scenario_problem(cfg: Config, name: str, dims: int, fa_margin_g=None) -> Problem:
@@ -248,11 +248,23 @@ def measured_margin(cfg: Config, fm: ForceModel, gen_dir, cache=None, log=print,
     return margin.measure(cfg, fm, flights, LIMITS_3D, old_margin_g=FA_MARGIN_G)
 
 
-def _calibration_init(checkpoint) -> None:
-    global _CAL_MODEL
+def _worker_init(checkpoint) -> None:
+    global _WORKER_MODEL
     from ns2codegen.checkpoint import load_checkpoint
 
-    _CAL_MODEL = load_force_model(load_checkpoint(checkpoint).cfg, checkpoint)
+    _WORKER_MODEL = load_force_model(load_checkpoint(checkpoint).cfg, checkpoint)
+
+
+def _set_worker_model(fm: ForceModel) -> None:
+    global _WORKER_MODEL
+    _WORKER_MODEL = fm
+
+
+def _experiment_trial(mode: str, name: str, dims: int, seed: int, fa_margin_g, gen_dir, rrt: RRTParams,
+                      scp_params: SCPParams):
+    """run_trial of one experiment trial, planned with the worker's model (NN) or f_a = 0 (BL)."""
+    fm = _WORKER_MODEL if mode == "NN" else ForceModel(_WORKER_MODEL.cfg, None)
+    return run_trial(scenario_problem(fm.cfg, name, dims, fa_margin_g), fm, gen_dir, seed, rrt, scp_params)
 
 
 def _flown_plan(name: str, dims: int, seed: int, fa_margin_g, gen_dir, rrt: RRTParams, scp_params: SCPParams,
@@ -265,7 +277,7 @@ def _flown_plan(name: str, dims: int, seed: int, fa_margin_g, gen_dir, rrt: RRTP
 
     from .margin import FlownStates
 
-    fm = _CAL_MODEL
+    fm = _WORKER_MODEL
     pb = scenario_problem(fm.cfg, name, dims, fa_margin_g)
     rec, _, log = run_trial(pb, fm, gen_dir, seed, rrt, scp_params)
     if log is None:
@@ -281,13 +293,12 @@ def _flown_plan(name: str, dims: int, seed: int, fa_margin_g, gen_dir, rrt: RRTP
 def fly_plans(fm: ForceModel, checkpoint, gen_dir, tasks: list, fa_margin_g, rrt: RRTParams, scp_params: SCPParams,
               workers: int = 2, pool=None) -> list:
     """_flown_plan for every (scenario, dims, seed) of ``tasks``: in ``pool`` (forked
-    workers that loaded ``checkpoint``, _calibration_init), else in this process
+    workers that loaded ``checkpoint``, _worker_init), else in this process
     with ``fm``."""
-    global _CAL_MODEL
     args = [(n, d, s, fa_margin_g, str(gen_dir), rrt, scp_params) for n, d, s in tasks]
     if pool is not None:
         return [f.result() for f in [pool.submit(_flown_plan, *a) for a in args]]
-    _CAL_MODEL = fm
+    _set_worker_model(fm)
     return [_flown_plan(*a) for a in args]
 
 
@@ -301,7 +312,7 @@ def _plan_pool(checkpoint, gen_dir, workers: int):
     load_fly(gen_dir)                                 # build once, before any worker loads it
     if workers <= 1:
         return None
-    return ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("fork"), initializer=_calibration_init,
+    return ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("fork"), initializer=_worker_init,
                                initargs=(str(checkpoint),))
 
 
@@ -437,20 +448,21 @@ def planning_experiments(cfg: Config, checkpoint, gen_dir, out_dir, scenarios=No
                          progress=None, fa_margin_g=None, modes=("NN", "BL"), calibrate: bool = False,
                          workers: int = 2) -> dict:
     """Every scenario in every dimension, ``trials`` seeds with NN and with BL (or
-    ``modes``; ``progress(1)`` after every trial); writes plan.json, plan.md and the
-    figures.  ``fa_margin_g`` None: the margin measured on held-out flights
+    ``modes``; ``progress(1)`` after every trial), ``workers`` trials at once (forked
+    processes; a trial's outcome does not depend on it); writes plan.json, plan.md and
+    the figures.  ``fa_margin_g`` None: the margin measured on held-out flights
     (measured_margin; with ``calibrate`` also on the NN's flown plans of calibration
-    seeds, calibrated_margin, ``workers`` trials at once), else this one (g, one value
-    or per type)."""
+    seeds, calibrated_margin), else this one (g, one value or per type)."""
+    from contextlib import nullcontext
+
     from ns2plan.output import write_plan
 
     from .margin import margin_table
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    models = {m: fm for m, fm in (("NN", load_force_model(cfg, checkpoint)), ("BL", ForceModel(cfg, None)))
-              if m in modes}
-    nn = models.get("NN") or load_force_model(cfg, checkpoint)
+    models = [m for m in ("NN", "BL") if m in modes]
+    nn = load_force_model(cfg, checkpoint)
     rep = None
     if fa_margin_g is None:
         cal = (dict(checkpoint=checkpoint, scenarios=list(scenarios or SCENARIOS), dims=dims, rrt=rrt,
@@ -459,30 +471,40 @@ def planning_experiments(cfg: Config, checkpoint, gen_dir, out_dir, scenarios=No
         rep = measured_margin(cfg, nn, gen_dir, cache=out / "held_out_flights.npz", log=log, calibration=cal)
         fa_margin_g = rep["margin_g"]
         log(f"planning margin (g): {fa_margin_g}")
-    results = {}
-    for d in dims:
-        for name in scenarios or SCENARIOS:
-            pb = scenario_problem(cfg, name, d, fa_margin_g)
-            key = f"{d}D {name}"
-            results[key] = {}
-            examples = {}
-            for mode, fm in models.items():
-                recs = []
-                for trial in range(trials):
-                    rec, res, flight = run_trial(pb, fm, gen_dir, trial, rrt, scp_params)
-                    recs.append(rec)
-                    if progress is not None:
-                        progress(1)
-                    if res is not None and mode not in examples:
-                        examples[mode] = (res, flight)
-                        write_plan(out / "trajectories" / f"{d}d_{name}_{mode}", res.trajs,
-                                   [r.type for r in pb.robots], pb.kappa())
-                    log(f"{key} {mode} trial {trial}: " + (rec["error"] if rec["error"] else
-                        f"worst error {100 * max(rec['track']['worst_error_m']):.1f} cm, worst |f_a| "
-                        + ", ".join(f"{r.type} {f:.1f} g" for r, f in zip(pb.robots, rec["track"]["worst_fa_g"]))))
-                results[key][mode] = {"summary": _summary(recs, pb), "trials": recs}
-            if d == 2 and len(examples) == 2:
-                example_figure(pb, examples, out / f"plan_{d}d_{name}.png")
+    names = list(scenarios or SCENARIOS)
+    tasks = [(mode, name, d, trial) for d in dims for name in names for mode in models for trial in range(trials)]
+    pool = _plan_pool(checkpoint, gen_dir, workers)
+    with pool or nullcontext():
+        if pool is None:
+            _set_worker_model(nn)
+        args = [(mode, name, d, trial, fa_margin_g, str(gen_dir), rrt, scp_params) for mode, name, d, trial in tasks]
+        runs = iter([pool.submit(_experiment_trial, *a) for a in args] if pool is not None else [])
+        results = {}
+        for d in dims:
+            for name in names:
+                pb = scenario_problem(cfg, name, d, fa_margin_g)
+                key = f"{d}D {name}"
+                results[key] = {}
+                examples = {}
+                for mode in models:
+                    recs = []
+                    for trial in range(trials):
+                        rec, res, flight = (next(runs).result() if pool is not None else
+                                            _experiment_trial(mode, name, d, trial, fa_margin_g, gen_dir, rrt,
+                                                              scp_params))
+                        recs.append(rec)
+                        if progress is not None:
+                            progress(1)
+                        if res is not None and mode not in examples:
+                            examples[mode] = (res, flight)
+                            write_plan(out / "trajectories" / f"{d}d_{name}_{mode}", res.trajs,
+                                       [r.type for r in pb.robots], pb.kappa())
+                        log(f"{key} {mode} trial {trial}: " + (rec["error"] if rec["error"] else
+                            f"worst error {100 * max(rec['track']['worst_error_m']):.1f} cm, worst |f_a| "
+                            + ", ".join(f"{r.type} {f:.1f} g" for r, f in zip(pb.robots, rec["track"]["worst_fa_g"]))))
+                    results[key][mode] = {"summary": _summary(recs, pb), "trials": recs}
+                if d == 2 and len(examples) == 2:
+                    example_figure(pb, examples, out / f"plan_{d}d_{name}.png")
     check = downwash_check(cfg, nn)
     md = ("Model vs simulator, f_a,z (g) of a robot hovering 1 m up directly under another, predicted / true:\n\n"
           + downwash_table(check) + "\n\n"

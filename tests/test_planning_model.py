@@ -449,3 +449,31 @@ def test_plan_trained_checkpoint_adds_the_flown_plans_to_the_training_data(cfg, 
     again = ex.plan_trained_checkpoint(cfg, tmp_path / "model.pt", exported.gen_dir, held, ["SL"], (2,),
                                        seeds=(2000,), rounds=2, workers=1, log=lambda m: None)
     assert again == ck and seen == [] and load_checkpoint(ck).meta["data_hash"] == meta["data_hash"]
+
+
+def test_planning_experiments_run_trials_in_workers_as_in_one_process(cfg, exported, tmp_path):
+    """ns2exp.planning.planning_experiments with two forked workers: the same trials
+    (seeds 0, 1 of NN and BL), in order, as run_trial gives in this process; plan.md
+    and plan.json written."""
+    import json
+
+    from ns2exp import planning as ex
+    from ns2plan.forces import load_force_model
+    from ns2plan.problem import RRTParams, SCPParams, SearchParams
+
+    rrt = RRTParams(SearchParams(max_samples=6000), ao_iterations=1)
+    scp = SCPParams(max_iterations=3)
+    res = ex.planning_experiments(cfg, exported.checkpoint, exported.gen_dir, tmp_path, ["SL"], (3,), 2, rrt, scp,
+                                  log=lambda m: None, fa_margin_g=2.0, workers=2)
+    runs = res["3D SL"]
+    assert [t["seed"] for t in runs["NN"]["trials"]] == [0, 1] and [t["seed"] for t in runs["BL"]["trials"]] == [0, 1]
+    pb = ex.scenario_problem(cfg, "SL", 3, 2.0)
+    for mode, fm in (("NN", load_force_model(cfg, exported.checkpoint)), ("BL", ForceModel(cfg, None))):
+        rec = ex.run_trial(pb, fm, exported.gen_dir, 1, rrt, scp)[0]
+        got = runs[mode]["trials"][1]
+        assert got["error"] == rec["error"]
+        if rec["error"] is None:
+            assert got["track"]["worst_fa_g"] == rec["track"]["worst_fa_g"]
+            assert got["stage1_costs"] == rec["stage1_costs"]
+    assert json.loads((tmp_path / "plan.json").read_text())["cases"]["3D SL"]["NN"]["summary"]["trials"] == 2
+    assert "3D SL" in (tmp_path / "plan.md").read_text()
