@@ -47,7 +47,8 @@ from .common import (
                    "training seeds, fly, add the logs, retrain: ns2exp.planning.plan_trained_checkpoint; the checkpoint "
                    "needs its data_files beside it, as the default planning model has)")
 @click.option("--workers", type=click.IntRange(min=1), default=2, show_default=True,
-              help="with --fa-margin calibrated or --plan-data-rounds: trials planned and flown at once")
+              help="experiments (and --fa-margin calibrated, --plan-data-rounds): trials planned and flown at once, "
+                   "in forked processes (the outcomes do not depend on it)")
 @_quiet_option
 @_json_option
 def plan_cmd(checkpoint, model_dir, config_path, problem_path, baseline, out_dir, scenarios, dims, trials,
