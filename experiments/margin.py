@@ -351,8 +351,10 @@ def main(argv=None) -> None:
     a = ap.parse_args(argv)
     cfg = Config.load()
     flights = [fl for path in a.flights for fl in load_flights(path)[0]]
-    reports = {Path(c).parent.name or c: measure(cfg, load_force_model(cfg, c), flights, LIMITS_3D, FA_MARGIN_G)
-               for c in a.checkpoints}
+    names = [Path(c).parent.name or c for c in a.checkpoints]
+    names = names if len(set(names)) == len(names) else list(a.checkpoints)    # one folder: the paths
+    reports = {n: measure(cfg, load_force_model(cfg, c), flights, LIMITS_3D, FA_MARGIN_G)
+               for n, c in zip(names, a.checkpoints)}
     for name, rep in reports.items():
         print(f"## {name}\n\n{margin_table(rep)}\n")
     print(compare_table(reports))
