@@ -399,8 +399,11 @@ def plan_trained_checkpoint(cfg: Config, checkpoint, gen_dir, held_out: list, sc
     of ``checkpoint`` (its ``data_files`` in its folder); model r + 1 is trained on it
     all.  The planner drives each robot to where the model reads lowest; these are
     the states its training flights lacked.  The models and the plans' data sets are
-    kept beside ``checkpoint`` (``model_r<r>.pt``, ``data_plans_r<r>.npz``) and reused;
-    returns the last model."""
+    kept beside ``checkpoint`` (``model_r<r>_<tag>.pt``, ``data_plans_r<r>_<tag>.npz``,
+    the tag a hash of the data before the round and the round's scenarios, dims and
+    seeds) and reused; returns the last model."""
+    import hashlib
+
     from contextlib import nullcontext
 
     from ns2codegen.checkpoint import load_checkpoint, save_checkpoint
@@ -415,12 +418,13 @@ def plan_trained_checkpoint(cfg: Config, checkpoint, gen_dir, held_out: list, sc
     parts = [Dataset.load(folder / f, cfg.neighbor_types) for f in names]
     ck = Path(checkpoint)
     for r in range(rounds):
-        nxt = folder / f"model_r{r + 1}.pt"
-        data = folder / f"data_plans_r{r}.npz"
+        tasks = [(n, d, s + 100 * r) for d in dims for n in scenarios for s in seeds]
+        tag = hashlib.sha256(json.dumps([names, tasks]).encode()).hexdigest()[:10]
+        nxt = folder / f"model_r{r + 1}_{tag}.pt"
+        data = folder / f"data_plans_r{r}_{tag}.npz"
         if not data.is_file():
             fm = load_force_model(cfg, ck)
             m = margin.measure(cfg, fm, held_out, LIMITS_3D)["margin_g"]
-            tasks = [(n, d, s + 100 * r) for d in dims for n in scenarios for s in seeds]
             log(f"plan data round {r}: {len(tasks)} NN plans of {ck.name} with its held-out margin {m}")
             pool = _plan_pool(ck, gen_dir, workers)
             with pool or nullcontext():

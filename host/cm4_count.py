@@ -80,7 +80,6 @@ def _base(mn: str) -> str:
 def instruction_cost(mnemonic: str, op_str: str, taken: bool) -> int:
     mn = mnemonic.lower()
     base = _base(mn)
-    nregs = op_str.count(",") + 1 if "{" in op_str else 1
     if base in _BRANCHES:
         return 1 + P if taken else 1
     if mn.startswith(("vmla", "vmls", "vfma", "vfms", "vfnm")):

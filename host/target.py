@@ -25,7 +25,7 @@ import numpy as np
 
 from ns2codegen.errors import Ns2Error
 
-from .cbuild import REPO, BUILD_ROOT, GENERATED, BuildError, compile_error, flags
+from .cbuild import REPO, BUILD_ROOT, GENERATED, compile_error, flags
 
 ARM_CC = os.environ.get("ARM_CC", "arm-none-eabi-gcc")
 TARGET_DIR = REPO / "firmware" / "target"

@@ -437,18 +437,23 @@ def test_plan_trained_checkpoint_adds_the_flown_plans_to_the_training_data(cfg, 
     held = [_flight(P, np.zeros_like(P), np.array([[-4.0, 0.0]] * 4))]
     ck = ex.plan_trained_checkpoint(cfg, tmp_path / "model.pt", exported.gen_dir, held, ["SL"], (2,), seeds=(2000,),
                                     rounds=2, workers=1, log=lambda m: None)
-    assert ck == tmp_path / "model_r2.pt" and seen == [("SL", 2, 2000), ("SL", 2, 2100)]
+    assert ck.name.startswith("model_r2_") and seen == [("SL", 2, 2000), ("SL", 2, 2100)]
     meta = load_checkpoint(ck).meta
-    assert meta["data_files"] == ["data_base.npz", "data_plans_r0.npz", "data_plans_r1.npz"]
-    r0 = Dataset.load(tmp_path / "data_plans_r0.npz", cfg.neighbor_types)
+    assert meta["data_files"][0] == "data_base.npz" and len(meta["data_files"]) == 3
+    assert [f.split("_")[2] for f in meta["data_files"][1:]] == ["r0", "r1"]
+    r0 = Dataset.load(tmp_path / meta["data_files"][1], cfg.neighbor_types)
     assert r0.content_hash() == flights_to_dataset(cfg, [plans[2000]]).content_hash()
-    ds = Dataset.concat([base, r0, Dataset.load(tmp_path / "data_plans_r1.npz", cfg.neighbor_types)])
+    ds = Dataset.concat([base, r0, Dataset.load(tmp_path / meta["data_files"][2], cfg.neighbor_types)])
     assert meta["data_hash"] == ds.content_hash()
     # kept and reused: a second call plans and trains nothing
     seen.clear()
     again = ex.plan_trained_checkpoint(cfg, tmp_path / "model.pt", exported.gen_dir, held, ["SL"], (2,),
                                        seeds=(2000,), rounds=2, workers=1, log=lambda m: None)
     assert again == ck and seen == [] and load_checkpoint(ck).meta["data_hash"] == meta["data_hash"]
+    # other tasks are other data: 3-D plans are flown, not the 2-D ones reused
+    other = ex.plan_trained_checkpoint(cfg, tmp_path / "model.pt", exported.gen_dir, held, ["SL"], (3,),
+                                       seeds=(2000,), rounds=1, workers=1, log=lambda m: None)
+    assert seen == [("SL", 3, 2000)] and other.name.startswith("model_r1_") and other != ck
 
 
 def test_planning_experiments_run_trials_in_workers_as_in_one_process(cfg, exported, tmp_path):

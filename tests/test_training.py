@@ -1,9 +1,6 @@
-import numpy as np
 import torch
 
-from ns2codegen.config import Config
 from ns2codegen.data.analytic import max_dataset
-from ns2codegen.model import HeteroDeepSet
 from ns2codegen.train import Batched, train
 
 

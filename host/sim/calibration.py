@@ -244,7 +244,7 @@ def sim_to_real_table(cmp: dict) -> str:
             within[v] += ok
             cells.append(f"{100 * x:.1f} ({_ratio(x, rv)}{'*' if ok else ''})")
         lines.append(f"| {case} | {r['swaps']} | {100 * rv:.1f} | " + " | ".join(cells) + " |")
-    lines.append(f"| within 30 % (*) | | | " + " | ".join(f"{within[v]} of {len(cases)}" for v in sims) + " |")
+    lines.append("| within 30 % (*) | | | " + " | ".join(f"{within[v]} of {len(cases)}" for v in sims) + " |")
     return "\n".join(lines) + "\n"
 
 
