@@ -399,9 +399,10 @@ def plan_trained_checkpoint(cfg: Config, checkpoint, gen_dir, held_out: list, sc
     of ``checkpoint`` (its ``data_files`` in its folder); model r + 1 is trained on it
     all.  The planner drives each robot to where the model reads lowest; these are
     the states its training flights lacked.  The models and the plans' data sets are
-    kept beside ``checkpoint`` (``model_r<r>_<tag>.pt``, ``data_plans_r<r>_<tag>.npz``,
-    the tag a hash of the data before the round and the round's scenarios, dims and
-    seeds) and reused; returns the last model."""
+    kept beside ``checkpoint`` (``model_r<r>_<tag>.pt``, ``data_plans_r<r>_<tag>.npz``
+    with the round's margin and trials in ``.json`` beside it, the tag a hash of the
+    data before the round and the round's scenarios, dims and seeds) and reused;
+    returns the last model."""
     import hashlib
 
     from contextlib import nullcontext
@@ -436,6 +437,8 @@ def plan_trained_checkpoint(cfg: Config, checkpoint, gen_dir, held_out: list, sc
             if not flights:
                 raise PlanningError(f"plan data round {r}: no plan of {ck.name} in {len(tasks)} trials to train on")
             flights_to_dataset(cfg, flights).save(data)
+            atomic_write_bytes(data.with_suffix(".json"), (json.dumps(
+                {"round": r, "model": ck.name, "margin_g": m, "trials": rows}, indent=1, default=float) + "\n").encode())
         parts.append(Dataset.load(data, cfg.neighbor_types))
         names.append(data.name)
         if not (nxt.is_file() and load_checkpoint(nxt).meta.get("data_files") == names):

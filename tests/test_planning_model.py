@@ -411,6 +411,8 @@ def test_plan_trained_checkpoint_adds_the_flown_plans_to_the_training_data(cfg, 
     seeds with the current model and its held-out margin, and trains the next model on
     the base checkpoint's data plus the drones' logs of every plan flown so far (the
     plans are stand-ins here: two real simulated flights, labelled as any flight)."""
+    import json
+
     from ns2codegen.checkpoint import load_checkpoint, save_checkpoint
     from ns2codegen.data.dataset import Dataset
     from ns2codegen.data.from_logs import flights_to_dataset
@@ -442,6 +444,8 @@ def test_plan_trained_checkpoint_adds_the_flown_plans_to_the_training_data(cfg, 
     assert meta["data_files"][0] == "data_base.npz" and len(meta["data_files"]) == 3
     assert [f.split("_")[2] for f in meta["data_files"][1:]] == ["r0", "r1"]
     r0 = Dataset.load(tmp_path / meta["data_files"][1], cfg.neighbor_types)
+    rows = json.loads((tmp_path / meta["data_files"][1]).with_suffix(".json").read_text())
+    assert rows["round"] == 0 and rows["model"] == "model.pt" and rows["trials"][0]["seed"] == 2000
     assert r0.content_hash() == flights_to_dataset(cfg, [plans[2000]]).content_hash()
     ds = Dataset.concat([base, r0, Dataset.load(tmp_path / meta["data_files"][2], cfg.neighbor_types)])
     assert meta["data_hash"] == ds.content_hash()
