@@ -37,15 +37,16 @@ from .common import (
 @click.option("--time-limit", type=click.FloatRange(min=1.0), default=300.0, show_default=True,
               help="wall-clock safety net in seconds for Stage 1 and again for Stage 2, per plan (the sample and "
                    "iteration counts stop them first, so a seed gives the same plan on any machine)")
-@click.option("--fa-margin", default="measured", show_default=True,
+@click.option("--fa-margin", default="calibrated", show_default=True,
               help="experiments: g of every force limit kept free for model error, a number, 'measured' (per "
                    "robot type and bin of the relative speed from the model's error on held-out simulated flights, "
                    "ns2exp.margin) or 'calibrated' (measured on those and on the NN's own flown plans of "
                    "calibration seeds, raised round by round until they keep it: ns2exp.planning.calibrated_margin)")
-@click.option("--plan-data-rounds", type=click.IntRange(min=0), default=0, show_default=True,
+@click.option("--plan-data-rounds", type=click.IntRange(min=0), default=None,
               help="experiments: first train the model on its own flown plans too, this many rounds (plan the "
                    "training seeds, fly, add the logs, retrain: ns2exp.planning.plan_trained_checkpoint; the checkpoint "
-                   "needs its data_files beside it, as the default planning model has)")
+                   "needs its data_files beside it, as the default planning model has) [default: 2 for the planning "
+                   "model trained without --checkpoint, 0 with --checkpoint]")
 @click.option("--workers", type=click.IntRange(min=1), default=2, show_default=True,
               help="experiments (and --fa-margin calibrated, --plan-data-rounds): trials planned and flown at once, "
                    "in forked processes (the outcomes do not depend on it)")
@@ -81,6 +82,8 @@ def plan_cmd(checkpoint, model_dir, config_path, problem_path, baseline, out_dir
     cfg = _plan_config(checkpoint, config_path)
     if problem_path:
         ex.load_problem(cfg, problem_path)  # refuse a bad file before any training
+    if plan_data_rounds is None:
+        plan_data_rounds = ex.PLAN_DATA_ROUNDS if checkpoint is None else 0
     if checkpoint is None and not (problem_path and baseline):
         folder = Path(model_dir) if model_dir else Path(out_dir) / "model"
         checkpoint = ex.default_checkpoint(cfg, folder, log=lambda msg: click.echo(msg, err=True))

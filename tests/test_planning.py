@@ -465,7 +465,7 @@ def test_cli_plan_problem_file(cfg, exported, tmp_path):
     r = CliRunner().invoke(main, ["plan", "--problem", str(f), "--checkpoint", str(exported.checkpoint),
                                   "--out", str(tmp_path / "out3")])
     assert r.exit_code != 0 and "outside the state box" in r.output, r.output
-    for bad in ("abc", "-1", "nan"):                 # the experiments' margin: grams or 'measured'
+    for bad in ("abc", "-1", "nan"):                 # the experiments' margin: grams, 'measured' or 'calibrated'
         r = CliRunner().invoke(main, ["plan", "--checkpoint", str(exported.checkpoint), "--out", str(tmp_path / "o4"),
                                       "--fa-margin", bad])
         assert r.exit_code == 2 and "--fa-margin" in r.output and not (tmp_path / "o4").exists(), r.output
