@@ -485,4 +485,6 @@ def test_planning_experiments_run_trials_in_workers_as_in_one_process(cfg, expor
             assert got["track"]["worst_fa_g"] == rec["track"]["worst_fa_g"]
             assert got["stage1_costs"] == rec["stage1_costs"]
     assert json.loads((tmp_path / "plan.json").read_text())["cases"]["3D SL"]["NN"]["summary"]["trials"] == 2
-    assert "3D SL" in (tmp_path / "plan.md").read_text()
+    md = (tmp_path / "plan.md").read_text()
+    s = runs["NN"]["summary"]
+    assert f"| 3D SL | NN | {s['planned']}/2 | {s['planned'] - s['trials_any_over_limit']}/{s['planned']} |" in md
