@@ -249,8 +249,14 @@ def measured_margin(cfg: Config, fm: ForceModel, gen_dir, cache=None, log=print,
 
 
 def _worker_init(checkpoint) -> None:
+    """A forked worker: one torch thread (two workers on the 2 cores; and a forked
+    child must not enter the parent's OpenMP pool, which hangs), the model loaded."""
     global _WORKER_MODEL
+    import torch
+
     from ns2codegen.checkpoint import load_checkpoint
+
+    torch.set_num_threads(1)
 
     _WORKER_MODEL = load_force_model(load_checkpoint(checkpoint).cfg, checkpoint)
 

@@ -472,6 +472,10 @@ def test_planning_experiments_run_trials_in_workers_as_in_one_process(cfg, expor
 
     rrt = RRTParams(SearchParams(max_samples=6000), ao_iterations=1)
     scp = SCPParams(max_iterations=3)
+    n = torch.get_num_threads()
+    torch.set_num_threads(2)                 # the parent's OpenMP pool in use before the fork: the workers must
+    torch.ones(512, 512) @ torch.ones(512, 512)          # not hang in it (they did, with threads left at 2)
+    torch.set_num_threads(n)
     res = ex.planning_experiments(cfg, exported.checkpoint, exported.gen_dir, tmp_path, ["SL"], (3,), 2, rrt, scp,
                                   log=lambda m: None, fa_margin_g=2.0, workers=2)
     runs = res["3D SL"]
