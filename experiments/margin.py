@@ -298,7 +298,9 @@ def margin_table(rep: dict) -> str:
                                  for k in ("gap_m", "gap_constant_m", "gap_old_m", "gap_largest_low_m"))
         lines.append(f"| {g['lower']} under {g['upper']} | {rest} | {const} | {old} | {big} |")
     if rep.get("rounds"):
-        lines += ["", f"Calibration on the NN's own flown plans (seeds {rep['calibration_seeds']}; "
+        per_case = rep.get("calibration_plans_per_case")
+        lines += ["", f"Calibration on the NN's own flown plans (seeds {rep['calibration_seeds']}"
+                  + (f" in order, until {per_case} planned per case" if per_case else "") + "; "
                   f"{'converged' if rep['converged'] else 'NOT converged'}): margins in g per speed bin, "
                   + ", ".join(rep["margin_g"]) + ":", "",
                   "| round | margin planned with | planned | trials over a limit in flight | flown states over the limit "

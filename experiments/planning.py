@@ -45,9 +45,12 @@ CHECK_GAPS = (0.15, 0.3, 0.5, 1.0, 1.4)      # m, vertical gaps of downwash_chec
 NEAR_FIELD_SECONDS = 600.0              # close-range passes per pair of types in default_checkpoint
 NEAR_GAP_MAX = 1.5                      # m, largest vertical gap of the close-range passes in default_checkpoint
 WHO_MOVES_SECONDS = 300.0               # one robot moving past the other, hovering one, per pair (issue 24)
-# the margin's calibration on the planner's own flown plans (calibrated_margin): seeds never used by
-# an experiment (those are 0 .. trials - 1) and the most rounds of plan, fly, re-measure
-CALIBRATION_SEEDS = (1000, 1001)
+# the margin's calibration on the planner's own flown plans (calibrated_margin): per case and round,
+# CALIBRATION_PLANS planned trials from the seeds in order (a case whose seeds find no path gets the
+# next ones; seeds never used by an experiment, those are 0 .. trials - 1), and the most rounds of
+# plan, fly, re-measure
+CALIBRATION_SEEDS = tuple(range(1000, 1008))
+CALIBRATION_PLANS = 2
 CALIBRATION_ROUNDS = 4
 # the planning model trained on its own flown plans too (plan_trained_checkpoint): seeds 2000 + 100 r
 # in round r, never an experiment or calibration seed
@@ -168,6 +171,11 @@ def default_checkpoint(cfg: Config, folder: Path, seconds_per_team: float = 60.0
     return ck
 
 
+def over_limit(trial: dict, fa_max) -> bool:
+    """A flown trial (run_trial's record) over a robot's f_a,max somewhere in flight."""
+    return any(f > lim for f, lim in zip(trial["track"]["worst_fa_g"], fa_max))
+
+
 def _summary(trials: list, pb: Problem) -> dict:
     ok = [t for t in trials if t.get("error") is None]
     types = [r.type for r in pb.robots]
@@ -187,7 +195,7 @@ def _summary(trials: list, pb: Problem) -> dict:
                      "over_limit_states": int(sum(t["track"]["over_limit_states"][i] for t in ok for i in idx)),
                      "over_limit_in_bound_states": int(sum(t["track"]["over_limit_in_bound_states"][i]
                                                            for t in ok for i in idx))}
-    out["trials_any_over_limit"] = int(sum(any(t["track"]["worst_fa_g"][i] > fa_max[i] for i in range(pb.n)) for t in ok))
+    out["trials_any_over_limit"] = int(sum(over_limit(t, fa_max) for t in ok))
     out["trials_hit_time_limit"] = int(sum(t["stage1_hit_time_limit"] for t in ok))
     out["stage1_s_per_robot"] = float(np.mean([np.mean(t["timings"]["stage1_per_robot_s"]) for t in ok]))
     out["stage2_s_per_robot"] = float(np.mean([np.mean(t["timings"]["stage2_per_robot_s"]) for t in ok]))
@@ -323,41 +331,63 @@ def _plan_pool(checkpoint, gen_dir, workers: int):
 
 
 def _trial_rows(cfg: Config, tasks: list, done: list) -> list:
+    """calibrated_margin's and plan_trained_checkpoint's record of each flown plan."""
+    fa_max = {(n, d): scenario_problem(cfg, n, d).fa_max() for n, d, _ in tasks}
     return [{"case": f"{d}D {n}", "seed": s, "planned": fl is not None,
-             **({"worst_fa_g": rec["track"]["worst_fa_g"],
-                 "over_limit": any(f > lim for f, lim in zip(rec["track"]["worst_fa_g"], scenario_problem(cfg, n, d).fa_max())),
+             **({"worst_fa_g": rec["track"]["worst_fa_g"], "over_limit": over_limit(rec, fa_max[n, d]),
                  "over_limit_in_bound_states": int(sum(rec["track"]["over_limit_in_bound_states"]))}
                 if fl is not None else {"error": rec["error"]})}
             for (n, d, s), (rec, fl, _) in zip(tasks, done)]
 
 
+def calibration_wave(cases: list, seeds, plans: int, done: dict) -> list:
+    """The next calibration trials (scenario, dims, seed): for each case of ``cases``
+    short of ``plans`` planned trials in ``done`` (case -> [(seed, planned)]), as many of
+    its next untried ``seeds`` as it is short."""
+    wave = []
+    for case in cases:
+        got = done.get(case, [])
+        short = plans - sum(ok for _, ok in got)
+        wave += [(*case, s) for s in list(seeds)[len(got):len(got) + max(short, 0)]]
+    return wave
+
+
 def calibrated_margin(cfg: Config, fm: ForceModel, checkpoint, gen_dir, held_out: list, scenarios, dims,
-                      seeds=CALIBRATION_SEEDS, rounds: int = CALIBRATION_ROUNDS, rrt: RRTParams = RRTParams(),
-                      scp_params: SCPParams = SCPParams(), workers: int = 2, log=print, cache=None) -> dict:
+                      seeds=CALIBRATION_SEEDS, plans: int = CALIBRATION_PLANS, rounds: int = CALIBRATION_ROUNDS,
+                      rrt: RRTParams = RRTParams(), scp_params: SCPParams = SCPParams(), workers: int = 2, log=print,
+                      cache=None) -> dict:
     """The margin measured on the held-out flights and on the planner's own flown
     plans (ns2exp.margin): the planner drives each robot to its bound, i.e. to the
     states where the model reads lowest, which held-out flights it did not choose need
     not contain.  Round r measures the margin m_r on the held-out flights and every
-    plan flown so far, plans every scenario x dims with the NN for the calibration
-    ``seeds`` (never an experiment seed) with m_r, flies the plans (run_trial) and adds
-    their states; it stops when no new state raises the margin (m_r kept every flown
-    plan state of its own round within its promise: converged) or after ``rounds``.
-    Returns the ``measure`` report on all those flights (its margin is the last
-    round's m_r when converged, the raised one otherwise) with the ``rounds``; with
-    ``cache`` (.npz) the flown plans are kept there (ns2exp.margin.load_flights)."""
+    plan flown so far, plans every scenario x dims with the NN and m_r for calibration
+    ``seeds`` in order (never an experiment seed) until the case has ``plans`` planned
+    trials or its seeds run out (calibration_wave: a case that rarely plans is not left
+    out), flies the plans (run_trial) and adds their states; it stops when no new state
+    raises the margin (m_r kept every flown plan state of its own round within its
+    promise: converged) or after ``rounds``.  Returns the ``measure`` report on all
+    those flights (its margin is the last round's m_r when converged, the raised one
+    otherwise) with the ``rounds``; with ``cache`` (.npz) the flown plans are kept
+    there (ns2exp.margin.load_flights)."""
     from contextlib import nullcontext
 
     from . import margin
 
     flights, history = list(held_out), []
     rep = margin.measure(cfg, fm, flights, LIMITS_3D, old_margin_g=FA_MARGIN_G)
-    tasks = [(name, d, s) for d in dims for name in scenarios for s in seeds]
+    cases = [(name, d) for d in dims for name in scenarios]
     pool = _plan_pool(checkpoint, gen_dir, workers)
     with pool or nullcontext():
         for r in range(rounds):
             m = rep["margin_g"]
-            log(f"margin calibration round {r}: {len(tasks)} NN trials of seeds {list(seeds)} with margin {m}")
-            done = fly_plans(fm, checkpoint, gen_dir, tasks, m, rrt, scp_params, workers, pool)
+            log(f"margin calibration round {r}: {plans} NN plans per case of seeds {list(seeds)} with margin {m}")
+            tasks, done, tried = [], [], {}
+            while wave := calibration_wave(cases, seeds, plans, tried):
+                flown = fly_plans(fm, checkpoint, gen_dir, wave, m, rrt, scp_params, workers, pool)
+                for (name, d, s), res in zip(wave, flown):
+                    tried.setdefault((name, d), []).append((s, res[1] is not None))
+                tasks += wave
+                done += flown
             flights += [fl for _, fl, _ in done if fl is not None]
             rep = margin.measure(cfg, fm, flights, LIMITS_3D, old_margin_g=FA_MARGIN_G)
             trials = _trial_rows(cfg, tasks, done)
@@ -373,8 +403,13 @@ def calibrated_margin(cfg: Config, fm: ForceModel, checkpoint, gen_dir, held_out
     rep["rounds"] = history
     rep["converged"] = history[-1]["margin_after_g"] == history[-1]["margin_g"] if history else True
     rep["calibration_seeds"] = list(seeds)
-    rep["source"] += (f"; on the held-out flights and the NN's own flown plans of calibration seeds {list(seeds)} "
-                      f"({len(history)} round(s), {'converged' if rep['converged'] else 'NOT converged'})")
+    rep["calibration_plans_per_case"] = plans
+    short = sorted({t["case"] for t in history[-1]["trials"]} - {t["case"] for t in history[-1]["trials"] if t["planned"]}
+                   ) if history else []
+    rep["source"] += (f"; on the held-out flights and the NN's own flown plans, {plans} per case from calibration "
+                      f"seeds {list(seeds)} ({len(history)} round(s), "
+                      f"{'converged' if rep['converged'] else 'NOT converged'}"
+                      + (f"; no plan of {', '.join(short)}" if short else "") + ")")
     return rep
 
 

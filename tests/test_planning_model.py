@@ -406,6 +406,46 @@ def test_calibrated_margin_adds_the_planners_own_flown_states_until_they_keep_it
     assert "| 1 | 5.1/5.1/5.1/5.1/5.1/5.1; 0.0/0.0/0.0/0.0/0.0/0.0 | 1/1 | 0 | 0 | 5.1/5.1/5.1/5.1/5.1/5.1; 0.0/0.0/0.0/0.0/0.0/0.0 |" in md
 
 
+def test_calibration_plans_every_case_from_further_seeds_when_its_first_find_no_path(cfg, exported, monkeypatch):
+    """calibrated_margin plans each case until it has ``plans`` planned trials, from the
+    seeds in order: a case whose first seeds find no path (2-D SLL often does) gets the
+    next ones, instead of being left out of the calibration; a case none of whose seeds
+    plans is named in the report's source."""
+    from ns2exp import planning as ex
+
+    assert ex.calibration_wave([("SL", 2), ("SLL", 2)], range(1000, 1005), 2, {}) == [
+        ("SL", 2, 1000), ("SL", 2, 1001), ("SLL", 2, 1000), ("SLL", 2, 1001)]
+    assert ex.calibration_wave([("SL", 2), ("SLL", 2)], range(1000, 1005), 2,
+                               {("SL", 2): [(1000, True), (1001, True)], ("SLL", 2): [(1000, False), (1001, True)]}
+                               ) == [("SLL", 2, 1002)]
+    assert ex.calibration_wave([("SLL", 2)], range(1000, 1002), 2, {("SLL", 2): [(1000, False), (1001, False)]}) == []
+
+    P = np.tile(np.array([[0.0, 0.0, 1.0], [0.0, 0.0, 1.6]]), (4, 1, 1))
+    held = [_flight(P, np.zeros_like(P), np.array([[-4.0, 0.0]] * 4))]
+    seen = []
+
+    def trial(name, dims, seed, fa_margin_g, gen_dir, rrt, scp_params):
+        seen.append((name, seed))
+        if name == "LL" or (name == "SLL" and seed in (1000, 1001, 1003)):
+            return {"seed": seed, "error": "no path found"}, None, None
+        fl = _flight(P, np.zeros_like(P), np.array([[-1.0, 0.0]] * 4))
+        fl.kind = f"plan {dims}D"
+        return {"error": None, "track": {"worst_fa_g": [1.0, 0.0], "over_limit_in_bound_states": [0, 0]}}, fl, None
+
+    monkeypatch.setattr(ex, "_flown_plan", trial)
+    rep = ex.calibrated_margin(cfg, ForceModel(cfg, None), exported.checkpoint, exported.gen_dir, held,
+                               ["SL", "SLL", "LL"], (2,), seeds=range(1000, 1006), plans=2, rounds=2, workers=1,
+                               log=lambda m: None)
+    assert seen == [("SL", 1000), ("SL", 1001), ("SLL", 1000), ("SLL", 1001), ("LL", 1000), ("LL", 1001),
+                    ("SLL", 1002), ("SLL", 1003), ("LL", 1002), ("LL", 1003), ("SLL", 1004), ("LL", 1004),
+                    ("LL", 1005)]
+    trials = rep["rounds"][0]["trials"]
+    assert [(t["case"], t["seed"]) for t in trials if t["planned"]] == [("2D SL", 1000), ("2D SL", 1001),
+                                                                         ("2D SLL", 1002), ("2D SLL", 1004)]
+    assert rep["converged"] and len(rep["rounds"]) == 1 and rep["calibration_plans_per_case"] == 2
+    assert "no plan of 2D LL" in rep["source"] and "SLL" not in rep["source"].split("no plan of")[1]
+
+
 def test_plan_trained_checkpoint_adds_the_flown_plans_to_the_training_data(cfg, exported, monkeypatch, tmp_path):
     """ns2exp.planning.plan_trained_checkpoint: each round plans the round's training
     seeds with the current model and its held-out margin, and trains the next model on
