@@ -248,7 +248,8 @@ def compare(cfg: Config, gen_dir, flights: list[Flight], rough: Roughness, names
     if real_all is None:
         real_all = {"free_air": fs.free_air(cfg, flights), "battery": fs.battery(flights)}
     out = {"flights": sorted(by), "real": {"free_air": real_all["free_air"], "battery": real_all["battery"],
-                                          "z_loop": zl, "wake_scatter": fs.wake_scatter(cfg, real_sw),
+                                          "z_loop": zl, "z_law": fs.z_law(cfg, real_sw),
+                                          "wake_scatter": fs.wake_scatter(cfg, real_sw),
                                           "wake_lateral": fs.wake_lateral(cfg, real_sw),
                                           "swaps": fs.swap_errors(real_sw), "attitude": fs.swap_attitude(real_sw),
                                           "unpredicted": fs.unpredicted(cfg, real_sw),
@@ -261,7 +262,7 @@ def compare(cfg: Config, gen_dir, flights: list[Flight], rough: Roughness, names
         probes = probed[is_rough, ctrl]
         sims = replay_all(cfg, gen_dir, by, r, workers, controller=ctrl, learned=learned)
         out[label] = {"free_air": {ty: fs.free_air(cfg, [p])[ty] for ty, p in zip(cfg.robot_types, probes)},
-                      "z_loop": fs.z_loop(cfg, probes), "battery": fs.battery(sims),
+                      "z_loop": fs.z_loop(cfg, probes), "z_law": fs.z_law(cfg, sims), "battery": fs.battery(sims),
                       "wake_scatter": fs.wake_scatter(cfg, sims), "wake_lateral": fs.wake_lateral(cfg, sims),
                       "swaps": fs.swap_errors(sims),
                       "attitude": fs.swap_attitude(sims), "lateral_k_xy": lateral_k_xy(cfg, sims),

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from conftest import REAL_DATA, needs, real_logs
+from ns2codegen.data.labels import psi1_newtons
 from ns2codegen.logs.align import logs_to_flights
 from ns2codegen.logs.collection import COLLECTION
 from ns2exp.calibrate import _quadrature, lateral_k_xy, thrust_sd
@@ -125,6 +126,55 @@ def test_free_air_statistics_see_the_vibration(cfg, exported):
     assert z_calm["by_type"]["small"]["z_error_std_m"] < 0.01 and z_calm["fit"]["samples"] == 400
 
 
+def test_z_law_reads_the_law_that_made_the_motor_commands(cfg):
+    """z_law on a constructed flight whose PWM is the law's thrust exactly (psi_1
+    inverted per motor), with a prediction flown: it reads the law's gains back, with
+    or without an integral; below Z_LAW_MIN_Z_M and without a setpoint nothing is read."""
+    from ns2codegen.data.from_logs import Flight
+
+    veh = cfg.vehicle("small")
+    m, k = veh["mass_g"] / 1000.0, np.asarray(veh["psi1"], float)
+    t = np.arange(0.0, 20.0, 0.01)
+    e = 0.05 * np.sin(1.3 * t) + 0.03 * np.sin(3.1 * t + 1.0)
+    ev = 0.05 * 1.3 * np.cos(1.3 * t) + 0.03 * 3.1 * np.cos(3.1 * t + 1.0)
+    ie = np.concatenate([[0.0], np.cumsum(0.5 * (e[1:] + e[:-1]) * 0.01)])
+    fa_g = -3.0 * np.exp(-((t - 10.0) / 2.0) ** 2)            # a wake, predicted and flown
+
+    def flight(kp, kd, ki):
+        T = m * (fs.G + 0.2 - kp * e - kd * ev - ki * ie) - fa_g * 1e-3 * fs.G    # N, c = 0.2 m/s^2
+        f_g = T / 4.0 / fs.G * 1000.0
+        vb = 3.7 / 4.2
+        a2, a1, a0 = k[3], k[1] + k[4] * vb, k[0] + k[2] * vb - f_g             # psi_1 = f_g, per motor
+        pwm = (-a1 + np.sqrt(a1 ** 2 - 4 * a2 * a0)) / (2 * a2)
+        n = len(t)
+        p = np.zeros((n, 1, 3))
+        p[:, 0, 2] = 1.0 + e
+        v = np.zeros_like(p)
+        v[:, 0, 2] = ev
+        p_d = np.zeros_like(p)
+        p_d[:, 0, 2] = 1.0
+        return Flight(["small"], t, p, v, np.tile([1.0, 0, 0, 0], (n, 1, 1)), np.repeat(pwm[:, None, None], 4, 2),
+                      np.full((n, 1), 3.7), p_d=p_d, fa_onboard_g=fa_g[:, None])
+
+    fl = flight(10.0, 5.0, 3.0)
+    np.testing.assert_allclose(psi1_newtons(k, fl.pwm[:, 0], fl.battery_V[:, 0]).sum(1),
+                               m * (fs.G + 0.2 - 10 * e - 5 * ev - 3 * ie) - fa_g * 1e-3 * fs.G, rtol=1e-9)
+    law = fs.z_law(cfg, [fl])["small"]
+    assert law["kp_per_s2"] == pytest.approx(10.0, abs=0.01) and law["kd_per_s"] == pytest.approx(5.0, abs=0.01)
+    assert law["ki_per_s3"] == pytest.approx(3.0, abs=0.01) and law["r2"] > 0.999 and law["samples"] == len(t)
+    assert law["z_error_mean_m"] == pytest.approx(e.mean(), abs=1e-4)
+    soft = fs.z_law(cfg, [flight(4.0, 2.0, 0.0)])["small"]
+    assert soft["kp_per_s2"] == pytest.approx(4.0, abs=0.01) and soft["kd_per_s"] == pytest.approx(2.0, abs=0.01)
+    assert soft["ki_per_s3"] == pytest.approx(0.0, abs=0.01)
+    # the prediction flown is part of the law: left out, the wake reads as something else
+    fl.fa_onboard_g = None
+    assert fs.z_law(cfg, [fl])["small"]["r2"] < 0.99
+    fl.p[:, 0, 2] = 0.2                                      # on the ground: nothing to read
+    assert fs.z_law(cfg, [fl]) == {}
+    fl.p[:, 0, 2], fl.p_d[:, 0, 2] = 1.0 + e, np.nan        # no setpoint logged
+    assert fs.z_law(cfg, [fl]) == {}
+
+
 def test_swap_statistics_by_hand():
     """swap_errors on a constructed flight: the bottom robot, the windows, the name."""
     from ns2codegen.data.from_logs import Flight
@@ -223,6 +273,13 @@ def test_a_real_swap_measured_and_replayed(cfg, exported):
     sl = fs.swap_errors([lg])
     assert list(sl) == ["S2L"] and abs(sl["S2L"]["swaps"] - r["swaps"]) <= 1
     assert 0 < fs.unpredicted(cfg, [lg])["S2L"]["slow_rms_g"] < 20
+    # the position law read off the same flight, real and replayed: the replay's is the authors' law
+    # (Kp 10, Kd 5, Ki 3 on z; read with the motors' delay and the estimator in the loop)
+    zr, zs = fs.z_law(cfg, pieces), fs.z_law(cfg, [lg])
+    assert sorted(zr) == sorted(zs) == ["large", "small"] and min(z["samples"] for z in zr.values()) > 1000
+    print("z law real", zr, "replay", zs)
+    for z in zs.values():
+        assert 6.0 < z["kp_per_s2"] < 14.0 and 1.5 < z["ki_per_s3"] < 5.0 and z["r2"] > 0.5
     with pytest.raises(ValueError, match="authors"):
         replay(cfg, pieces, exported.gen_dir, learned="logged")
 
@@ -254,9 +311,15 @@ def test_roughness_table_rows_of_the_wake_and_the_swaps():
                             "large": {"k_xy": -0.09}}
     clean, rough = side(0.8, 3.0), side(0.7, 3.15)
     rough["lateral_k_xy"] = {"truth_k_xy": 0.15, "all": {"k_xy": 0.04}}
+    real["z_law"] = {"small": {"kp_per_s2": 6.52, "kd_per_s": 2.0, "ki_per_s3": 0.3, "r2": 0.36,
+                               "z_error_mean_m": 0.0077}}
+    rough["z_law"] = {"small": {"kp_per_s2": 10.47, "kd_per_s": 7.17, "ki_per_s3": 3.38, "r2": 0.77,
+                                "z_error_mean_m": 0.001}}
     t = roughness_table({"flights": [], "real": real, "clean": clean, "rough": rough})
     rows = t.splitlines()
     assert "| large under small, beside the wake's axis: push_out_g | -0.500 | 0.800 | 0.700 | -1.40 |" in rows
+    assert "| swap flights, z law read off every robot, small: kd_per_s | 2.000 | - | 7.170 | 3.58 |" in rows
+    assert "| swap flights, z law read off every robot, small: z_error_mean_m | 0.0077 | - | 0.0010 | 0.13 |" in rows
     assert "| swap L2S, bottom robot: median largest tilt (deg) | 6.3 | 3.0 | 3.1 | 0.50 |" in rows
     assert ("| wake's lateral push per unit r / sigma read off the labels (aero.py K_XY, the truth's 0.15), "
             "all robots | -0.080 | - | 0.040 | -0.50 |") in rows

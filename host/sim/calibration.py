@@ -196,6 +196,9 @@ def roughness_table(cmp: dict, judged: str = "rough") -> str:
             row(f"free air, {ty}: {st}", ("z_loop", "by_type", ty, st), 4)
     for st in ("kp_per_s2", "kd_per_s", "r2"):
         row(f"free air, z loop identified (all types): {st}", ("z_loop", "fit", st))
+    for ty in sorted(real.get("z_law", {})):
+        for st in ("kp_per_s2", "kd_per_s", "ki_per_s3", "r2", "z_error_mean_m"):
+            row(f"swap flights, z law read off every robot, {ty}: {st}", ("z_law", ty, st), 4 if st.startswith("z") else 3)
     for pair in sorted(real["wake_scatter"]):
         for st in ("scatter_g", "fast_scatter_g", "mean_abs_g"):
             row(f"{pair}: {st}", ("wake_scatter", pair, st))

@@ -20,6 +20,9 @@ battery       the battery voltage over a flight: at take-off and its slope
 z_loop        the z tracking of a robot with no neighbour near: the error's mean and
               standard deviation per type, and the closed loop's stiffness identified
               from it (the commanded vertical force against the z and v_z errors)
+z_law         the position law that flew, read off every robot of a flight (the
+              commanded vertical force plus the prediction flown against the z error,
+              its rate and its integral): the same flights real and replayed
 swap_errors   the worst z error of the bottom robot of each swap (the paper's metric,
               Fig. swap): per scenario, the median over swaps
 swap_attitude the bottom robot's largest tilt and horizontal error in each swap: per
@@ -294,6 +297,57 @@ def z_loop(cfg: Config, flights: list[Flight]) -> dict:
         out["fit"] = {"kp_per_s2": _r(-c[0]), "kd_per_s": _r(-c[1]),
                       "bias_mps2": {ty: _r(b) for ty, b in zip(cfg.robot_types, c[2:])},
                       "r2": _r(1.0 - ((Y - X @ c) ** 2).mean() / Y.var()), "samples": int(len(Y))}
+    return out
+
+
+Z_LAW_MIN_Z_M = 0.3      # m: z_law reads robots in flight (above the ground's take-off and landing)
+
+
+def z_law(cfg: Config, flights: list[Flight]) -> dict:
+    """The z position law that flew, per type, read off every robot above Z_LAW_MIN_Z_M
+    while its setpoint is logged, neighbours or not (the same flights real and
+    replayed): least squares of psi_1(PWM) b3_z / m - g - a_d,z + f_a,z-hat / m (the
+    commanded vertical acceleration before the prediction flown was taken off; m the
+    type's mass, f_a,z-hat the logged ``fa_onboard_g``, 0 where not logged)
+    = -(Kp e + Kd e_v + Ki int e) + c, e = z - z_d, e_v = v_z - v_d,z, int e from the
+    start of each stretch of logged setpoint (c takes the integral's start).  The
+    controller that flew is f_d = m (a_d + g e3 - Kp e - Kd e_v - Ki int e) - f_a-hat
+    (host/ctrl_authors.c); a stiffer or softer law, an integral or none read as such.
+    Also the z error's mean (m) over those samples."""
+    rows: dict = {}
+    for fl in flights:
+        if fl.p_d is None or len(fl.t) < 2 * NOISE_WINDOW:
+            continue
+        for i, ty in enumerate(fl.types):
+            if fl.labelled is not None and not fl.labelled[i]:
+                continue
+            have = np.isfinite(fl.p_d[:, i]).all(axis=1)
+            veh = cfg.vehicle(ty)
+            m = veh["mass_g"] / 1000.0
+            for a, b in runs(have):
+                if b - a < 2 * NOISE_WINDOW:
+                    continue
+                w = slice(a, b)
+                v_d, a_d = setpoint_derivatives(fl.t[w], fl.p_d[w, i])
+                T = psi1_newtons(veh["psi1"], fl.pwm[w, i], fl.battery_V[w, i]).sum(axis=1)
+                fa = np.zeros(b - a) if fl.fa_onboard_g is None else np.nan_to_num(fl.fa_onboard_g[w, i])
+                y = (T * quat_to_R(fl.q[w, i])[:, 2, 2] + fa * 1e-3 * G) / m - G - a_d[:, 2]
+                e = fl.p[w, i, 2] - fl.p_d[w, i, 2]
+                ie = np.concatenate([[0.0], np.cumsum(0.5 * (e[1:] + e[:-1]) * np.diff(fl.t[w]))])
+                X = np.column_stack([e, fl.v[w, i, 2] - v_d[:, 2], ie, np.ones(b - a)])
+                ok = (fl.p[w, i, 2] > Z_LAW_MIN_Z_M) & np.isfinite(X).all(axis=1) & np.isfinite(y)
+                r = rows.setdefault(ty, {"X": [], "y": []})
+                r["X"].append(X[ok])
+                r["y"].append(y[ok])
+    out = {}
+    for ty, r in sorted(rows.items()):
+        X, y = np.concatenate(r["X"]), np.concatenate(r["y"])
+        if len(y) < 10:
+            continue
+        c = np.linalg.lstsq(X, y, rcond=None)[0]
+        out[ty] = {"kp_per_s2": _r(-c[0]), "kd_per_s": _r(-c[1]), "ki_per_s3": _r(-c[2]),
+                   "r2": _r(1.0 - ((y - X @ c) ** 2).mean() / y.var()), "z_error_mean_m": _r(X[:, 0].mean(), 4),
+                   "samples": int(len(y))}
     return out
 
 
