@@ -647,6 +647,7 @@ def example_figure(pb: Problem, examples: dict, path: Path) -> None:
     nn, nn_log = examples["NN"]
     bl, bl_log = examples["BL"]
     ax = axes[0, 0]
+    lc = None                                   # no tree when the composite search (joint.py) planned the team
     for i, tree in enumerate(nn.stage1.trees):
         if tree is None or tree.n < 2:
             continue
@@ -659,7 +660,8 @@ def example_figure(pb: Problem, examples: dict, path: Path) -> None:
         if tree.rejected:
             rej = np.array([[a[1:], b[1:]] for a, b in tree.rejected[:500]])
             ax.add_collection(LineCollection(rej, colors="tab:red", linewidths=0.4, alpha=0.4))
-    fig.colorbar(lc, ax=ax, label="|f_a,z-hat| at tree node (g)")
+    if lc is not None:
+        fig.colorbar(lc, ax=ax, label="|f_a,z-hat| at tree node (g)")
     for i, tr in enumerate(nn.stage1.trajs):
         ax.plot(tr.p[:, 1], tr.p[:, 2], color=COLORS[i], lw=2, label=f"{i}: {pb.robots[i].type}")
     ax.set_title("NN, Stage 1 (tree by |f_a|, red: rejected by a neighbour's force)", fontsize=8)

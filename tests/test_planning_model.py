@@ -406,6 +406,25 @@ def test_calibrated_margin_adds_the_planners_own_flown_states_until_they_keep_it
     assert "| 1 | 5.1/5.1/5.1/5.1/5.1/5.1; 0.0/0.0/0.0/0.0/0.0/0.0 | 1/1 | 0 | 0 | 5.1/5.1/5.1/5.1/5.1/5.1; 0.0/0.0/0.0/0.0/0.0/0.0 |" in md
 
 
+def test_example_figure_of_a_team_planned_by_the_composite_search(cfg, tmp_path):
+    """A plan of the composite-state search (joint.py) has no per-robot trees: the
+    example figure is drawn without the tree (it raised at the colour bar, and lost a
+    whole experiment's results with it)."""
+    from types import SimpleNamespace
+
+    from ns2exp import planning as ex
+
+    pb = ex.scenario_problem(cfg, "SL", 2)
+    t = np.linspace(0.0, 4.0, 41)
+    trajs = [SimpleNamespace(t=t, T=len(t), fa=np.zeros_like(t),
+                             p=np.column_stack([np.zeros_like(t), np.linspace(a, b, len(t)), np.full_like(t, 1.0 + k)]))
+             for k, (a, b) in enumerate([(-0.5, 0.5), (0.5, -0.5)])]
+    res = SimpleNamespace(stage1=SimpleNamespace(trees=[None, None], trajs=trajs), trajs=trajs)
+    log = {"t": t, "truth_p": np.stack([tr.p for tr in trajs], 1), "truth_fa": np.zeros((len(t), 2, 3))}
+    ex.example_figure(pb, {"NN": (res, log), "BL": (res, log)}, tmp_path / "plan.png")
+    assert (tmp_path / "plan.png").stat().st_size > 1000
+
+
 def test_calibration_plans_every_case_from_further_seeds_when_its_first_find_no_path(cfg, exported, monkeypatch):
     """calibrated_margin plans each case until it has ``plans`` planned trials, from the
     seeds in order: a case whose first seeds find no path (2-D SLL often does) gets the
