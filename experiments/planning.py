@@ -527,7 +527,7 @@ def planning_experiments(cfg: Config, checkpoint, gen_dir, out_dir, scenarios=No
             _set_worker_model(nn)
         args = [(mode, name, d, trial, fa_margin_g, str(gen_dir), rrt, scp_params) for mode, name, d, trial in tasks]
         runs = iter([pool.submit(_experiment_trial, *a) for a in args] if pool is not None else [])
-        results = {}
+        results, figures = {}, {}
         for d in dims:
             for name in names:
                 pb = scenario_problem(cfg, name, d, fa_margin_g)
@@ -552,7 +552,7 @@ def planning_experiments(cfg: Config, checkpoint, gen_dir, out_dir, scenarios=No
                             + ", ".join(f"{r.type} {f:.1f} g" for r, f in zip(pb.robots, rec["track"]["worst_fa_g"]))))
                     results[key][mode] = {"summary": _summary(recs, pb), "trials": recs}
                 if d == 2 and len(examples) == 2:
-                    example_figure(pb, examples, out / f"plan_{d}d_{name}.png")
+                    figures[f"plan_{d}d_{name}.png"] = (pb, examples)
     check = downwash_check(cfg, nn)
     md = ("Model vs simulator, f_a,z (g) of a robot hovering 1 m up directly under another, predicted / true:\n\n"
           + downwash_table(check) + "\n\n"
@@ -563,6 +563,8 @@ def planning_experiments(cfg: Config, checkpoint, gen_dir, out_dir, scenarios=No
     atomic_write_files(out, {"plan.json": json.dumps({"model_check": check, "margin": rep or {"margin_g": fa_margin_g},
                                                       "cases": results}, indent=1, default=float) + "\n",
                              "plan.md": md})
+    for fname, (pb, examples) in figures.items():      # after the results: a figure cannot lose them
+        example_figure(pb, examples, out / fname)
     summary_figure(results, out / "plan_summary.png")
     return results
 

@@ -258,6 +258,25 @@ def setpoint_derivatives(t: np.ndarray, p_d: np.ndarray) -> tuple[np.ndarray, np
     return v, np.gradient(moving_average(v, NOISE_WINDOW), t, axis=0)
 
 
+def commanded_acc_z(cfg: Config, fl: Flight, i: int, w: slice, a_d_z: np.ndarray,
+                    fa_g: np.ndarray | None = None) -> np.ndarray:
+    """Robot i's commanded vertical acceleration over ``w`` (m/s^2): psi_1 of the logged
+    PWM (before the motors' delay) along the body z axis per unit of the type's mass,
+    plus the prediction flown ``fa_g`` (g) per unit mass if given, minus g and the
+    setpoint's a_z (``a_d_z``, over ``w``)."""
+    veh = cfg.vehicle(fl.types[i])
+    f = psi1_newtons(veh["psi1"], fl.pwm[w, i], fl.battery_V[w, i]).sum(axis=1) * quat_to_R(fl.q[w, i])[:, 2, 2]
+    if fa_g is not None:
+        f = f + fa_g * 1e-3 * G
+    return f / (veh["mass_g"] / 1000.0) - G - a_d_z
+
+
+def least_squares(X: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, float]:
+    """Coefficients of y ~ X and the fit's R^2."""
+    c = np.linalg.lstsq(X, y, rcond=None)[0]
+    return c, float(1.0 - ((y - X @ c) ** 2).mean() / y.var())
+
+
 def z_loop(cfg: Config, flights: list[Flight]) -> dict:
     """Free-air z tracking (robots alone as in free_air; flights with setpoints): per
     type the z error's mean and standard deviation (m); pooled over the types, the
@@ -278,9 +297,7 @@ def z_loop(cfg: Config, flights: list[Flight]) -> dict:
             ok = alone(fl, i)
             if not ok.any():
                 continue
-            veh = cfg.vehicle(ty)
-            T = psi1_newtons(veh["psi1"], fl.pwm[:, i], fl.battery_V[:, i]).sum(axis=1)
-            az = T * quat_to_R(fl.q[:, i])[:, 2, 2] / (veh["mass_g"] / 1000.0) - G - a_d[:, i, 2]
+            az = commanded_acc_z(cfg, fl, i, slice(None), a_d[:, i, 2])
             ez = fl.p[:, i, 2] - fl.p_d[:, i, 2]
             ev = fl.v[:, i, 2] - v_d[:, i, 2]
             per.setdefault(ty, []).append(ez[ok])
@@ -293,10 +310,10 @@ def z_loop(cfg: Config, flights: list[Flight]) -> dict:
                                   "z_error_std_m": _r(np.concatenate(es).std(), 4)} for ty, es in sorted(per.items())}}
     if X:
         X, Y = np.concatenate(X), np.concatenate(Y)
-        c = np.linalg.lstsq(X, Y, rcond=None)[0]
+        c, r2 = least_squares(X, Y)
         out["fit"] = {"kp_per_s2": _r(-c[0]), "kd_per_s": _r(-c[1]),
                       "bias_mps2": {ty: _r(b) for ty, b in zip(cfg.robot_types, c[2:])},
-                      "r2": _r(1.0 - ((Y - X @ c) ** 2).mean() / Y.var()), "samples": int(len(Y))}
+                      "r2": _r(r2), "samples": int(len(Y))}
     return out
 
 
@@ -322,16 +339,13 @@ def z_law(cfg: Config, flights: list[Flight]) -> dict:
             if fl.labelled is not None and not fl.labelled[i]:
                 continue
             have = np.isfinite(fl.p_d[:, i]).all(axis=1)
-            veh = cfg.vehicle(ty)
-            m = veh["mass_g"] / 1000.0
             for a, b in runs(have):
                 if b - a < 2 * NOISE_WINDOW:
                     continue
                 w = slice(a, b)
                 v_d, a_d = setpoint_derivatives(fl.t[w], fl.p_d[w, i])
-                T = psi1_newtons(veh["psi1"], fl.pwm[w, i], fl.battery_V[w, i]).sum(axis=1)
-                fa = np.zeros(b - a) if fl.fa_onboard_g is None else np.nan_to_num(fl.fa_onboard_g[w, i])
-                y = (T * quat_to_R(fl.q[w, i])[:, 2, 2] + fa * 1e-3 * G) / m - G - a_d[:, 2]
+                fa = None if fl.fa_onboard_g is None else np.nan_to_num(fl.fa_onboard_g[w, i])
+                y = commanded_acc_z(cfg, fl, i, w, a_d[:, 2], fa)
                 e = fl.p[w, i, 2] - fl.p_d[w, i, 2]
                 ie = np.concatenate([[0.0], np.cumsum(0.5 * (e[1:] + e[:-1]) * np.diff(fl.t[w]))])
                 X = np.column_stack([e, fl.v[w, i, 2] - v_d[:, 2], ie, np.ones(b - a)])
@@ -344,9 +358,9 @@ def z_law(cfg: Config, flights: list[Flight]) -> dict:
         X, y = np.concatenate(r["X"]), np.concatenate(r["y"])
         if len(y) < 10:
             continue
-        c = np.linalg.lstsq(X, y, rcond=None)[0]
+        c, r2 = least_squares(X, y)
         out[ty] = {"kp_per_s2": _r(-c[0]), "kd_per_s": _r(-c[1]), "ki_per_s3": _r(-c[2]),
-                   "r2": _r(1.0 - ((y - X @ c) ** 2).mean() / y.var()), "z_error_mean_m": _r(X[:, 0].mean(), 4),
+                   "r2": _r(r2), "z_error_mean_m": _r(X[:, 0].mean(), 4),
                    "samples": int(len(y))}
     return out
 
