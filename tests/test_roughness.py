@@ -210,6 +210,8 @@ def test_swap_statistics_by_hand():
     assert att["median_max_xy_error_m"] == pytest.approx(0.02, abs=1e-4)
     assert att["median_max_motor_spread"] == pytest.approx(0.2, abs=1e-4)
     assert att["median_mean_pwm_rise"] == pytest.approx(0.05, abs=1e-4)
+    # largest single motor per swap 0.65, 0.82, 0.9 (0.5 + rise + spread)
+    assert att["median_max_motor_pwm"] == pytest.approx(0.82, abs=1e-4)
     assert fs.tilt_deg(np.array([0.0, 1.0, 0.0, 0.0])) == pytest.approx(180.0)
 
 

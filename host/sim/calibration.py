@@ -221,6 +221,8 @@ def roughness_table(cmp: dict, judged: str = "rough") -> str:
         row(f"swap {case}, bottom robot: median largest motor departure from the motors' mean (PWM)",
             ("attitude", case, "median_max_motor_spread"), 4)
         row(f"swap {case}, bottom robot: median rise of the motors' mean PWM", ("attitude", case, "median_mean_pwm_rise"), 4)
+        row(f"swap {case}, bottom robot: median largest single motor command (PWM, 1: saturated)",
+            ("attitude", case, "median_max_motor_pwm"), 4)
     for case in sorted(real["swaps"]):
         row(f"swap {case}: median worst z error (m)", ("swaps", case, "median_worst_z_error_m"), 4)
     return "\n".join(lines) + "\n"
