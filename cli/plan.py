@@ -108,7 +108,8 @@ def plan_cmd(checkpoint, model_dir, config_path, problem_path, baseline, out_dir
     if plan_data_rounds:
         from ns2exp.margin import held_out_flights
 
-        held = held_out_flights(cfg, gen, gap_max=ex.NEAR_GAP_MAX, cache=Path(out_dir) / "held_out_flights.npz")
+        held = held_out_flights(cfg, gen, gap_max=ex.NEAR_GAP_MAX, cache=Path(out_dir) / "held_out_flights.npz",
+                                workers=workers)
         checkpoint = ex.plan_trained_checkpoint(cfg, checkpoint, gen, held, names, dim_list, rounds=plan_data_rounds,
                                                 rrt=rrt, scp_params=scp_params, workers=workers,
                                                 log=lambda msg: None if quiet else click.echo(msg, err=True))

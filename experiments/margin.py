@@ -41,6 +41,8 @@ from ns2plan.problem import GRAMS_TO_N, Limits, speed_bin
 # held-out flights per pair of types (kind, seconds); seed HELD_OUT_SEED, never a training seed
 HELD_OUT = (("who", 120.0), ("near", 120.0))
 HELD_OUT_SEED = 7
+# and per team of three (a pair, the third robot hovering nearby: collect.bystander_teams)
+HELD_OUT_BYSTANDER = (("who", 120.0),)
 # m/s: the bins of the relative speed the margin is conditioned on (ForceModel.rel_speed_np;
 # the last bin is every speed above the last edge); chosen before any run, in quarter steps
 # up to the planner's v_max and one bin to 1.5 m/s, where the held-out passes thin out
@@ -59,25 +61,29 @@ class FlownStates:
 
 
 def held_out_flights(cfg: Config, gen_dir, flights=HELD_OUT, seed: int = HELD_OUT_SEED, gap_max: float = 1.5,
-                     pairs=None, progress=None, cache=None) -> list[FlownStates]:
-    """Fly every pair of types (or ``pairs``) in each (kind, seconds) of ``flights``;
-    with ``cache`` (an .npz path) the flights are kept there and read back when it
-    holds these flights."""
-    from ns2host.sim.collect import flight_log, teams
+                     pairs=None, progress=None, cache=None, trios=None, trio_flights=HELD_OUT_BYSTANDER,
+                     workers: int = 1) -> list[FlownStates]:
+    """Fly every pair of types (or ``pairs``) in each (kind, seconds) of ``flights``, and
+    every team of three of collect.bystander_teams (or ``trios``) in each of
+    ``trio_flights``; ``workers`` flights at once (the same flights); with ``cache`` (an
+    .npz path) the flights are kept there and read back when it holds these flights."""
+    from ns2host.sim.collect import bystander_teams, flight_log, fly_many, teams
 
-    key = json.dumps([cfg.to_json(), list(map(list, flights)), seed, gap_max, pairs])
+    pairs = pairs or [t for t in teams(cfg, 2) if len(t) == 2]
+    trios = bystander_teams(cfg) if trios is None else trios
+    key = json.dumps([cfg.to_json(), list(map(list, flights)), seed, gap_max, [list(t) for t in pairs],
+                      [list(t) for t in trios], list(map(list, trio_flights))])
     if cache is not None and Path(cache).is_file():
         found, stored = load_flights(cache)
         if stored == key:
             return found
-    out = []
-    for k, team in enumerate(pairs or [t for t in teams(cfg, 2) if len(t) == 2]):
-        for j, (kind, seconds) in enumerate(flights):
-            log = flight_log(cfg, team, gen_dir, kind, seconds, seed=seed * 1000 + 10 * k + j, near_gap_max=gap_max)
-            out.append(FlownStates(list(team), log["truth_p"], log["truth_v"], log["truth_fa"][..., 2] / GRAMS_TO_N,
-                                   kind))
-            if progress is not None:
-                progress(1)
+    jobs = [(team, kind, seconds, seed * 1000 + 10 * k + j)
+            for k, (team, fl) in enumerate([(t, flights) for t in pairs] + [(t, trio_flights) for t in trios])
+            for j, (kind, seconds) in enumerate(fl)]
+    logs = fly_many(flight_log, [(cfg, team, gen_dir, kind, seconds, s, None, gap_max) for team, kind, seconds, s
+                                 in jobs], gen_dir, workers, progress)
+    out = [FlownStates(list(team), log["truth_p"], log["truth_v"], log["truth_fa"][..., 2] / GRAMS_TO_N, kind)
+           for (team, kind, _, _), log in zip(jobs, logs)]
     if cache is not None:
         save_flights(cache, out, key)
     return out
@@ -238,8 +244,9 @@ def closest_gap(cfg: Config, fm: ForceModel, lower: str, upper: str, bound_g: fl
 
 def measure(cfg: Config, fm: ForceModel, flights: list, limits: Limits, old_margin_g: float | None = None) -> dict:
     """The margin per robot type and its evidence (plan.json's ``margin``): error
-    statistics per type and flight kind, the spectral-norm bound and what it gives over
-    the logs' sample spacing, and the closest hovering gaps per type pair with this
+    statistics per type and flight kind (and team size beyond a pair), the spectral-norm
+    bound and what it gives over the logs' sample spacing, and the closest hovering
+    gaps per type pair with this
     margin, with ``old_margin_g`` and with the largest one-sided error as margin.  The
     margin the planner takes (``margin_g``) is conditioned on the relative speed
     (SPEED_EDGES_MPS, a speed table); ``margin_constant_g`` is the one over all speeds."""
@@ -248,8 +255,8 @@ def measure(cfg: Config, fm: ForceModel, flights: list, limits: Limits, old_marg
     m_const = margin_from_errors(err, limits.fa_max_g)
     evidence = over_limit(err, limits.fa_max_g)
     stats = {}
-    for kind in sorted({fl.kind for fl in flights}):
-        e = errors(cfg, fm, [fl for fl in flights if fl.kind == kind], limits)
+    for kind in sorted({_group(fl) for fl in flights}):
+        e = errors(cfg, fm, [fl for fl in flights if _group(fl) == kind], limits)
         stats[kind] = {t: error_stats(e[t]["true"], e[t]["pred"], limits.fa_max_g[t]) for t in cfg.robot_types}
     lip = lipschitz(fm) if fm.net is not None else {}
     h = sample_spacing(flights)
@@ -272,6 +279,11 @@ def measure(cfg: Config, fm: ForceModel, flights: list, limits: Limits, old_marg
             "errors_by_kind": stats, "lipschitz_g_per_unit": lip, "sample_spacing": h,
             "lipschitz_between_samples_g": {k: v * h / 2 for k, v in lip.items()}, "closest_gaps": gaps,
             "old_margin_g": old_margin_g}
+
+
+def _group(fl: FlownStates) -> str:
+    """The flight's row in the error tables: its kind, and its team size beyond a pair."""
+    return fl.kind if len(fl.types) <= 2 else f"{fl.kind}, {len(fl.types)} robots"
 
 
 def margin_table(rep: dict) -> str:

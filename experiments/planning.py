@@ -45,6 +45,7 @@ CHECK_GAPS = (0.15, 0.3, 0.5, 1.0, 1.4)      # m, vertical gaps of downwash_chec
 NEAR_FIELD_SECONDS = 600.0              # close-range passes per pair of types in default_checkpoint
 NEAR_GAP_MAX = 1.5                      # m, largest vertical gap of the close-range passes in default_checkpoint
 WHO_MOVES_SECONDS = 300.0               # one robot moving past the other, hovering one, per pair (issue 24)
+WHO_BYSTANDER_SECONDS = 150.0           # the same with a third robot hovering nearby, per team of bystander_teams
 # the margin's calibration on the planner's own flown plans (calibrated_margin): per case and round,
 # CALIBRATION_PLANS planned trials from the seeds in order (a case whose seeds find no path gets the
 # next ones; seeds never used by an experiment, those are 0 .. trials - 1), and the most rounds of
@@ -119,12 +120,14 @@ def data_path(cfg: Config, folder: Path, flights: str, seed: int) -> Path:
 
 def default_checkpoint(cfg: Config, folder: Path, seconds_per_team: float = 60.0, log=print,
                        near_field_seconds: float = NEAR_FIELD_SECONDS,
-                       who_moves_seconds: float = WHO_MOVES_SECONDS, workers: int = 1) -> Path:
+                       who_moves_seconds: float = WHO_MOVES_SECONDS,
+                       who_bystander_seconds: float = WHO_BYSTANDER_SECONDS, workers: int = 1) -> Path:
     """A model of the simulator's interactions when none is given (or when the one in
-    ``folder`` has another config): baseline flights of every team in the simulator
+    ``folder`` has another config or was trained on other flights): baseline flights of every team in the simulator
     (ns2 sim collect) plus close-range passes of every pair of types (the near-field
     downwash that the planner's plans fly through) and flights of one robot moving
-    under and over the other, hovering one (who moves), then training (ns2 train),
+    under and over the other, hovering one (who moves), alone and with a third robot
+    hovering nearby (every pair with every type beside it), then training (ns2 train),
     with the config's interaction volumes (the one policy for control and planning,
     host/sim/volumes.py).  The collected data sets are kept in ``folder``
     (``data_*.npz``, named by their flights and the config) and reused; ``workers``
@@ -134,20 +137,8 @@ def default_checkpoint(cfg: Config, folder: Path, seconds_per_team: float = 60.0
     from ns2codegen.data.dataset import Dataset
     from ns2codegen.export import export
     from ns2codegen.train import train
-    from ns2host.sim.collect import collect
+    from ns2host.sim.collect import bystander_teams, collect
 
-    folder.mkdir(parents=True, exist_ok=True)
-    ck = folder / "model.pt"
-    if ck.is_file() and load_checkpoint(ck).cfg.to_json() == cfg.to_json():
-        return ck
-    log(f"no checkpoint given: training the planning model on simulated flights ({seconds_per_team:.0f} s per "
-        f"team, {near_field_seconds:.0f} s of close-range passes and {who_moves_seconds:.0f} s of who-moves "
-        f"flights per pair) into {ck}; this takes a while (about 0.65 CPU-s per simulated second of a pair's "
-        f"flight); give --checkpoint to skip")
-    boot = downwash_dataset(cfg, 300, seed=0)       # the controller build needs some exported model
-    m0, rep0 = train(cfg, boot, epochs=1)
-    save_checkpoint(folder / "boot.pt", m0, cfg, {"seed": 0, "data_hash": boot.content_hash(), "report": rep0})
-    export(folder / "boot.pt", folder / "boot_gen")
     pairs = list(itertools.combinations_with_replacement(cfg.robot_types, 2))
     sets = [(data_path(cfg, folder, f"base{seconds_per_team:g}s_near{near_field_seconds:g}s", 1),
              lambda: collect(cfg, folder / "boot_gen", seconds_per_team, seed=1, workers=workers,
@@ -156,6 +147,27 @@ def default_checkpoint(cfg: Config, folder: Path, seconds_per_team: float = 60.0
         sets.append((data_path(cfg, folder, f"who{who_moves_seconds:g}s", 2),
                      lambda: collect(cfg, folder / "boot_gen", 0.0, seed=2, team_list=pairs, workers=workers,
                                      who_moves_seconds=who_moves_seconds, near_gap_max=NEAR_GAP_MAX)))
+    if who_bystander_seconds > 0:
+        sets.append((data_path(cfg, folder, f"who3_{who_bystander_seconds:g}s", 3),
+                     lambda: collect(cfg, folder / "boot_gen", 0.0, seed=3, team_list=bystander_teams(cfg),
+                                     workers=workers, who_moves_seconds=who_bystander_seconds,
+                                     near_gap_max=NEAR_GAP_MAX)))
+    folder.mkdir(parents=True, exist_ok=True)
+    ck = folder / "model.pt"
+    if ck.is_file():
+        old = load_checkpoint(ck)
+        if old.cfg.to_json() == cfg.to_json() and old.meta.get("data_files") == [p.name for p, _ in sets]:
+            return ck
+    log(f"no checkpoint given: training the planning model on simulated flights ({seconds_per_team:.0f} s per "
+        f"team, {near_field_seconds:.0f} s of close-range passes and {who_moves_seconds:.0f} s of who-moves "
+        f"flights per pair, {who_bystander_seconds:.0f} s of them with a third robot beside per team of three) "
+        f"into {ck}; this takes a while (about 0.65 CPU-s per simulated second of a pair's "
+        f"flight); give --checkpoint to skip")
+    if not all(p.is_file() for p, _ in sets):
+        boot = downwash_dataset(cfg, 300, seed=0)       # the controller build needs some exported model
+        m0, rep0 = train(cfg, boot, epochs=1)
+        save_checkpoint(folder / "boot.pt", m0, cfg, {"seed": 0, "data_hash": boot.content_hash(), "report": rep0})
+        export(folder / "boot.pt", folder / "boot_gen")
     parts, names = [], []
     for path, make in sets:
         if path.is_file():
@@ -241,16 +253,18 @@ def unforeseen(pb: Problem, fm: ForceModel, log: dict, t_pre: float = 1.0) -> di
     return {"over_limit_states": over.sum(0).tolist(), "over_limit_in_bound_states": (over & in_bound).sum(0).tolist()}
 
 
-def measured_margin(cfg: Config, fm: ForceModel, gen_dir, cache=None, log=print, calibration: dict | None = None) -> dict:
+def measured_margin(cfg: Config, fm: ForceModel, gen_dir, cache=None, log=print, calibration: dict | None = None,
+                    workers: int = 1) -> dict:
     """The planning margin per robot type from the model's error on held-out flights
-    (ns2exp.margin; flown once, kept in ``cache``), with its evidence; with
+    (ns2exp.margin; flown once, ``workers`` at a time, kept in ``cache``), with its evidence; with
     ``calibration`` (calibrated_margin's keyword arguments, the checkpoint among
     them) also on the NN's own flown plans."""
     from . import margin
 
     log(f"measuring the model's error on held-out flights ({', '.join(f'{k} {s:.0f} s' for k, s in margin.HELD_OUT)} "
-        f"per pair of types, seed {margin.HELD_OUT_SEED})")
-    flights = margin.held_out_flights(cfg, gen_dir, gap_max=NEAR_GAP_MAX, cache=cache)
+        f"per pair of types, {', '.join(f'{k} {s:.0f} s' for k, s in margin.HELD_OUT_BYSTANDER)} per team of three, "
+        f"seed {margin.HELD_OUT_SEED})")
+    flights = margin.held_out_flights(cfg, gen_dir, gap_max=NEAR_GAP_MAX, cache=cache, workers=workers)
     if calibration is not None:
         return calibrated_margin(cfg, fm, gen_dir=gen_dir, held_out=flights, log=log, **calibration)
     return margin.measure(cfg, fm, flights, LIMITS_3D, old_margin_g=FA_MARGIN_G)
@@ -516,7 +530,8 @@ def planning_experiments(cfg: Config, checkpoint, gen_dir, out_dir, scenarios=No
         cal = (dict(checkpoint=checkpoint, scenarios=list(scenarios or SCENARIOS), dims=dims, rrt=rrt,
                     scp_params=scp_params, workers=workers, cache=out / "calibration_flights.npz")
                if calibrate else None)
-        rep = measured_margin(cfg, nn, gen_dir, cache=out / "held_out_flights.npz", log=log, calibration=cal)
+        rep = measured_margin(cfg, nn, gen_dir, cache=out / "held_out_flights.npz", log=log, calibration=cal,
+                              workers=workers)
         fa_margin_g = rep["margin_g"]
         log(f"planning margin (g): {fa_margin_g}")
     names = list(scenarios or SCENARIOS)

@@ -104,6 +104,40 @@ def test_who_moves_scenario_geometry(diameters):
         who_moves((0.12, 0.12), 0.0)
 
 
+@pytest.mark.parametrize("diameters", [(0.12, 0.12, 0.12), (0.12, 0.19, 0.12), (0.19, 0.19, 0.19)])
+def test_who_moves_with_a_bystander_geometry(diameters):
+    """The pair flies who_moves' flight of the same seed; robot 2 moves alone between
+    its blocks, hovers through them at spots all around, never near the others."""
+    from ns2host.sim.scenarios import who_moves, who_moves_bystander
+
+    sp, start, T, movers = who_moves_bystander(diameters, 200.0, seed=3)
+    sp2, _, T2, movers2 = who_moves(diameters[:2], 200.0, seed=3)
+    assert len(movers) == len(T) - 1 and T[-1] >= T2[-1] and np.allclose(sp(0.0).p, start)
+    assert np.array_equal(movers[movers != 2], movers2)                  # the pair's segments, in order
+    W = np.array([sp(x).p for x in T])
+    pair = W[np.r_[True, movers != 2], :2]                               # the pair's waypoints, bystander moves dropped
+    assert np.allclose(pair, np.array([sp2(x).p for x in T2]))
+    t = np.arange(0.0, T[-1], 0.01)
+    P = np.array([sp(x).p for x in t])
+    V = np.array([sp(x).v for x in t])
+    A = np.array([sp(x).a for x in t])
+    for a, b in ((0, 1), (0, 2), (1, 2)):
+        r = (diameters[a] + diameters[b]) / 2 + (0.05 if 2 in (a, b) else 0.0)
+        assert np.linalg.norm(P[:, a] - P[:, b], axis=1).min() >= r - 1e-9, (a, b)
+    assert P[..., 2].min() >= 0.3 - 1e-9 and P[..., 2].max() <= 2.0 + 1e-9
+    assert np.abs(V).max() < 1.45 and np.abs(A).max() <= 2.5 + 1e-6
+    seg = np.clip(np.searchsorted(T, t, side="right") - 1, 0, len(movers) - 1)
+    speed = np.linalg.norm(V, axis=2)
+    assert speed[movers[seg] != 2, 2].max() == 0.0                      # robot 2 still while the pair flies
+    assert speed[movers[seg] == 2, :2].max() == 0.0 and speed[movers[seg] == 2, 2].max() > 0.2
+    spots = W[1:][movers == 2, 2]
+    rho = np.linalg.norm(spots[:, :2], axis=1)
+    assert len(spots) >= 6 and rho.min() >= 0.3 - 1e-9 and rho.max() <= 0.9 + 1e-9
+    assert np.ptp(spots[:, 2]) > 0.8 and np.ptp(np.arctan2(spots[:, 1], spots[:, 0])) > 3.0   # all around
+    with pytest.raises(ValueError, match="three robots"):
+        who_moves_bystander((0.12, 0.12), 10.0)
+
+
 def test_who_moves_flights_collect_the_same_in_parallel(cfg, exported, tmp_path):
     """``who`` flights enter the data set; workers fly the same flights (same data);
     the held-out flights of the margin are cached and read back unchanged."""
@@ -115,14 +149,23 @@ def test_who_moves_flights_collect_the_same_in_parallel(cfg, exported, tmp_path)
     assert len(one) > 500 and one.content_hash() == two.content_hash()
     near_only = collect(cfg, exported.gen_dir, 0.0, seed=3, **{**kw, "who_moves_seconds": 0.0})
     assert len(one) > len(near_only) + 400                   # the who flight added its samples
-    with pytest.raises(ValueError, match="pairs of robots"):
-        fly(cfg, ("small", "small", "large"), exported.gen_dir, "who", 5.0, seed=0)
+    trio = collect(cfg, exported.gen_dir, 0.0, seed=3, team_list=[("small", "large", "small")], who_moves_seconds=4.0)
+    assert len(trio) > 300 and trio.content_hash() != one.content_hash()   # a team of three flies who with a bystander
+    with pytest.raises(ValueError, match="pairs of robots or teams of three"):
+        fly(cfg, ("small", "small", "large", "large"), exported.gen_dir, "who", 5.0, seed=0)
     cache = tmp_path / "held.npz"
-    fl = held_out_flights(cfg, exported.gen_dir, flights=(("who", 3.0),), pairs=[("small", "large")], cache=cache)
-    again = held_out_flights(cfg, exported.gen_dir, flights=(("who", 3.0),), pairs=[("small", "large")], cache=cache)
-    assert fl[0].kind == again[0].kind == "who" and fl[0].types == again[0].types == ["small", "large"]
-    for k in ("P", "V", "F"):
-        assert np.array_equal(getattr(fl[0], k), getattr(again[0], k)) and len(getattr(fl[0], k)) == 300
+    kw = dict(flights=(("who", 3.0),), pairs=[("small", "large")], trios=[("large", "large", "small")],
+              trio_flights=(("who", 3.0),), cache=cache)
+    fl = held_out_flights(cfg, exported.gen_dir, **kw)
+    again = held_out_flights(cfg, exported.gen_dir, **kw)
+    assert [f.types for f in fl] == [f.types for f in again] == [["small", "large"], ["large", "large", "small"]]
+    assert fl[0].kind == again[0].kind == "who"
+    for f, g in zip(fl, again):
+        for k in ("P", "V", "F"):
+            assert np.array_equal(getattr(f, k), getattr(g, k)) and len(getattr(f, k)) == 300
+    assert fl[1].P.shape == (300, 3, 3)
+    parallel = held_out_flights(cfg, exported.gen_dir, **{**kw, "cache": None}, workers=2)
+    assert all(np.array_equal(f.F, g.F) for f, g in zip(fl, parallel))
 
 
 # --- the planning margin from measured model error (issue 24) -------------------------------------
@@ -551,3 +594,48 @@ def test_planning_experiments_run_trials_in_workers_as_in_one_process(cfg, expor
     md = (tmp_path / "plan.md").read_text()
     s = runs["NN"]["summary"]
     assert f"| 3D SL | NN | {s['planned']}/2 | {s['planned'] - s['trials_any_over_limit']}/{s['planned']} |" in md
+
+
+def test_default_checkpoint_collects_who_flights_of_pairs_and_of_three_and_reuses_by_its_data(cfg, monkeypatch,
+                                                                                               tmp_path):
+    """default_checkpoint: the base, who-moves (pairs) and who-moves-with-a-bystander
+    (every team of bystander_teams) data sets, each collected once and kept; the model
+    is reused only when it was trained on exactly these sets (collection stand-ins:
+    the analytic data set; the training is real, one epoch)."""
+    import ns2codegen.export as export_mod
+    import ns2codegen.train as training
+    import ns2host.sim.collect as collect_mod
+    from ns2codegen.checkpoint import load_checkpoint
+    from ns2codegen.data.analytic import downwash_dataset
+    from ns2exp import planning as ex
+
+    calls, trained = [], []
+    real_train = training.train
+
+    def fake_collect(cfg_, gen_dir, seconds_per_team, seed=0, team_list=None, who_moves_seconds=0.0, **kw):
+        calls.append((seed, seconds_per_team, who_moves_seconds, None if team_list is None else list(team_list)))
+        return downwash_dataset(cfg_, 40, seed=seed)
+
+    def fake_train(cfg_, ds, **kw):
+        trained.append(len(ds))
+        return real_train(cfg_, ds, epochs=1)
+
+    monkeypatch.setattr(collect_mod, "collect", fake_collect)
+    monkeypatch.setattr(training, "train", fake_train)
+    monkeypatch.setattr(export_mod, "export", lambda *a, **k: None)     # the stand-in flights need no controller
+    ck = ex.default_checkpoint(cfg, tmp_path, 2.0, log=lambda m: None, near_field_seconds=3.0, who_moves_seconds=4.0,
+                               who_bystander_seconds=5.0)
+    trios = collect_mod.bystander_teams(cfg)
+    assert len(trios) == 6 and len(set(trios)) == 6 and {t[2] for t in trios} == set(cfg.robot_types)
+    assert calls == [(1, 2.0, 0.0, None), (2, 0.0, 4.0, [("small", "small"), ("small", "large"), ("large", "large")]),
+                     (3, 0.0, 5.0, trios)]
+    names = load_checkpoint(ck).meta["data_files"]
+    assert [n.split("_")[1] for n in names] == ["base2s", "who4s", "who3"] and all((tmp_path / n).is_file() for n in names)
+    n_boot = len(trained)
+    assert ex.default_checkpoint(cfg, tmp_path, 2.0, log=lambda m: None, near_field_seconds=3.0, who_moves_seconds=4.0,
+                                 who_bystander_seconds=5.0) == ck and len(trained) == n_boot and len(calls) == 3
+    # other bystander flights: only that set is collected, the model retrained on the new list
+    ex.default_checkpoint(cfg, tmp_path, 2.0, log=lambda m: None, near_field_seconds=3.0, who_moves_seconds=4.0,
+                          who_bystander_seconds=0.0)
+    assert len(calls) == 3 and len(trained) == n_boot + 1
+    assert [n.split("_")[1] for n in load_checkpoint(ck).meta["data_files"]] == ["base2s", "who4s"]

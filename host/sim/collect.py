@@ -4,7 +4,8 @@ optionally every pair of robot types flies close-range passes (``near_field``:
 one robot slowly under the other at vertical gaps from the collision distance to
 1.2 m, the near-field downwash that swaps only cross in a tenth of a second) and
 flights in which one robot of the pair moves under and over the other, hovering
-one (``who``: the truth depends on each robot's own velocity); the
+one (``who``: the truth depends on each robot's own velocity), also with a third
+robot hovering nearby; the
 drones' logs (their EKF's estimates, from noisy sensors) become a training set through the same path as
 real logs (ns2codegen.data.from_logs), never through the ground truth."""
 from __future__ import annotations
@@ -21,7 +22,7 @@ from ns2codegen.data.from_logs import Flight, flights_to_dataset
 
 from .cloop import CLoopSwarm
 from .roughness import Roughness
-from .scenarios import near_field, random_walk, swap, who_moves
+from .scenarios import near_field, random_walk, swap, who_moves, who_moves_bystander
 from .usdlogs import write_flight, write_manifest
 
 
@@ -34,6 +35,13 @@ def teams(cfg: Config, max_size: int = 3) -> list[tuple[str, ...]]:
     return out
 
 
+def bystander_teams(cfg: Config) -> list[tuple[str, str, str]]:
+    """Every pair of types with every type hovering beside it (robot 2 of a ``who``
+    flight of three): SS+S, SS+L, SL+S, SL+L, LL+S, LL+L for two types."""
+    return [(a, b, c) for a, b in itertools.combinations_with_replacement(cfg.robot_types, 2)
+            for c in cfg.robot_types]
+
+
 def flight_log(cfg: Config, team, gen_dir, kind: str, duration: float, seed: int, learned=None,
                near_gap_max: float = 1.2, rough: Roughness | None = None) -> dict:
     """Fly one scenario of ``kind`` with ``team``; the simulator's log (CLoopSwarm.run: the
@@ -43,11 +51,14 @@ def flight_log(cfg: Config, team, gen_dir, kind: str, duration: float, seed: int
         heights = 0.4 + 0.25 * np.arange(n)
         sp, start = swap(n, heights, radius=0.4, duration=2.5, rest=0.5, seed=seed)
     elif kind in ("near", "who"):
-        if n != 2:
-            raise ValueError(f"{kind} flights are for pairs of robots, got a team of {n}")
+        if n != 2 and not (kind == "who" and n == 3):
+            raise ValueError(f"{kind} flights are for pairs of robots" + (" or teams of three" if kind == "who" else "")
+                             + f", got a team of {n}")
         diameters = [cfg.vehicle(t).get("diameter_m", 0.12) for t in team]
         if kind == "near":
             sp, start, _ = near_field(list(team), diameters, duration, gap_max=near_gap_max, seed=seed)
+        elif n == 3:
+            sp, start, _, _ = who_moves_bystander(diameters, duration, gap_max=near_gap_max, seed=seed)
         else:
             sp, start, _, _ = who_moves(diameters, duration, gap_max=near_gap_max, seed=seed)
     elif kind == "random":
@@ -92,7 +103,8 @@ def collect(cfg: Config, gen_dir, seconds_per_team: float, seed: int = 0, learne
     """Half random walk, half swaps per team (single robots only random walk), plus
     ``near_field_seconds`` of close-range passes per pair of robots (vertical gaps up
     to ``near_gap_max``) and ``who_moves_seconds`` of one robot moving past the
-    other, hovering one (same gaps); with
+    other, hovering one (same gaps), per pair and per team of three (robots 0 and 1,
+    robot 2 hovering nearby: ``bystander_teams`` gives every combination); with
     ``usd_dir`` the (noisy) logs are also written there as Crazyflie uSD files with a
     flights.toml, the input of ``ns2 logs-to-data``.  ``progress(1)`` after every flight.
     ``workers`` > 1 flies that many flights at once in forked processes (same flights,
@@ -104,21 +116,11 @@ def collect(cfg: Config, gen_dir, seconds_per_team: float, seed: int = 0, learne
         plan = [(kind, seconds_per_team / len(kinds)) for kind in kinds if seconds_per_team > 0]
         if len(team) == 2:
             plan += [(kind, sec) for kind, sec in (("near", near_field_seconds), ("who", who_moves_seconds)) if sec > 0]
+        elif len(team) == 3 and who_moves_seconds > 0:
+            plan.append(("who", who_moves_seconds))
         jobs += [(team, kind, seconds, seed * 1000 + 10 * k + j) for j, (kind, seconds) in enumerate(plan)]
-    if workers > 1 and len(jobs) > 1:
-        import multiprocessing
-        from concurrent.futures import ProcessPoolExecutor
-
-        from ..cfhost import load_fly
-        load_fly(gen_dir)                             # build once, before the workers load it
-        with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("fork")) as ex:
-            futures = [ex.submit(fly, cfg, team, gen_dir, kind, sec, s, learned, near_gap_max, rough)
-                       for team, kind, sec, s in jobs]
-            flights = [_done(f.result(), progress) for f in futures]
-    else:
-        flights = [_done(fly(cfg, team, gen_dir, kind, sec, seed=s, learned=learned, near_gap_max=near_gap_max,
-                             rough=rough),
-                         progress) for team, kind, sec, s in jobs]
+    flights = fly_many(fly, [(cfg, team, gen_dir, kind, sec, s, learned, near_gap_max, rough)
+                             for team, kind, sec, s in jobs], gen_dir, workers, progress)
     if usd_dir is not None:
         entries = [write_flight(Path(usd_dir), f"{''.join(t[0] for t in team)}_{kind}_{s}", list(team),
                                 fl.__dict__, seed=s) for (team, kind, _, s), fl in zip(jobs, flights)]
@@ -126,7 +128,22 @@ def collect(cfg: Config, gen_dir, seconds_per_team: float, seed: int = 0, learne
     return flights_to_dataset(cfg, flights)
 
 
-def _done(flight: Flight, progress) -> Flight:
+def fly_many(fn, args: list, gen_dir, workers: int = 1, progress=None) -> list:
+    """[fn(*a) for a in args] (flights: fly or flight_log), ``workers`` at once in forked
+    processes (the same results in the same order); ``progress(1)`` after each."""
+    if workers > 1 and len(args) > 1:
+        import multiprocessing
+        from concurrent.futures import ProcessPoolExecutor
+
+        from ..cfhost import load_fly
+        load_fly(gen_dir)                             # build once, before the workers load it
+        with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("fork")) as ex:
+            futures = [ex.submit(fn, *a) for a in args]
+            return [_done(f.result(), progress) for f in futures]
+    return [_done(fn(*a), progress) for a in args]
+
+
+def _done(result, progress):
     if progress is not None:
         progress(1)
-    return flight
+    return result

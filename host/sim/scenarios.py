@@ -10,7 +10,8 @@
   rings of S* robots linked with a horizontal ring).
 * ``near_field``: a pair at close range, one under the other (both move).
 * ``who_moves``: a pair in which one robot moves under and over the other,
-  hovering one (the truth depends on each robot's own velocity).
+  hovering one (the truth depends on each robot's own velocity);
+  ``who_moves_bystander``: the same with a third robot hovering nearby.
 Setpoint functions take (t, state) and return cloop.Setpoints.
 """
 from __future__ import annotations
@@ -274,7 +275,80 @@ def who_moves(diameters, duration: float, gap_max: float = 1.5, reach: float = 0
     sides, ``reach`` m from the centre, and turn the pair's direction by up to 90
     degrees (never closer than sqrt(2) ``reach``).  Returns (setpoints, start
     positions, waypoint times, the moving robot per segment (-1: both or none))."""
+    W, T, movers = _who_moves_waypoints(diameters, duration, gap_max, reach, offset, z_range, v_peak, a_max,
+                                        passes, np.random.default_rng(seed))
+    return _cosine_setpoints(W, T), W[0].copy(), T, movers
+
+
+def who_moves_bystander(diameters, duration: float, gap_max: float = 1.5, reach: float = 0.7,
+                        offset: float = 0.06, z_range=(0.3, 2.0), v_peak=(0.3, 1.4), a_max: float = 2.5,
+                        passes: int = 4, radius=(0.3, 0.9), clearance: float = 0.05, tries: int = 200,
+                        seed: int = 0):
+    """``who_moves`` of robots 0 and 1 with robot 2 hovering nearby (issue 24: the
+    planner's three-robot overs were a robot moving under a hovering one with a third
+    robot about a metre away, which the pair flights never show the model).  Before
+    each block of ``who_moves`` robot 2 flies alone (the others still) to a spot drawn
+    at a horizontal distance in ``radius`` (m) from the block's centre, in any
+    direction, at any height of ``z_range``, and hovers there through the block; a spot
+    is drawn again (at most ``tries`` times) until robot 2 stays at least the tight
+    collision distance (D_2 + D_k) / 2 + ``clearance`` from both others through its move
+    and the block (checked exactly on the straight segments).  Returns (setpoints [3
+    robots], start positions, waypoint times, the moving robot per segment (2: the
+    bystander, -1: both of the pair))."""
+    if len(diameters) != 3:
+        raise ValueError(f"who_moves_bystander: three robots, got {len(diameters)} diameters")
     rng = np.random.default_rng(seed)
+    W2, T2, mv2 = _who_moves_waypoints(diameters[:2], duration, gap_max, reach, offset, z_range, v_peak, a_max,
+                                       passes, rng)
+    r_min = np.array([(float(diameters[k]) + float(diameters[2])) / 2 + clearance for k in (0, 1)])
+    starts = [j for j in range(len(mv2)) if mv2[j] == -1] + [len(mv2)]
+
+    def clear(q_from, q, j0, j1):
+        """Robot 2 moving q_from -> q with the pair at W2[j0], then still at q through segments j0 .. j1 - 1."""
+        a = np.concatenate([W2[j0] - q_from] + [W2[j] - q for j in range(j0, j1)])
+        b = np.concatenate([np.tile(q_from - q, (2, 1))] + [W2[j + 1] - W2[j] for j in range(j0, j1)])
+        bb = np.maximum((b * b).sum(1), 1e-12)
+        s = np.clip(-(a * b).sum(1) / bb, 0.0, 1.0)
+        d = np.linalg.norm(a + s[:, None] * b, axis=1)     # the closest approach on each straight segment
+        return bool((d >= np.tile(r_min, len(d) // 2)).all())
+
+    pts, times, movers = [], [0.0], []
+    q = None
+    for k in range(len(starts) - 1):
+        j0, j1 = starts[k], starts[k + 1]
+        for _ in range(tries):
+            ang, rho = rng.uniform(0, 2 * np.pi), rng.uniform(*radius)
+            cand = np.array([rho * np.cos(ang), rho * np.sin(ang), rng.uniform(*z_range)])
+            if clear(cand if q is None else q, cand, j0, j1):
+                break
+        else:
+            raise ValueError(f"who_moves_bystander: no spot for robot 2 in block {k} after {tries} draws "
+                             f"(seed {seed}); widen radius or z_range")
+        if q is None:
+            pts.append(np.vstack([W2[0], cand]))
+        else:
+            pts.append(np.vstack([W2[j0], cand]))
+            times.append(times[-1] + _segment_time(float(np.abs(cand - q).max()), rng, v_peak, a_max))
+            movers.append(2)
+        q = cand
+        for j in range(j0, j1):
+            pts.append(np.vstack([W2[j + 1], q]))
+            times.append(times[-1] + float(T2[j + 1] - T2[j]))
+            movers.append(int(mv2[j]))
+    W = np.stack(pts)
+    T = np.array(times)
+    return _cosine_setpoints(W, T), W[0].copy(), T, np.array(movers)
+
+
+def _segment_time(dist: float, rng, v_peak, a_max: float) -> float:
+    """s: a cosine segment of ``dist`` m at a peak speed drawn in ``v_peak`` (m/s), at most
+    ``a_max`` m/s^2, at least 0.2 s."""
+    vp = rng.uniform(*v_peak)
+    return max(np.pi / 2 * dist / vp, np.pi * np.sqrt(dist / (2 * a_max)), 0.2)
+
+
+def _who_moves_waypoints(diameters, duration, gap_max, reach, offset, z_range, v_peak, a_max, passes, rng):
+    """who_moves' waypoints W [w, 2, 3], times T [w] and the moving robot per segment."""
     g_min = _pair_gap(diameters, gap_max, duration, "who_moves")
     if z_range[1] - z_range[0] < 0.5 + g_min:
         raise ValueError(f"who_moves: height range {z_range} leaves no room for the gaps")
@@ -284,8 +358,7 @@ def who_moves(diameters, duration: float, gap_max: float = 1.5, reach: float = 0
     def add(p, mover, dist=None):
         """Append waypoint p [2, 3]; the segment's time from its length and a drawn peak speed."""
         dist = float(np.abs(p - pts[-1]).max()) if dist is None else dist
-        vp = rng.uniform(*v_peak)
-        t = max(np.pi / 2 * dist / vp, np.pi * np.sqrt(dist / (2 * a_max)), 0.2)
+        t = _segment_time(dist, rng, v_peak, a_max)
         pts.append(p)
         times.append(times[-1] + t)
         movers.append(mover)
@@ -338,6 +411,4 @@ def who_moves(diameters, duration: float, gap_max: float = 1.5, reach: float = 0
         add(p, still)
         if s != side[mover]:                            # the robots ended on swapped sides: keep robot 0 on -e
             phi += np.pi
-    W = np.stack(pts)
-    T = np.array(times)
-    return _cosine_setpoints(W, T), W[0].copy(), T, np.array(movers)
+    return np.stack(pts), np.array(times), np.array(movers)
