@@ -253,6 +253,15 @@ def measure(cfg: Config, fm: ForceModel, flights: list, limits: Limits, old_marg
     err = errors(cfg, fm, flights, limits)
     m = margin_from_errors(err, limits.fa_max_g, speed_edges=SPEED_EDGES_MPS)
     m_const = margin_from_errors(err, limits.fa_max_g)
+    sizes = sorted({len(fl.types) for fl in flights})
+    by_size = {}
+    if len(sizes) > 1:          # a team of n robots can only reach states of at most n robots: their evidence
+        for n in sizes:
+            e = errors(cfg, fm, [fl for fl in flights if len(fl.types) <= n], limits)
+            by_size[str(n)] = {"margin_g": margin_from_errors(e, limits.fa_max_g, speed_edges=SPEED_EDGES_MPS),
+                               "speed_bins": speed_bins(e, limits.fa_max_g)}
+        m = {"by_team_size": {n: v["margin_g"] for n, v in by_size.items()}}
+    pair = for_team(m, 2)
     evidence = over_limit(err, limits.fa_max_g)
     stats = {}
     for kind in sorted({_group(fl) for fl in flights}):
@@ -264,7 +273,7 @@ def measure(cfg: Config, fm: ForceModel, flights: list, limits: Limits, old_marg
     for lower in cfg.robot_types:
         for upper in cfg.robot_types:
             row = {"lower": lower, "upper": upper,
-                   "gap_m": closest_gap(cfg, fm, lower, upper, limits.fa_max_g[lower] - m[lower]["margins_g"][0]),
+                   "gap_m": closest_gap(cfg, fm, lower, upper, limits.fa_max_g[lower] - pair[lower]["margins_g"][0]),
                    "gap_constant_m": closest_gap(cfg, fm, lower, upper, limits.fa_max_g[lower] - m_const[lower])}
             if old_margin_g is not None:
                 row["gap_old_m"] = closest_gap(cfg, fm, lower, upper, limits.fa_max_g[lower] - old_margin_g)
@@ -272,13 +281,26 @@ def measure(cfg: Config, fm: ForceModel, flights: list, limits: Limits, old_marg
                                                    - evidence[lower]["largest_low_rule_g"])
             gaps.append(row)
     return {"margin_g": m, "margin_constant_g": m_const, "speed_bins": speed_bins(err, limits.fa_max_g),
+            "speed_bins_by_team_size": {n: v["speed_bins"] for n, v in by_size.items()},
             "source": "per bin of the relative speed to the neighbours the model sees, the smallest m (0.1 g grid) "
             "with |f_true| <= f_a,max at every held-out state of the bin in the planning region with |f_model| <= "
-            "f_a,max - m, and at least the slower bins' m", "evidence": evidence,
+            "f_a,max - m, and at least the slower bins' m"
+            + ("; per team size n, on the flights of at most n robots" if by_size else ""), "evidence": evidence,
             "errors": {t: error_stats(err[t]["true"], err[t]["pred"], limits.fa_max_g[t]) for t in cfg.robot_types},
             "errors_by_kind": stats, "lipschitz_g_per_unit": lip, "sample_spacing": h,
             "lipschitz_between_samples_g": {k: v * h / 2 for k, v in lip.items()}, "closest_gaps": gaps,
             "old_margin_g": old_margin_g}
+
+
+def for_team(m, n: int):
+    """The margin a team of ``n`` robots plans with: ``m`` itself, or of a margin by team
+    size ({"by_team_size": {"2": per type, "3": per type}}, ``measure``) the entry of the
+    largest size up to n (the smallest size when there is none)."""
+    if not (isinstance(m, dict) and "by_team_size" in m):
+        return m
+    sizes = sorted(int(k) for k in m["by_team_size"])
+    fit = [k for k in sizes if k <= n]
+    return m["by_team_size"][str(fit[-1] if fit else sizes[0])]
 
 
 def _group(fl: FlownStates) -> str:
@@ -296,13 +318,17 @@ def margin_table(rep: dict) -> str:
         ev = rep.get("evidence", {}).get(t, {})
         lines.append(f"| {t} | {ev.get('states', s['states'])} | {ev.get('over_limit', '-')} | {s['rmse_g']:.2f} | "
                      f"{s['max_abs_g']:.2f} | {s['max_low_g']:.2f} | {rep['margin_constant_g'][t]:.1f} |")
-    edges = next(iter(rep["margin_g"].values()))["speeds_mps"]
+    edges = next(iter(for_team(rep["margin_g"], 2).values()))["speeds_mps"]
     names = [f"<= {edges[0]:g}"] + [f"{a:g}-{b:g}" for a, b in zip(edges, edges[1:])] + [f"> {edges[-1]:g}"]
-    lines += ["", "| robot type: states / over the limit / margin (g) at relative speed (m/s) | " + " | ".join(names)
-              + " |", "|---|" + "---|" * len(names)]
-    for t, bins in rep["speed_bins"].items():
-        cells = [f"{b['states']} / {b['over_limit']} / **{m:.1f}**" for b, m in zip(bins, rep["margin_g"][t]["margins_g"])]
-        lines.append(f"| {t} | " + " | ".join(cells) + " |")
+    by_size = rep.get("speed_bins_by_team_size") or {}
+    lines += ["", f"| {'team size, ' if by_size else ''}robot type: states / over the limit / margin (g) at relative "
+              "speed (m/s) | " + " | ".join(names) + " |", "|---|" + "---|" * len(names)]
+    for n, per_type in (by_size.items() if by_size else [(None, rep["speed_bins"])]):
+        m = rep["margin_g"] if n is None else rep["margin_g"]["by_team_size"][n]
+        for t, bins in per_type.items():
+            cells = [f"{b['states']} / {b['over_limit']} / **{x:.1f}**" for b, x in zip(bins, m[t]["margins_g"])]
+            lines.append(f"| {'' if n is None else f'{n} robots (flights of at most {n}), '}{t} | "
+                         + " | ".join(cells) + " |")
     lines += ["", "| lower under upper (hovering) | closest gap, margin at rest | closest gap, margin over all speeds | "
               "closest gap, old margin | closest gap, margin = largest one-sided error |", "|---|---|---|---|---|"]
     for g in rep["closest_gaps"]:
@@ -314,7 +340,7 @@ def margin_table(rep: dict) -> str:
         lines += ["", f"Calibration on the NN's own flown plans (seeds {rep['calibration_seeds']}"
                   + (f" in order, until {per_case} planned per case" if per_case else "") + "; "
                   f"{'converged' if rep['converged'] else 'NOT converged'}): margins in g per speed bin, "
-                  + ", ".join(rep["margin_g"]) + ":", "",
+                  + ", ".join(for_team(rep["margin_g"], 2)) + ":", "",
                   "| round | margin planned with | planned | trials over a limit in flight | flown states over the limit "
                   "within the bound | margin after |", "|---|---|---|---|---|---|"]
         for r in rep["rounds"]:
@@ -325,9 +351,14 @@ def margin_table(rep: dict) -> str:
     return "\n".join(lines)
 
 
-def _margins(m: dict) -> str:
-    """Per robot type its margin table as 'm_0/m_1/...' (g), types separated by '; '."""
-    return "; ".join("/".join(f"{x:.1f}" for x in tab["margins_g"]) for tab in m.values())
+def _margins(m: dict, named: bool = False) -> str:
+    """Per robot type its margin table as 'm_0/m_1/...' (g), types separated by '; '
+    (``named``: 'type m_0/...', separated by ', '; by team size: 'n robots: ...' per size,
+    separated by ' | ')."""
+    if "by_team_size" in m:
+        return " \\| ".join(f"{n} robots: {_margins(v, named)}" for n, v in m["by_team_size"].items())
+    cells = [(f"{t} " if named else "") + "/".join(f"{x:.1f}" for x in tab["margins_g"]) for t, tab in m.items()]
+    return (", " if named else "; ").join(cells)
 
 
 def compare_table(reports: dict) -> str:
@@ -345,8 +376,7 @@ def compare_table(reports: dict) -> str:
     lines.append("| margin over all speeds (g) | | | " + " | ".join(
         ", ".join(f"{t} {m:.1f}" for t, m in reports[n]["margin_constant_g"].items()) for n in names) + " |")
     lines.append("| margin by relative speed (g) | | | " + " | ".join(
-        ", ".join(f"{t} {'/'.join(f'{m:.1f}' for m in tab['margins_g'])}" for t, tab in reports[n]["margin_g"].items())
-        for n in names) + " |")
+        _margins(reports[n]["margin_g"], named=True) for n in names) + " |")
     return "\n".join(lines)
 
 

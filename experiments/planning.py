@@ -63,15 +63,17 @@ _WORKER_MODEL = None                    # the model of the planning workers (_wo
 def scenario_problem(cfg: Config, name: str, dims: int, fa_margin_g=None) -> Problem:
     """Robots side by side on the y axis at z = 1 m; robot k flies to the place of
     robot k + 1 (cyclically): a swap for two robots, a rotation for three.
-    ``fa_margin_g`` (g, one value or per type; ns2exp.margin measures it) replaces
-    the limits' FA_MARGIN_G."""
+    ``fa_margin_g`` (g, one value, per type, or by team size: the team's own entry,
+    ns2exp.margin.for_team; ns2exp.margin measures it) replaces the limits' FA_MARGIN_G."""
     team = SCENARIOS[name]
     n = len(team)
     y = np.linspace(-SPACING / 2, SPACING / 2, n)
     robots = [Robot(t, (0.0, float(y[k]), HEIGHT), (0.0, float(y[(k + 1) % n]), HEIGHT)) for k, t in enumerate(team)]
     limits = LIMITS_2D if dims == 2 else LIMITS_3D
     if fa_margin_g is not None:
-        limits = replace(limits, fa_margin_g=fa_margin_g)
+        from .margin import for_team
+
+        limits = replace(limits, fa_margin_g=for_team(fa_margin_g, n))
     return Problem(cfg, robots, limits, (1, 2) if dims == 2 else (0, 1, 2))
 
 
@@ -456,7 +458,7 @@ def plan_trained_checkpoint(cfg: Config, checkpoint, gen_dir, held_out: list, sc
     the states its training flights lacked.  The models and the plans' data sets are
     kept beside ``checkpoint`` (``model_r<r>_<tag>.pt``, ``data_plans_r<r>_<tag>.npz``
     with the round's margin and trials in ``.json`` beside it, the tag a hash of the
-    data before the round and the round's scenarios, dims and seeds) and reused;
+    data before the round, the round's scenarios, dims and seeds and its margin) and reused;
     returns the last model."""
     import hashlib
 
@@ -475,12 +477,12 @@ def plan_trained_checkpoint(cfg: Config, checkpoint, gen_dir, held_out: list, sc
     ck = Path(checkpoint)
     for r in range(rounds):
         tasks = [(n, d, s + 100 * r) for d in dims for n in scenarios for s in seeds]
-        tag = hashlib.sha256(json.dumps([names, tasks]).encode()).hexdigest()[:10]
+        fm = load_force_model(cfg, ck)
+        m = margin.measure(cfg, fm, held_out, LIMITS_3D)["margin_g"]     # what the plans are planned with
+        tag = hashlib.sha256(json.dumps([names, tasks, m]).encode()).hexdigest()[:10]
         nxt = folder / f"model_r{r + 1}_{tag}.pt"
         data = folder / f"data_plans_r{r}_{tag}.npz"
         if not data.is_file():
-            fm = load_force_model(cfg, ck)
-            m = margin.measure(cfg, fm, held_out, LIMITS_3D)["margin_g"]
             log(f"plan data round {r}: {len(tasks)} NN plans of {ck.name} with its held-out margin {m}")
             pool = _plan_pool(ck, gen_dir, workers)
             with pool or nullcontext():

@@ -363,6 +363,45 @@ def test_measure_reports_the_margin_by_speed_and_its_tables(cfg):
     assert "small 5.1/5.1/5.1/5.1/5.1/5.1, large 0.0/0.0/0.0/0.0/0.0/0.0" in compare_table({"m": rep})
 
 
+def test_margin_by_team_size_from_the_flights_of_at_most_that_many_robots(cfg):
+    """With flights of pairs and of three robots, measure gives a margin per team size:
+    a pair's from the pair flights alone (a pair cannot reach a three-robot state), three
+    robots' from both; scenario_problem plans each case with its team's entry."""
+    from ns2exp.margin import compare_table, for_team, margin_table, measure
+    from ns2exp.planning import scenario_problem
+    from ns2plan.problem import Limits
+
+    lim = Limits(pos_lo=(-1, -1, 0.3), pos_hi=(1, 1, 2.0), clearance_m=0.15, fa_max_g={"small": 5.0, "large": 10.0})
+    P2 = np.tile(np.array([[0.0, 0.0, 1.0], [0.0, 0.0, 1.6]]), (2, 1, 1))
+    pair = _flight(P2, np.zeros_like(P2), np.array([[-5.4, 0.0], [-3.0, 0.0]]))          # small over by 0.4 g at rest
+    P3 = np.tile(np.array([[0.0, 0.0, 1.0], [0.0, 0.0, 1.6], [0.0, 0.8, 1.6]]), (2, 1, 1))
+    V3 = np.zeros_like(P3)
+    V3[:, 1, 1] = 0.6                                                                        # robot 1 passes at 0.6 m/s
+    trio = _flight(P3, V3, np.array([[-6.0, 0.0, 0.0], [-1.0, -11.0, 0.0]]), ("small", "large", "small"))
+    only_pairs = measure(cfg, ForceModel(cfg, None), [pair], lim)
+    assert "by_team_size" not in only_pairs["margin_g"]                  # one team size: the plain table
+    rep = measure(cfg, ForceModel(cfg, None), [pair, trio], lim)
+    m2, m3 = for_team(rep["margin_g"], 2), for_team(rep["margin_g"], 3)
+    assert m2 == only_pairs["margin_g"] and for_team(rep["margin_g"], 1) == m2 and for_team(rep["margin_g"], 5) == m3
+    np.testing.assert_allclose(m2["small"]["margins_g"], [5.1] * 6)     # f_a = 0 read where 5.4 g: 5.1
+    assert m2["large"]["margins_g"] == [0.0] * 6
+    np.testing.assert_allclose(m3["small"]["margins_g"], [5.1] * 6)
+    np.testing.assert_allclose(m3["large"]["margins_g"], [0.0, 0.0, 10.1, 10.1, 10.1, 10.1])   # 11 g at 0.6 m/s
+    assert "team size" in rep["source"] and set(rep["speed_bins_by_team_size"]) == {"2", "3"}
+    assert for_team(5.0, 3) == 5.0 and for_team({"small": 1.0}, 2) == {"small": 1.0}
+    table = {"speeds_mps": [0.5], "margins_g": [1.0, 2.0]}
+    by_size = {"by_team_size": {"2": {"small": 0.5, "large": 0.5}, "3": {"small": table, "large": 3.0}}}
+    pb2, pb3 = scenario_problem(cfg, "SL", 2, by_size), scenario_problem(cfg, "SLL", 2, by_size)
+    assert pb2.limits.fa_margin_g == {"small": 0.5, "large": 0.5} and pb3.limits.fa_margin_g["large"] == 3.0
+    np.testing.assert_allclose(pb2.fa_plan(np.array([0.6, 0.6])), [4.5, 9.5])
+    np.testing.assert_allclose(pb3.fa_plan(np.array([0.6, 0.2, 0.0])), [3.0, 7.0, 7.0])   # small at 0.6 m/s: 2 g
+    md = margin_table(rep)
+    assert "| 2 robots (flights of at most 2), large | 2 / 0 / **0.0** | 0 / 0 / **0.0** |" in md
+    assert "| 3 robots (flights of at most 3), large | 2 / 0 / **0.0** | 0 / 0 / **0.0** | 2 / 1 / **10.1** |" in md
+    assert "2 robots: small 5.1/5.1/5.1/5.1/5.1/5.1, large 0.0/0.0/0.0/0.0/0.0/0.0 \\| 3 robots: small" in \
+        compare_table({"m": rep})
+
+
 def test_unforeseen_counts_the_flown_states_over_the_limit_that_the_bound_let_through(cfg):
     """ns2exp.planning.unforeseen: a flown plan's states over f_a,max, and those where
     the model at the flown state was within the bound at the flown relative speed."""
@@ -560,6 +599,12 @@ def test_plan_trained_checkpoint_adds_the_flown_plans_to_the_training_data(cfg, 
     other = ex.plan_trained_checkpoint(cfg, tmp_path / "model.pt", exported.gen_dir, held, ["SL"], (3,),
                                        seeds=(2000,), rounds=1, workers=1, log=lambda m: None)
     assert seen == [("SL", 3, 2000)] and other.name.startswith("model_r1_") and other != ck
+    # another margin is other plans: held-out flights that raise it are planned again, not reused
+    seen.clear()
+    worse = [_flight(P, np.zeros_like(P), np.array([[-5.5, 0.0]] * 4))]      # the f_a = 0 truth over the limit
+    raised = ex.plan_trained_checkpoint(cfg, tmp_path / "model.pt", exported.gen_dir, worse, ["SL"], (2,),
+                                        seeds=(2000,), rounds=1, workers=1, log=lambda m: None)
+    assert seen == [("SL", 2, 2000)] and load_checkpoint(raised).meta["data_files"][1] != meta["data_files"][1]
 
 
 def test_planning_experiments_run_trials_in_workers_as_in_one_process(cfg, exported, tmp_path):
