@@ -402,6 +402,8 @@ def calibrated_margin(cfg: Config, fm: ForceModel, checkpoint, gen_dir, held_out
                 flown = fly_plans(fm, checkpoint, gen_dir, wave, m, rrt, scp_params, workers, pool)
                 for (name, d, s), res in zip(wave, flown):
                     tried.setdefault((name, d), []).append((s, res[1] is not None))
+                log("  " + ", ".join(f"{d}D {name} seed {s}: {'planned' if res[1] is not None else 'no plan'}"
+                                     for (name, d, s), res in zip(wave, flown)))
                 tasks += wave
                 done += flown
             flights += [fl for _, fl, _ in done if fl is not None]
