@@ -187,14 +187,15 @@ real: $(REAL)/paper.json $(REAL)/heldout.json $(foreach a,$(REAL_AXES),$(REAL)/a
 
 # The simulator against the real flights (docs/simulator.md, "A simulator as rough as a
 # real Crazyflie"): fit host/sim/roughness.py, replay the real swaps with the authors'
-# network in the loop; CALIBRATE_PER_SCENARIO real swap flights per scenario.
-CALIBRATE_PER_SCENARIO ?= 2
+# network in the loop, and the z law read off the logs; every swap flight of the
+# collection (56), or the first CALIBRATE_PER_SCENARIO of each swap folder if set.
+CALIBRATE_PER_SCENARIO ?=
 calibrate: export OMP_NUM_THREADS ?= 1
 $(REAL)/authors-gen/ns2_model_config.h: $(REAL)/authors.pt
 	$(NS2) export $< --out $(REAL)/authors-gen --quiet
 calibrate: $(REAL)/all.npz $(REAL)/authors-gen/ns2_model_config.h
 	$(NS2) sim calibrate --logs build/neural-swarm-data --data-dir $(REAL) --gen $(REAL)/authors-gen \
-		--per-scenario $(CALIBRATE_PER_SCENARIO) --workers 2 --out $(SIM)/calibration
+		$(if $(CALIBRATE_PER_SCENARIO),--per-scenario $(CALIBRATE_PER_SCENARIO)) --workers 2 --out $(SIM)/calibration
 
 clean:
 	rm -rf build

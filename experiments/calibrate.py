@@ -32,6 +32,7 @@ from ns2host.sim.cloop import CLoopSwarm
 from ns2host.sim.replay import pieces_by_flight, replay
 from ns2host.sim.roughness import EFFECTS, Roughness, hp_share
 from ns2host.sim.scenarios import random_walk
+from ns2host.sim.vehicle import AUTHORS_GAINS, AUTHORS_TYPE, G, READ_LAW, read_law_gains
 
 # neural-swarm2.tex, flight tests: "in the L2S case [...] the median z-error is reduced
 # from 17 cm to 7 cm" (real flights, BL -> NN, the authors' controller on every robot)
@@ -39,6 +40,9 @@ PAPER_L2S_M = {"BL-authors": 0.17, "NN-authors": 0.07}
 PROBE = {"seconds": 30.0, "acc_g": 0.05, "gyro_dps": 1.0, "cube": ((-1.0, 1.0), (-1.0, 1.0), (0.6, 1.4)), "seed": 1}
 PAIR_SWAPS = ("swap_ss", "swap_sl", "swap_ll")
 FIT_FLIGHTS_PER_PAIR = 3      # pair swap flights replayed for the turbulence fit (the first ones by name)
+READ_LAW_FLIGHTS_PER_FOLDER = 2   # swap flights per folder replayed for the fit of the z law read off the logs
+READ_LAW_ITERATIONS = 4
+LAW_KEYS = (("kp", "kp_per_s2"), ("kd", "kd_per_s"), ("ki", "ki_per_s3"), ("k_fa", "k_fa"))
 
 
 def swap_flights(flights: list[Flight]) -> list[Flight]:
@@ -53,12 +57,14 @@ def real_statistics(cfg: Config, flights: list[Flight]) -> dict:
             "wake_scatter": fs.wake_scatter(cfg, sw), "swaps": fs.swap_errors(sw)}
 
 
-def probe_flight(cfg: Config, gen_dir, robot_type: str, rough: Roughness | None, controller: str = "ns2") -> Flight:
+def probe_flight(cfg: Config, gen_dir, robot_type: str, rough: Roughness | None, controller: str = "ns2",
+                 law: dict | None = None) -> Flight:
     """One robot's random walk (PROBE) in the simulator, as the drone logs it
-    (controller: cloop.CONTROLLERS)."""
+    (controller: cloop.CONTROLLERS; law: "authors" flies the z law read off the logs,
+    vehicle.read_law_gains)."""
     sp, start = random_walk(1, cube=PROBE["cube"], seed=PROBE["seed"])
     sw = CLoopSwarm(cfg, [robot_type], gen_dir, start, aero=True, rough=rough, seed=PROBE["seed"],
-                    controllers=[controller])
+                    controllers=[controller], authors=None if law is None else [read_law_gains(robot_type, law)])
     log = sw.run(PROBE["seconds"], sp)
     return Flight([robot_type], *(log[k] for k in ("t", "p", "v", "q", "pwm", "battery_V")), p_d=log["p_d"])
 
@@ -100,9 +106,9 @@ def _vib(base: Roughness, ty: str, acc: float, gyro: float) -> Roughness:
 
 
 def replay_all(cfg: Config, gen_dir, pieces: dict, rough: Roughness | None, workers: int = 1,
-               seed: int = 0, controller: str = "ns2", learned: str = "float") -> list[Flight]:
+               seed: int = 0, controller: str = "ns2", learned: str = "float", law: dict | None = None) -> list[Flight]:
     """Replay every flight of ``pieces`` (name -> real pieces); ``workers`` processes;
-    ``controller``, ``learned``: replay.replay's."""
+    ``controller``, ``learned``, ``law``: replay.replay's."""
     names = sorted(pieces)
     if workers > 1 and len(names) > 1:
         import multiprocessing
@@ -111,14 +117,14 @@ def replay_all(cfg: Config, gen_dir, pieces: dict, rough: Roughness | None, work
         from ns2host.cfhost import load_fly
         load_fly(gen_dir)
         with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("fork")) as ex:
-            return list(ex.map(_replay_one, [(cfg, pieces[n], gen_dir, rough, seed, controller, learned)
+            return list(ex.map(_replay_one, [(cfg, pieces[n], gen_dir, rough, seed, controller, learned, law)
                                              for n in names]))
-    return [_replay_one((cfg, pieces[n], gen_dir, rough, seed, controller, learned)) for n in names]
+    return [_replay_one((cfg, pieces[n], gen_dir, rough, seed, controller, learned, law)) for n in names]
 
 
 def _replay_one(args) -> Flight:
-    cfg, pcs, gen_dir, rough, seed, controller, learned = args
-    return replay(cfg, pcs, gen_dir, learned=learned, rough=rough, seed=seed, controller=controller)
+    cfg, pcs, gen_dir, rough, seed, controller, learned, law = args
+    return replay(cfg, pcs, gen_dir, learned=learned, rough=rough, seed=seed, controller=controller, law=law)
 
 
 def fit_pieces(flights: list[Flight]) -> dict:
@@ -192,6 +198,69 @@ def lateral_k_xy(cfg: Config, flights: list[Flight]) -> dict:
                                    for key, a in sorted(num.items())}}
 
 
+def read_law_pieces(flights: list[Flight]) -> dict:
+    """The swap flights the z law's fit replays: READ_LAW_FLIGHTS_PER_FOLDER per swap
+    folder (the first ones by name)."""
+    by = pieces_by_flight(swap_flights(flights))
+    folders = sorted({n.split("/")[0] for n in by})
+    return {n: by[n] for f in folders for n in sorted(m for m in by if m.split("/")[0] == f)[:READ_LAW_FLIGHTS_PER_FOLDER]}
+
+
+def law_step(law: dict, real: dict, read: dict, before: tuple[dict, dict] | None = None) -> dict:
+    """One step of the z law's fit, per type: each of Kp, Kd, Ki, k_fa scaled by what
+    the real flights read over what the replay read (the replay's reading of its own
+    law is biased by the motors' delay, the estimator and the correlation of the
+    regressors in a wake; the ratio takes that bias out), never below 0; the mass
+    parameter moved by the z error's mean the replay misses: by the secant through
+    the step ``before`` (its law and reading) where that slope is positive (a heavier
+    parameter flies higher), else through the law's stiffness (a steady offset e of a
+    law without integral is (m_param - m) g / (m_param Kp))."""
+    out = {}
+    for ty, zl in law.items():
+        r, s = real[ty], read[ty]
+        new = dict(zl)
+        for k, stat in LAW_KEYS:
+            if s[stat] is not None and s[stat] > 1e-3 and r[stat] is not None:
+                new[k] = round(max(0.0, zl[k] * r[stat] / s[stat]), 4)
+        miss = r["z_error_mean_m"] - s["z_error_mean_m"]
+        slope = G / (zl["mass_kg"] * zl["kp"])                  # m of offset per kg of mass parameter
+        if before is not None:
+            dm = zl["mass_kg"] - before[0][ty]["mass_kg"]
+            de = s["z_error_mean_m"] - before[1][ty]["z_error_mean_m"]
+            if dm != 0.0 and de / dm > 0.0:
+                slope = de / dm
+        new["mass_kg"] = round(zl["mass_kg"] + miss / slope, 6)
+        out[ty] = new
+    return out
+
+
+def fit_read_law(cfg: Config, gen_dir, flights: list[Flight], rough: Roughness, workers: int = 1,
+                 iterations: int = READ_LAW_ITERATIONS) -> tuple[dict, list]:
+    """The z law read off the real logs (vehicle.READ_LAW's form): start from the real
+    swaps' reading (flightstats.z_law) with the authors' mass parameter, replay the
+    read_law_pieces flights with it (the rough simulator, the prediction the real
+    robots logged) and take law_step, ``iterations`` times; the law whose replay reads
+    closest to the real reading (the largest relative miss over the types' Kp, Kd,
+    k_fa, the z error's mean in cm) and every iteration's reading."""
+    pieces = read_law_pieces(flights)
+    real = fs.z_law(cfg, [p for ps in pieces.values() for p in ps])
+    law = {ty: {**{k: real[ty][stat] for k, stat in LAW_KEYS},
+                "mass_kg": AUTHORS_GAINS[AUTHORS_TYPE[ty]]["mass_kg"]} for ty in sorted(real)}
+    rows, best, before = [], None, None
+    for it in range(iterations + 1):
+        read = fs.z_law(cfg, replay_all(cfg, gen_dir, pieces, rough, workers, controller="authors",
+                                        learned="logged", law=law))
+        miss = max(max(abs(read[ty][st] / real[ty][st] - 1.0) for _, st in LAW_KEYS if st != "ki_per_s3")
+                   for ty in law)
+        miss = max(miss, max(abs(read[ty]["z_error_mean_m"] - real[ty]["z_error_mean_m"]) * 100 for ty in law))
+        rows.append({"iteration": it, "law": law, "read": read, "miss": round(miss, 4)})
+        if best is None or miss < best[0]:
+            best = (miss, law)
+        if it < iterations:
+            law, before = law_step(law, real, read, before), (law, read)
+    return best[1], [{"flights": sorted(pieces), "real": real}] + rows
+
+
 def thrust_sd(hover_by_robot: dict, robot_type_of: dict) -> float:
     """Relative standard deviation of the robots' hover thrust within a type, pooled over
     the types with two robots or more (hover_masses' by_robot medians)."""
@@ -224,22 +293,25 @@ def fit(cfg: Config, gen_dir, flights: list[Flight], hover_by_robot: dict, robot
     return rough, {"real": real, "vibration_probes": vib_rows, "turbulence": turb_rows}
 
 
-# label -> (rough, controller, learned) of the replays (replay.replay)
-VARIANTS = {"clean": (False, "ns2", "float"), "rough": (True, "ns2", "float"),
-            "rough, the authors' controller": (True, "authors", "float"),
-            "rough, the authors' controller, the prediction flown": (True, "authors", "logged")}
+# label -> (rough, controller, learned, the z law read off the logs) of the replays (replay.replay)
+VARIANTS = {"clean": (False, "ns2", "float", False), "rough": (True, "ns2", "float", False),
+            "rough, the authors' controller": (True, "authors", "float", False),
+            "rough, the authors' controller, the prediction flown": (True, "authors", "logged", False),
+            "rough, the z law read off the logs, the prediction flown": (True, "authors", "logged", True)}
 
 
 def compare(cfg: Config, gen_dir, flights: list[Flight], rough: Roughness, names: list[str] | None = None,
-            workers: int = 1, real_all: dict | None = None) -> dict:
-    """Statistics of step 1 for the real flights and four simulators (VARIANTS): clean,
+            workers: int = 1, real_all: dict | None = None, law: dict | None = None) -> dict:
+    """Statistics of step 1 for the real flights and five simulators (VARIANTS): clean,
     rough (``rough``), rough with the position law and gains of the controller that
     flew the real flights (host/ctrl_authors.c) and the network of ``gen_dir`` in the
-    loop, and the same controller flying the prediction the real robots logged
-    instead of a network: free air from the probes (no neighbour, no learned force:
-    the last two share theirs), the rest over the replayed swap flights (``names``: a
-    subset; the real side is the same subset).  real_all: the free-air and battery
-    statistics of every real flight if already measured (fit's)."""
+    loop, the same controller flying the prediction the real robots logged instead of
+    a network, and that with the z law read off the logs (``law``, READ_LAW by
+    default; fit_read_law): free air from the probes (no neighbour, no learned force:
+    the stored law's variants share theirs), the rest over the replayed swap flights
+    (``names``: a subset; the real side is the same subset).  real_all: the free-air
+    and battery statistics of every real flight if already measured (fit's)."""
+    law = READ_LAW if law is None else law
     by = pieces_by_flight(swap_flights(flights))
     if names is not None:
         by = {n: by[n] for n in names}
@@ -255,12 +327,12 @@ def compare(cfg: Config, gen_dir, flights: list[Flight], rough: Roughness, names
                                           "unpredicted": fs.unpredicted(cfg, real_sw),
                                           "lateral_k_xy": lateral_k_xy(cfg, real_sw)}}
     probed: dict = {}
-    for label, (is_rough, ctrl, learned) in VARIANTS.items():
-        r = rough if is_rough else None
-        if (is_rough, ctrl) not in probed:
-            probed[is_rough, ctrl] = [probe_flight(cfg, gen_dir, ty, r, ctrl) for ty in cfg.robot_types]
-        probes = probed[is_rough, ctrl]
-        sims = replay_all(cfg, gen_dir, by, r, workers, controller=ctrl, learned=learned)
+    for label, (is_rough, ctrl, learned, read) in VARIANTS.items():
+        r, zl = (rough if is_rough else None), (law if read else None)
+        if (is_rough, ctrl, read) not in probed:
+            probed[is_rough, ctrl, read] = [probe_flight(cfg, gen_dir, ty, r, ctrl, zl) for ty in cfg.robot_types]
+        probes = probed[is_rough, ctrl, read]
+        sims = replay_all(cfg, gen_dir, by, r, workers, controller=ctrl, learned=learned, law=zl)
         out[label] = {"free_air": {ty: fs.free_air(cfg, [p])[ty] for ty, p in zip(cfg.robot_types, probes)},
                       "z_loop": fs.z_loop(cfg, probes), "z_law": fs.z_law(cfg, sims), "battery": fs.battery(sims),
                       "wake_scatter": fs.wake_scatter(cfg, sims), "wake_lateral": fs.wake_lateral(cfg, sims),
@@ -270,17 +342,25 @@ def compare(cfg: Config, gen_dir, flights: list[Flight], rough: Roughness, names
     return out
 
 
-def paper_l2s(cfg: Config, gen_dir, rough: Roughness | None, swaps: int = 6) -> dict:
+READ_LAW_LABEL = ", the z law read off the logs"
+
+
+def paper_l2s(cfg: Config, gen_dir, rough: Roughness | None, swaps: int = 6, law: dict | None = None) -> dict:
     """The paper's L2S swap (experiments/swarm.py's geometry) flown by the controller
     that flew the paper's flights on every robot (swarm.AUTHORS_CONTROLLERS): without
-    the learned force (the paper's BL) and with the network of ``gen_dir`` (its NN).
-    Median worst z error of the bottom robot over ``swaps`` swaps, beside the paper's."""
+    the learned force (the paper's BL) and with the network of ``gen_dir`` (its NN),
+    with its stored gains and with the z law read off the logs (``law``, READ_LAW by
+    default).  Median worst z error of the bottom robot over ``swaps`` swaps, beside
+    the paper's."""
     from ns2exp.swarm import AUTHORS_CONTROLLERS, run_swaps
 
     out = {}
-    for c in AUTHORS_CONTROLLERS:
-        w = run_swaps(cfg, gen_dir, "L2S", learned="float", swaps=swaps, controller=c, rough=rough)["worst_z_error_m"]
-        out[c] = {"median_worst_z_error_m": float(np.median(w)), "worst_z_error_m": w, "paper_m": PAPER_L2S_M[c]}
+    for zl, tag in ((None, ""), (READ_LAW if law is None else law, READ_LAW_LABEL)):
+        for c in AUTHORS_CONTROLLERS:
+            w = run_swaps(cfg, gen_dir, "L2S", learned="float", swaps=swaps, controller=c, rough=rough,
+                          law=zl)["worst_z_error_m"]
+            out[c + tag] = {"median_worst_z_error_m": float(np.median(w)), "worst_z_error_m": w,
+                            "paper_m": PAPER_L2S_M[c]}
     return out
 
 
@@ -295,20 +375,22 @@ def calibrate(cfg: Config, gen_dir, flights: list[Flight], hover_by_robot: dict,
               rough: Roughness | None = None) -> dict:
     """Fit (unless ``rough`` is given), compare, write out_dir/calibration.json and
     calibration.md; returns the JSON."""
-    from ns2host.sim.calibration import paper_l2s_table, roughness_table, sim_to_real_table
+    from ns2host.sim.calibration import paper_l2s_table, read_law_table, roughness_table, sim_to_real_table
 
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    fit_report = None
+    fit_report, law = None, READ_LAW
     if rough is None:
         rough, fit_report = fit(cfg, gen_dir, flights, hover_by_robot, robot_type_of, workers)
-    cmp = compare(cfg, gen_dir, flights, rough, names, workers, fit_report["real"] if fit_report else None)
-    l2s = paper_l2s(cfg, gen_dir, rough)
-    res = {"roughness": roughness_dict(rough), "effects": list(EFFECTS), "fit": fit_report, "compare": cmp,
-           "paper_l2s": l2s}
+        law, fit_report["read_law"] = fit_read_law(cfg, gen_dir, flights, rough, workers)
+    cmp = compare(cfg, gen_dir, flights, rough, names, workers, fit_report["real"] if fit_report else None, law)
+    l2s = paper_l2s(cfg, gen_dir, rough, law=law)
+    res = {"roughness": roughness_dict(rough), "read_law": law, "effects": list(EFFECTS), "fit": fit_report,
+           "compare": cmp, "paper_l2s": l2s}
     atomic_write_bytes(out_dir / "calibration.json", json.dumps(res, indent=1, sort_keys=True).encode())
     md = ("# The simulator against the real flights\n\n" + roughness_table(cmp) + "\n\n## Replayed swaps\n\n"
           + sim_to_real_table(cmp) + "\n\n## The paper's L2S swap, the authors' controller, rough simulator\n\n"
-          + paper_l2s_table(l2s) + "\n")
+          + paper_l2s_table(l2s) + "\n\n## The z law read off the logs\n\n"
+          + read_law_table(law, fit_report["read_law"] if fit_report else None) + "\n")
     atomic_write_bytes(out_dir / "calibration.md", md.encode())
     return res

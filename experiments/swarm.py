@@ -65,11 +65,12 @@ def tuned(veh, tuning: dict | None) -> dict | None:
 
 
 def _fly(cfg, team, gen_dir, start, sp, duration, controller: str, tuning, measured, seed: int = 0,
-         learned: str = "fixed", rough: Roughness | None = None) -> dict:
+         learned: str = "fixed", rough: Roughness | None = None, law: dict | None = None) -> dict:
     """One flight of ``team``; ``controller`` (one of CONTROLLERS) on the ``measured``
     robots (indices), the others by BL (Mellinger) or the same controller; one of
-    AUTHORS_CONTROLLERS on every robot."""
-    from ns2host.sim.vehicle import vehicle
+    AUTHORS_CONTROLLERS on every robot (with ``law``: the z law read off the real logs,
+    vehicle.read_law_gains)."""
+    from ns2host.sim.vehicle import read_law_gains, vehicle
 
     n = len(team)
     learned = learned if controller in ("NN", "NN-default", "NN-authors") else None
@@ -79,20 +80,25 @@ def _fly(cfg, team, gen_dir, start, sp, duration, controller: str, tuning, measu
         ctrls = ["authors"] * n
     else:
         ctrls = ["mellinger" if controller == "Mellinger" and i in measured else "ns2" for i in range(n)]
+    authors = [read_law_gains(t, law) for t in team] if law is not None else None
     sw = CLoopSwarm(cfg, list(team), gen_dir, start, aero=True, learned=learned, gains=gains, controllers=ctrls,
-                    seed=seed, rough=rough)
+                    seed=seed, rough=rough, authors=authors)
     return sw.run(duration, sp)
 
 
 def run_swaps(cfg: Config, gen_dir, case: str, learned: str | None = None, swaps: int = 6, seed: int = 0,
-              controller: str | None = None, tuning: dict | None = None, rough: Roughness | None = None) -> dict:
+              controller: str | None = None, tuning: dict | None = None, rough: Roughness | None = None,
+              law: dict | None = None) -> dict:
     """The swap ``case``; ``controller`` (CONTROLLERS, AUTHORS_CONTROLLERS) or, for short, ``learned`` (None:
-    BL, "fixed"/"float": NN with default gains).  Worst z error of the bottom robot per
-    swap, its z error rms and motor-command noise."""
+    BL, "fixed"/"float": NN with default gains); ``law``: AUTHORS_CONTROLLERS fly the z
+    law read off the real logs (vehicle.read_law_gains).  Worst z error of the bottom
+    robot per swap, its z error rms and motor-command noise."""
     team = SWAP_CASES[case]
     heights = BOTTOM_M + SPACING_M * np.arange(len(team))
     sp, start = swap(len(team), heights, radius=0.4, duration=SWAP_S, rest=REST_S, seed=seed)
     period = SWAP_S + REST_S
+    if law is not None and controller not in AUTHORS_CONTROLLERS:
+        raise ValueError(f"law is flown by {AUTHORS_CONTROLLERS} only, not {controller!r}")
     if controller is None:
         from ns2host.sim.vehicle import vehicle
 
@@ -101,7 +107,7 @@ def run_swaps(cfg: Config, gen_dir, case: str, learned: str | None = None, swaps
         log = sw.run(swaps * period, sp)
     else:
         log = _fly(cfg, team, gen_dir, start, sp, swaps * period, controller, tuning, measured=[0], seed=seed,
-                   learned=learned or "fixed", rough=rough)
+                   learned=learned or "fixed", rough=rough, law=law)
     z_err = np.abs(log["truth_p"][:, 0, 2] - log["p_d"][:, 0, 2])
     worst = [float(z_err[(log["t"] >= k * period) & (log["t"] < (k + 1) * period)].max()) for k in range(swaps)]
     return {"worst_z_error_m": worst, "z_error_rms_m": float(np.sqrt((z_err ** 2).mean())),

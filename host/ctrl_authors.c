@@ -28,7 +28,7 @@ void ns2_authors_position(ns2_authors_t *a, ns2_ctrl_t *c, const ns2_ctrl_state_
         if (!isfinite(a->i_e[i])) {
             a->i_e[i] = 0.0f;
         }
-        f_d[i] = g->mass_kg * (sp->a[i] + g->kp[i] * e + g->kd[i] * e_v + g->ki[i] * a->i_e[i]) - fa[i];
+        f_d[i] = g->mass_kg * (sp->a[i] + g->kp[i] * e + g->kd[i] * e_v + g->ki[i] * a->i_e[i]) - g->k_fa * fa[i];
     }
     f_d[2] += g->mass_kg * (float)NS2_G_MPS2;
     ns2_ctrl_force(c, s, sp, f_d, dt);

@@ -5,8 +5,9 @@
  * crazyflie-firmware fork (Morgan, Subramanian, Chung, Hadaegh, IJRR 2016, sect. 7);
  * written here from its equation, not copied:
  *   e = p_d - p,  I = clamp(I + e dt, +-i_max)             (per axis)
- *   f_d = m (a_d + g e3 + Kp e + Kd (v_d - v) + Ki I) - f_a  (N, world frame)
- * with m the firmware's mass parameter (ctrlSJC.mass) and f_a the learned force.
+ *   f_d = m (a_d + g e3 + Kp e + Kd (v_d - v) + Ki I) - k_fa f_a  (N, world frame)
+ * with m the firmware's mass parameter (ctrlSJC.mass), f_a the learned force and
+ * k_fa = 1 as written.
  * f_d then goes to ns2_ctrl_force: the attitude loop, delay compensation and
  * mixing stay the project's (the collective thrust is f_d . R e3 where the
  * authors' is |f_d|; the two differ by under 1 % below 8 degrees of tilt).
@@ -25,6 +26,8 @@ typedef struct {
     float kd[3];            /* 1/s, ctrlSJC.Kpos_D */
     float ki[3];            /* 1/s^3, ctrlSJC.Kpos_I */
     float i_max;            /* m s, ctrlSJC.Kpos_I_limit */
+    float k_fa;             /* share of the learned force taken off: 1 the law as written; the
+                               law read off the real logs takes off less (host/sim/vehicle.py READ_LAW) */
 } ns2_authors_gains_t;
 
 typedef struct {

@@ -10,7 +10,7 @@ import pytest
 
 from ns2codegen.vehicle import vehicle
 from ns2host.sim.cloop import CLoopSwarm, hover_setpoints
-from ns2host.sim.vehicle import AUTHORS_GAINS, authors_gains
+from ns2host.sim.vehicle import AUTHORS_GAINS, authors_gains, read_law_gains
 
 
 def _bits(x) -> list[int]:
@@ -80,6 +80,19 @@ def test_authors_gains_by_robot():
         authors_gains("medium")
 
 
+def test_read_law_gains_replace_the_z_axis_only():
+    """The z law read off the logs (READ_LAW's form) replaces the authors' z gains, k_fa
+    and mass parameter; x, y and the attitude gains stay the type's."""
+    law = {"small": {"kp": 7.0, "kd": 2.5, "ki": 0.3, "k_fa": 0.6, "mass_kg": 0.031}}
+    g, a = read_law_gains("small", law), authors_gains("small")
+    assert g["kp"] == [*a["kp"][:2], 7.0] and g["kd"] == [*a["kd"][:2], 2.5] and g["ki"] == [*a["ki"][:2], 0.3]
+    assert g["k_fa"] == 0.6 and g["mass_kg"] == 0.031 and g["att"] == a["att"] and g["i_max"] == a["i_max"]
+    assert a["kp"][2] == 10.0 and "k_fa" not in a                 # the stored gains are untouched
+    assert set(read_law_gains("large")) >= {"kp", "kd", "ki", "k_fa", "mass_kg"}       # READ_LAW by default
+    with pytest.raises(KeyError):
+        read_law_gains("large", law)
+
+
 def test_authors_law_holds_the_steady_state_of_its_equation(cfg, exported):
     """Without the integral the law settles where the thrust k m_p (g + kp e) equals
     m g: e = (m / (k m_p) - 1) g / kp (e = p_d - p).  k, the plant's thrust per thrust
@@ -107,16 +120,17 @@ def test_authors_law_holds_the_steady_state_of_its_equation(cfg, exported):
 def test_a_given_prediction_is_flown_as_the_law_says(cfg, exported):
     """fa_given (a real flight's logged prediction, host/sim/replay.py): a given 0 g flies
     bit for bit as no learned force; a given c g is subtracted from the law's force, so
-    without the integral the robot settles where k (m (g + kp e) - c g0) = m g (k from
-    the 0 g run, as above), below the setpoint; the log records what was flown; a step
-    in the given signal is read at the next position tick."""
+    without the integral the robot settles where k (m (g + kp e) - k_fa c g0) = m g (k
+    from the 0 g run, as above), below the setpoint, for k_fa 1 (the law as written) and
+    0.5 (the law read off the real logs takes off part of the prediction); the log
+    records what was flown; a step in the given signal is read at the next position tick."""
     m = vehicle(cfg, "small").mass
     p0 = [[0.0, 0.0, 1.0]]
     gains = dict(authors_gains("small"), mass_kg=m, ki=[0.0] * 3)
 
-    def fly(fa_given, seconds=6.0):
-        sw = CLoopSwarm(cfg, ["small"], exported.gen_dir, p0, controllers=["authors"], authors=[gains], seed=1,
-                        fa_given=fa_given)
+    def fly(fa_given, seconds=6.0, k_fa=1.0):
+        sw = CLoopSwarm(cfg, ["small"], exported.gen_dir, p0, controllers=["authors"], seed=1,
+                        authors=[dict(gains, k_fa=k_fa)], fa_given=fa_given)
         return sw.run(seconds, hover_setpoints(p0), settle_s=0.5)
 
     none, zero = fly(None), fly(lambda t: np.zeros(1))
@@ -126,6 +140,9 @@ def test_a_given_prediction_is_flown_as_the_law_says(cfg, exported):
     given = fly(lambda t: np.full(1, c))
     e_pred = (m * 9.81 / k - m * 9.81 + c * 1e-3 * 9.81) / (m * 10.0)
     assert e_pred > 0.03 and _settled_z_error(given) == pytest.approx(e_pred, abs=0.004)
+    e_half = (m * 9.81 / k - m * 9.81 + 0.5 * c * 1e-3 * 9.81) / (m * 10.0)
+    assert _settled_z_error(fly(lambda t: np.full(1, c), k_fa=0.5)) == pytest.approx(e_half, abs=0.004)
+    assert e_pred - e_half > 0.03
     assert np.allclose(given["fa_hat"][:, 0, 2], c * 1e-3 * 9.81, rtol=1e-6)
     step = fly(lambda t: np.full(1, c if t >= 1.0 else 0.0), 2.0)["fa_hat"][:, 0, 2]
     t = np.arange(len(step)) / 100.0

@@ -140,8 +140,8 @@ def test_z_law_reads_the_law_that_made_the_motor_commands(cfg):
     ie = np.concatenate([[0.0], np.cumsum(0.5 * (e[1:] + e[:-1]) * 0.01)])
     fa_g = -3.0 * np.exp(-((t - 10.0) / 2.0) ** 2)            # a wake, predicted and flown
 
-    def flight(kp, kd, ki):
-        T = m * (fs.G + 0.2 - kp * e - kd * ev - ki * ie) - fa_g * 1e-3 * fs.G    # N, c = 0.2 m/s^2
+    def flight(kp, kd, ki, k_fa=1.0):
+        T = m * (fs.G + 0.2 - kp * e - kd * ev - ki * ie) - k_fa * fa_g * 1e-3 * fs.G    # N, c = 0.2 m/s^2
         f_g = T / 4.0 / fs.G * 1000.0
         vb = 3.7 / 4.2
         a2, a1, a0 = k[3], k[1] + k[4] * vb, k[0] + k[2] * vb - f_g             # psi_1 = f_g, per motor
@@ -162,13 +162,17 @@ def test_z_law_reads_the_law_that_made_the_motor_commands(cfg):
     law = fs.z_law(cfg, [fl])["small"]
     assert law["kp_per_s2"] == pytest.approx(10.0, abs=0.01) and law["kd_per_s"] == pytest.approx(5.0, abs=0.01)
     assert law["ki_per_s3"] == pytest.approx(3.0, abs=0.01) and law["r2"] > 0.999 and law["samples"] == len(t)
+    assert law["k_fa"] == pytest.approx(1.0, abs=0.01)
     assert law["z_error_mean_m"] == pytest.approx(e.mean(), abs=1e-4)
     soft = fs.z_law(cfg, [flight(4.0, 2.0, 0.0)])["small"]
     assert soft["kp_per_s2"] == pytest.approx(4.0, abs=0.01) and soft["kd_per_s"] == pytest.approx(2.0, abs=0.01)
     assert soft["ki_per_s3"] == pytest.approx(0.0, abs=0.01)
-    # the prediction flown is part of the law: left out, the wake reads as something else
+    half = fs.z_law(cfg, [flight(10.0, 5.0, 3.0, k_fa=0.5)])["small"]      # half the prediction taken off
+    assert half["k_fa"] == pytest.approx(0.5, abs=0.01) and half["kp_per_s2"] == pytest.approx(10.0, abs=0.01)
+    # the prediction flown is part of the law: not logged, the wake reads as something else
     fl.fa_onboard_g = None
-    assert fs.z_law(cfg, [fl])["small"]["r2"] < 0.99
+    unlogged = fs.z_law(cfg, [fl])["small"]
+    assert unlogged["r2"] < 0.99 and unlogged["k_fa"] is None
     fl.p[:, 0, 2] = 0.2                                      # on the ground: nothing to read
     assert fs.z_law(cfg, [fl]) == {}
     fl.p[:, 0, 2], fl.p_d[:, 0, 2] = 1.0 + e, np.nan        # no setpoint logged
@@ -282,8 +286,20 @@ def test_a_real_swap_measured_and_replayed(cfg, exported):
     print("z law real", zr, "replay", zs)
     for z in zs.values():
         assert 6.0 < z["kp_per_s2"] < 14.0 and 1.5 < z["ki_per_s3"] < 5.0 and z["r2"] > 0.5
+        assert 0.6 < z["k_fa"] < 1.6                        # the prediction flown taken off whole, as read
+    # a z law read off logs, flown: softer, no integral, half the prediction taken off; read so
+    law = {ty: {"kp": 5.0, "kd": 2.0, "ki": 0.0, "k_fa": 0.5, "mass_kg": m} for ty, m in (("small", 0.034),
+                                                                                       ("large", 0.067))}
+    zsoft = fs.z_law(cfg, [replay(cfg, pieces, exported.gen_dir, learned="logged", rough=Roughness(),
+                                  controller="authors", law=law)])
+    for ty, z in zsoft.items():
+        print("z law read off the soft law's replay", ty, z)
+        assert z["kp_per_s2"] < zs[ty]["kp_per_s2"] and z["ki_per_s3"] < 0.5 * zs[ty]["ki_per_s3"]
+        assert z["k_fa"] < 0.7 * zs[ty]["k_fa"]
     with pytest.raises(ValueError, match="authors"):
         replay(cfg, pieces, exported.gen_dir, learned="logged")
+    with pytest.raises(ValueError, match="authors"):
+        replay(cfg, pieces, exported.gen_dir, law=law)
 
 
 def test_sim_to_real_and_paper_tables():
@@ -326,3 +342,32 @@ def test_roughness_table_rows_of_the_wake_and_the_swaps():
     assert ("| wake's lateral push per unit r / sigma read off the labels (aero.py K_XY, the truth's 0.15), "
             "all robots | -0.080 | - | 0.040 | -0.50 |") in rows
     assert all(r.count("|") == rows[0].count("|") for r in rows)
+
+
+def test_read_law_step_and_table():
+    """fit_read_law's step: a gain the replay reads 20 % high is scaled down by it, a
+    reading of ~0 leaves the gain, none goes below 0; a replay 1 cm under the real mean
+    z error raises the mass parameter by 1 cm x m Kp / g; the table prints the law and
+    each iteration against the real reading."""
+    from ns2exp.calibrate import law_step
+    from ns2host.sim.calibration import read_law_table
+
+    law = {"small": {"kp": 7.0, "kd": 2.0, "ki": 0.3, "k_fa": 0.7, "mass_kg": 0.034}}
+    real = {"small": {"kp_per_s2": 7.0, "kd_per_s": 2.0, "ki_per_s3": 0.3, "k_fa": 0.7, "z_error_mean_m": 0.008}}
+    read = {"small": {"kp_per_s2": 8.4, "kd_per_s": 2.0, "ki_per_s3": 0.0, "k_fa": 1.4, "z_error_mean_m": -0.002}}
+    new = law_step(law, real, read)["small"]
+    assert new["kp"] == pytest.approx(7.0 / 1.2, abs=1e-4) and new["kd"] == 2.0 and new["ki"] == 0.3
+    assert new["k_fa"] == pytest.approx(0.35, abs=1e-4)
+    assert new["mass_kg"] == pytest.approx(0.034 + 0.01 * 0.034 * 7.0 / 9.81, abs=2e-6)
+    assert law["small"]["kp"] == 7.0                                   # the law given is left as it was
+    # with the step before: the mass parameter by the secant (0.5 g heavier read 0.5 cm higher)
+    prev = ({"small": dict(law["small"], mass_kg=0.0335)}, {"small": dict(read["small"], z_error_mean_m=-0.007)})
+    assert law_step(law, real, read, prev)["small"]["mass_kg"] == pytest.approx(0.035, abs=2e-6)
+    prev[1]["small"]["z_error_mean_m"] = 0.003                          # a slope of the wrong sign: not used
+    assert law_step(law, real, read, prev)["small"]["mass_kg"] == pytest.approx(new["mass_kg"], abs=2e-6)
+    rows = [{"flights": ["swap_ss/00"], "real": real},
+            {"iteration": 0, "law": law, "read": read, "miss": 1.0}]
+    t = read_law_table(law, rows).splitlines()
+    assert t[2] == "| small | 7.00 | 2.00 | 0.30 | 0.70 | 34.0 |"
+    assert t[-1] == "| 0 | small | 7.00 / 2.00 / 0.30 / 0.70 / 0.80 | 8.40 / 2.00 / 0.00 / 1.40 / -0.20 | 1.000 |"
+    assert len(read_law_table(law).splitlines()) == 3

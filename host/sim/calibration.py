@@ -197,7 +197,7 @@ def roughness_table(cmp: dict, judged: str = "rough") -> str:
     for st in ("kp_per_s2", "kd_per_s", "r2"):
         row(f"free air, z loop identified (all types): {st}", ("z_loop", "fit", st))
     for ty in sorted(real.get("z_law", {})):
-        for st in ("kp_per_s2", "kd_per_s", "ki_per_s3", "r2", "z_error_mean_m"):
+        for st in ("kp_per_s2", "kd_per_s", "ki_per_s3", "k_fa", "r2", "z_error_mean_m"):
             row(f"swap flights, z law read off every robot, {ty}: {st}", ("z_law", ty, st), 4 if st.startswith("z") else 3)
     for pair in sorted(real["wake_scatter"]):
         for st in ("scatter_g", "fast_scatter_g", "mean_abs_g"):
@@ -250,6 +250,30 @@ def sim_to_real_table(cmp: dict) -> str:
             cells.append(f"{100 * x:.1f} ({_ratio(x, rv)}{'*' if ok else ''})")
         lines.append(f"| {case} | {r['swaps']} | {100 * rv:.1f} | " + " | ".join(cells) + " |")
     lines.append("| within 30 % (*) | | | " + " | ".join(f"{within[v]} of {len(cases)}" for v in sims) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def read_law_table(law: dict, fit_rows: list | None = None) -> str:
+    """The z law read off the logs (vehicle.READ_LAW's form) and, if given, its fit
+    (experiments/calibrate.py fit_read_law): per iteration and type, what the replay
+    read (Kp, Kd, Ki, k_fa, the z error's mean) against the real reading."""
+    lines = ["| type | Kp (1/s^2) | Kd (1/s) | Ki (1/s^3) | k_fa | mass parameter (g) |", "|---|---|---|---|---|---|"]
+    for ty, zl in sorted(law.items()):
+        lines.append(f"| {ty} | {zl['kp']:.2f} | {zl['kd']:.2f} | {zl['ki']:.2f} | {zl['k_fa']:.2f} | "
+                     f"{1000 * zl['mass_kg']:.1f} |")
+    if fit_rows:
+        head, rows = fit_rows[0], fit_rows[1:]
+        lines += ["", f"Read off the real flights {', '.join(head['flights'])} and their replays "
+                      "(Kp / Kd / Ki / k_fa / mean z error cm):", "",
+                  "| iteration | type | real | replay | largest miss |", "|---|---|---|---|---|"]
+
+        def cells(z):
+            return (f"{z['kp_per_s2']:.2f} / {z['kd_per_s']:.2f} / {z['ki_per_s3']:.2f} / {_cell(z['k_fa'], 2)} / "
+                    f"{100 * z['z_error_mean_m']:.2f}")
+        for r in rows:
+            for ty in sorted(r["read"]):
+                lines.append(f"| {r['iteration']} | {ty} | {cells(head['real'][ty])} | {cells(r['read'][ty])} | "
+                             f"{r['miss']:.3f} |")
     return "\n".join(lines) + "\n"
 
 

@@ -117,7 +117,7 @@ class CLoopSwarm:
             a = (((authors[i] if authors is not None else None) or authors_gains(types[i]))
                  if controllers[i] == "authors" else None)
             if a is not None:
-                it.authors.mass_kg, it.authors.i_max = a["mass_kg"], a["i_max"]
+                it.authors.mass_kg, it.authors.i_max, it.authors.k_fa = a["mass_kg"], a["i_max"], a.get("k_fa", 1.0)
                 it.authors.kp, it.authors.kd, it.authors.ki = list(a["kp"]), list(a["kd"]), list(a["ki"])
             it.id, it.type = i + 1, int(self.type_idx[i])
             it.par, it.psi1, it.p0 = list(self.dyn.par[i]), list(np.asarray(veh.psi1) * thrust[i]), list(self.state.p[i])

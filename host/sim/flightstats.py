@@ -21,8 +21,8 @@ z_loop        the z tracking of a robot with no neighbour near: the error's mean
               standard deviation per type, and the closed loop's stiffness identified
               from it (the commanded vertical force against the z and v_z errors)
 z_law         the position law that flew, read off every robot of a flight (the
-              commanded vertical force plus the prediction flown against the z error,
-              its rate and its integral): the same flights real and replayed
+              commanded vertical force against the z error, its rate, its integral
+              and the prediction flown): the same flights real and replayed
 swap_errors   the worst z error of the bottom robot of each swap (the paper's metric,
               Fig. swap): per scenario, the median over swaps
 swap_attitude the bottom robot's largest tilt and horizontal error in each swap: per
@@ -258,16 +258,12 @@ def setpoint_derivatives(t: np.ndarray, p_d: np.ndarray) -> tuple[np.ndarray, np
     return v, np.gradient(moving_average(v, NOISE_WINDOW), t, axis=0)
 
 
-def commanded_acc_z(cfg: Config, fl: Flight, i: int, w: slice, a_d_z: np.ndarray,
-                    fa_g: np.ndarray | None = None) -> np.ndarray:
+def commanded_acc_z(cfg: Config, fl: Flight, i: int, w: slice, a_d_z: np.ndarray) -> np.ndarray:
     """Robot i's commanded vertical acceleration over ``w`` (m/s^2): psi_1 of the logged
     PWM (before the motors' delay) along the body z axis per unit of the type's mass,
-    plus the prediction flown ``fa_g`` (g) per unit mass if given, minus g and the
-    setpoint's a_z (``a_d_z``, over ``w``)."""
+    minus g and the setpoint's a_z (``a_d_z``, over ``w``)."""
     veh = cfg.vehicle(fl.types[i])
     f = psi1_newtons(veh["psi1"], fl.pwm[w, i], fl.battery_V[w, i]).sum(axis=1) * quat_to_R(fl.q[w, i])[:, 2, 2]
-    if fa_g is not None:
-        f = f + fa_g * 1e-3 * G
     return f / (veh["mass_g"] / 1000.0) - G - a_d_z
 
 
@@ -323,14 +319,15 @@ Z_LAW_MIN_Z_M = 0.3      # m: z_law reads robots in flight (above the ground's t
 def z_law(cfg: Config, flights: list[Flight]) -> dict:
     """The z position law that flew, per type, read off every robot above Z_LAW_MIN_Z_M
     while its setpoint is logged, neighbours or not (the same flights real and
-    replayed): least squares of psi_1(PWM) b3_z / m - g - a_d,z + f_a,z-hat / m (the
-    commanded vertical acceleration before the prediction flown was taken off; m the
-    type's mass, f_a,z-hat the logged ``fa_onboard_g``, 0 where not logged)
-    = -(Kp e + Kd e_v + Ki int e) + c, e = z - z_d, e_v = v_z - v_d,z, int e from the
-    start of each stretch of logged setpoint (c takes the integral's start).  The
-    controller that flew is f_d = m (a_d + g e3 - Kp e - Kd e_v - Ki int e) - f_a-hat
-    (host/ctrl_authors.c); a stiffer or softer law, an integral or none read as such.
-    Also the z error's mean (m) over those samples."""
+    replayed): least squares of psi_1(PWM) b3_z / m - g - a_d,z (the commanded vertical
+    acceleration; m the type's mass) = -(Kp e + Kd e_v + Ki int e) - k_fa f_a,z-hat / m
+    + c, e = z - z_d, e_v = v_z - v_d,z, int e from the start of each stretch of logged
+    setpoint (c takes the integral's start), f_a,z-hat the logged ``fa_onboard_g``
+    (0 where not logged).  The controller that flew is f_d = m (a_d + g e3 - Kp e - Kd
+    e_v - Ki int e) - k_fa f_a-hat (host/ctrl_authors.c; k_fa = 1: the prediction
+    taken off whole); a stiffer or softer law, an integral or none, a prediction taken
+    off in part read as such (k_fa None where a type never logged a prediction).  Also
+    the z error's mean (m) over those samples."""
     rows: dict = {}
     for fl in flights:
         if fl.p_d is None or len(fl.t) < 2 * NOISE_WINDOW:
@@ -344,11 +341,12 @@ def z_law(cfg: Config, flights: list[Flight]) -> dict:
                     continue
                 w = slice(a, b)
                 v_d, a_d = setpoint_derivatives(fl.t[w], fl.p_d[w, i])
-                fa = None if fl.fa_onboard_g is None else np.nan_to_num(fl.fa_onboard_g[w, i])
-                y = commanded_acc_z(cfg, fl, i, w, a_d[:, 2], fa)
+                fa = (np.zeros(b - a) if fl.fa_onboard_g is None else np.nan_to_num(fl.fa_onboard_g[w, i])
+                      * (1e-3 * G / (cfg.vehicle(ty)["mass_g"] / 1000.0)))       # m/s^2
+                y = commanded_acc_z(cfg, fl, i, w, a_d[:, 2])
                 e = fl.p[w, i, 2] - fl.p_d[w, i, 2]
                 ie = np.concatenate([[0.0], np.cumsum(0.5 * (e[1:] + e[:-1]) * np.diff(fl.t[w]))])
-                X = np.column_stack([e, fl.v[w, i, 2] - v_d[:, 2], ie, np.ones(b - a)])
+                X = np.column_stack([e, fl.v[w, i, 2] - v_d[:, 2], ie, fa, np.ones(b - a)])
                 ok = (fl.p[w, i, 2] > Z_LAW_MIN_Z_M) & np.isfinite(X).all(axis=1) & np.isfinite(y)
                 r = rows.setdefault(ty, {"X": [], "y": []})
                 r["X"].append(X[ok])
@@ -358,8 +356,10 @@ def z_law(cfg: Config, flights: list[Flight]) -> dict:
         X, y = np.concatenate(r["X"]), np.concatenate(r["y"])
         if len(y) < 10:
             continue
-        c, r2 = least_squares(X, y)
+        flown = bool(np.any(X[:, 3] != 0.0))
+        c, r2 = least_squares(X if flown else np.delete(X, 3, axis=1), y)
         out[ty] = {"kp_per_s2": _r(-c[0]), "kd_per_s": _r(-c[1]), "ki_per_s3": _r(-c[2]),
+                   "k_fa": _r(-c[3]) if flown else None,
                    "r2": _r(r2), "z_error_mean_m": _r(X[:, 0].mean(), 4),
                    "samples": int(len(y))}
     return out

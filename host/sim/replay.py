@@ -23,7 +23,7 @@ from ns2codegen.data.from_logs import Flight
 from .cloop import CLoopSwarm, Setpoints
 from .flightstats import setpoint_derivatives
 from .roughness import Roughness
-from .vehicle import G, authors_gains
+from .vehicle import G, authors_gains, read_law_gains
 
 
 def pieces_by_flight(flights: list[Flight]) -> dict[str, list[Flight]]:
@@ -91,13 +91,16 @@ def logged_prediction(pieces: list[Flight]):
 
 
 def replay(cfg: Config, pieces: list[Flight], gen_dir, learned: str | None = "float",
-           rough: Roughness | None = None, seed: int = 0, controller: str = "ns2") -> Flight:
+           rough: Roughness | None = None, seed: int = 0, controller: str = "ns2",
+           law: dict | None = None) -> Flight:
     """Fly one real flight's setpoints with its team in the simulator; the drones'
     log as a Flight (time as the real flight's, estimated states, setpoints).
     controller: "ns2" (the project's) or "authors" (the one that flew it, each robot
     with its own gains: vehicle.authors_gains); learned: cloop.CLoopSwarm's, or
     "logged": the "authors" robots fly the prediction the real robots flew
-    (logged_prediction), not a network of ``gen_dir``."""
+    (logged_prediction), not a network of ``gen_dir``; law: with controller "authors",
+    every robot flies the z law read off the real logs (vehicle.read_law_gains; READ_LAW's
+    form) instead of its stored gains."""
     if controller not in ("ns2", "authors"):
         raise ValueError(f"controller must be 'ns2' or 'authors', got {controller!r}")
     if learned == "logged" and controller != "authors":
@@ -105,7 +108,10 @@ def replay(cfg: Config, pieces: list[Flight], gen_dir, learned: str | None = "fl
     sp, start, t0, duration = logged_setpoints(pieces)
     types = list(pieces[0].types)
     robots = pieces[0].robots or [None] * len(types)
-    authors = [authors_gains(t, r) for t, r in zip(types, robots)] if controller == "authors" else None
+    if law is not None and controller != "authors":
+        raise ValueError("law is flown by controller='authors' only")
+    authors = (None if controller != "authors" else [read_law_gains(t, law) for t in types] if law is not None
+               else [authors_gains(t, r) for t, r in zip(types, robots)])
     given = logged_prediction(pieces) if learned == "logged" else None
     sw = CLoopSwarm(cfg, types, gen_dir, start, aero=True, learned=None if given is not None else learned, seed=seed,
                     rough=rough, controllers=[controller] * len(types), authors=authors, fa_given=given)
