@@ -371,3 +371,16 @@ def test_read_law_step_and_table():
     assert t[2] == "| small | 7.00 | 2.00 | 0.30 | 0.70 | 34.0 |"
     assert t[-1] == "| 0 | small | 7.00 / 2.00 / 0.30 / 0.70 / 0.80 | 8.40 / 2.00 / 0.00 / 1.40 / -0.20 | 1.000 |"
     assert len(read_law_table(law).splitlines()) == 3
+
+
+def test_moving_average_of_any_length():
+    """The centred moving average is the mean over the partial window at the edges, for a
+    series shorter than the window too (a real flight piece of 20 samples under the 21 of
+    HP_WINDOW once crashed make calibrate)."""
+    rng = np.random.default_rng(0)
+    for n_samples in (1, 5, 20, 21, 60):
+        x = rng.normal(size=(n_samples, 3))
+        for n in (11, 21):
+            ref = np.array([x[max(0, i - n // 2):i + n // 2 + 1].mean(axis=0) for i in range(n_samples)])
+            assert fs.moving_average(x, n).shape == x.shape
+            np.testing.assert_allclose(fs.moving_average(x, n), ref, rtol=1e-12, atol=1e-12)

@@ -54,12 +54,17 @@ SWAP_MIN_SPEED = 0.02     # m/s: the bottom robot's setpoint moves horizontally 
 
 
 def moving_average(x: np.ndarray, n: int) -> np.ndarray:
-    """Centred moving average of n samples along axis 0 (edges: the partial window)."""
+    """Centred moving average of n samples along axis 0 (edges: the partial window; a
+    series shorter than the window too)."""
     k = np.ones(n)
     x = np.asarray(x, float)
     flat = x.reshape(len(x), -1)
-    num = np.stack([np.convolve(c, k, mode="same") for c in flat.T], axis=1)
-    den = np.convolve(np.ones(len(x)), k, mode="same")[:, None]
+    s = (n - 1) // 2                   # np.convolve's "same" centring, for any length
+
+    def conv(c):
+        return np.convolve(c, k, mode="full")[s:s + len(x)]
+    num = np.stack([conv(c) for c in flat.T], axis=1)
+    den = conv(np.ones(len(x)))[:, None]
     return (num / den).reshape(x.shape)
 
 
