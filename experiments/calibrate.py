@@ -7,10 +7,14 @@
    part of the residual rises with the accelerometer's noise, the motor-command
    noise with the gyro's, each in quadrature), wake turbulence (replays of the pair
    swaps with the other effects on: the real scatter under a neighbour beyond the
-   simulator's, per unit of the wake's force; tau from its fast share);
+   simulator's, per unit of the wake's force; tau from its fast share); and the z
+   law that flew (fit_read_law: the authors' law with the gains, the share of the
+   prediction taken off and the mass parameter with which replays read back what the
+   real swaps read, flightstats.z_law);
 3. replay the real swap flights in the clean and the rough simulator (VARIANTS:
-   the project's controller or the authors', the authors' published network in the
-   loop or the prediction the real robots logged; host/sim/replay.py) and compare
+   the project's controller or the authors', with its stored gains or the z law read
+   off the logs, the authors' published network in the loop or the prediction the
+   real robots logged; host/sim/replay.py) and compare
    every statistic of step 1, with the truth's lateral constant read off the labels
    on both sides (lateral_k_xy): the calibration table and the sim-to-real swap table.
 No swap or ring result of the paper is a fitting target."""
