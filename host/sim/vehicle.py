@@ -54,9 +54,10 @@ def authors_gains(robot_type: str, robot: str | None = None) -> dict:
 # replays of the real swaps read back (host/sim/flightstats.py z_law) what the real
 # flights read, and their mean z error.  Not a configuration anyone wrote: what the
 # logs say flew (softer than crazyflieTypes.yaml, no integral to speak of, the small
-# robots taking off about half their prediction).  The values make calibrate fitted.
-READ_LAW = {"small": {"kp": 7.25, "kd": 2.63, "ki": 0.37, "k_fa": 0.7, "mass_kg": 0.034},
-            "large": {"kp": 8.83, "kd": 3.33, "ki": 0.51, "k_fa": 0.92, "mass_kg": 0.067}}
+# robots taking off about a third of their prediction).  The values make calibrate
+# fitted (docs/simulator.md).
+READ_LAW = {"small": {"kp": 7.9187, "kd": 2.4986, "ki": 0.378, "k_fa": 0.36, "mass_kg": 0.031884},
+            "large": {"kp": 9.1304, "kd": 2.8212, "ki": 0.5057, "k_fa": 1.0107, "mass_kg": 0.070265}}
 
 
 def read_law_gains(robot_type: str, law: dict | None = None) -> dict:
