@@ -125,7 +125,7 @@ def sim_calibrate(logs_dir, data_dir, gen_dir, out_dir, per_scenario, refit, wor
 
     from ns2codegen.config import Config
     from ns2codegen.logs.align import logs_to_flights
-    from ns2exp.calibrate import calibrate, swap_flights
+    from ns2exp.calibrate import calibrate, first_per_folder, swap_flights
     from ns2host.sim.replay import pieces_by_flight
     from ns2host.sim.roughness import Roughness
 
@@ -142,8 +142,7 @@ def sim_calibrate(logs_dir, data_dir, gen_dir, out_dir, per_scenario, refit, wor
         raise click.ClickException(f"{data_dir / 'data_report.json'}: no hover.by_robot ({e})") from e
     names = None
     if per_scenario is not None:
-        by = sorted(pieces_by_flight(swap_flights(flights)))
-        names = [n for n in by if [m for m in by if m.split("/")[0] == n.split("/")[0]].index(n) < per_scenario]
+        names = first_per_folder(pieces_by_flight(swap_flights(flights)), per_scenario)
     res = calibrate(cfg, gen_dir, flights, hover, type_of, out_dir, workers=workers, names=names,
                     rough=None if refit else Roughness())
     _emit(as_json, res, (Path(out_dir) / "calibration.md").read_text())

@@ -131,14 +131,18 @@ def _replay_one(args) -> Flight:
     return replay(cfg, pcs, gen_dir, learned=learned, rough=rough, seed=seed, controller=controller, law=law)
 
 
+def first_per_folder(names, n: int, folders=None) -> list[str]:
+    """The first ``n`` flight names (by name) of each folder (a name is "folder/piece"),
+    of every folder or of ``folders``, in order of folder."""
+    names = sorted(names)
+    folders = sorted({m.split("/")[0] for m in names}) if folders is None else folders
+    return [m for f in folders for m in [m for m in names if m.split("/")[0] == f][:n]]
+
+
 def fit_pieces(flights: list[Flight]) -> dict:
     """The pair swap flights the turbulence fit replays: FIT_FLIGHTS_PER_PAIR per pair."""
     by = pieces_by_flight(swap_flights(flights))
-    out = {}
-    for sc in PAIR_SWAPS:
-        for n in sorted(n for n in by if n.split("/")[0] == sc)[:FIT_FLIGHTS_PER_PAIR]:
-            out[n] = by[n]
-    return out
+    return {n: by[n] for n in first_per_folder(by, FIT_FLIGHTS_PER_PAIR, PAIR_SWAPS)}
 
 
 def fit_turbulence(cfg: Config, gen_dir, flights: list[Flight], base: Roughness, workers: int = 1) -> tuple[float, float, dict]:
@@ -206,8 +210,7 @@ def read_law_pieces(flights: list[Flight]) -> dict:
     """The swap flights the z law's fit replays: READ_LAW_FLIGHTS_PER_FOLDER per swap
     folder (the first ones by name)."""
     by = pieces_by_flight(swap_flights(flights))
-    folders = sorted({n.split("/")[0] for n in by})
-    return {n: by[n] for f in folders for n in sorted(m for m in by if m.split("/")[0] == f)[:READ_LAW_FLIGHTS_PER_FOLDER]}
+    return {n: by[n] for n in first_per_folder(by, READ_LAW_FLIGHTS_PER_FOLDER)}
 
 
 def law_step(law: dict, real: dict, read: dict, before: tuple[dict, dict] | None = None) -> dict:

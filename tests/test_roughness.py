@@ -384,3 +384,14 @@ def test_moving_average_of_any_length():
             ref = np.array([x[max(0, i - n // 2):i + n // 2 + 1].mean(axis=0) for i in range(n_samples)])
             assert fs.moving_average(x, n).shape == x.shape
             np.testing.assert_allclose(fs.moving_average(x, n), ref, rtol=1e-12, atol=1e-12)
+
+
+def test_first_per_folder():
+    """The flights make calibrate, the z law's fit and the turbulence fit replay: the
+    first n names of each folder, by name, in order of folder."""
+    from ns2exp.calibrate import first_per_folder
+
+    names = ["swap_sl/02", "swap_ll/01", "swap_sl/00", "swap_ll/00", "swap_ss/00", "swap_sl/01"]
+    assert first_per_folder(names, 2) == ["swap_ll/00", "swap_ll/01", "swap_sl/00", "swap_sl/01", "swap_ss/00"]
+    assert first_per_folder(names, 1, ("swap_sl", "swap_ll")) == ["swap_sl/00", "swap_ll/00"]
+    assert first_per_folder(names, 5) == sorted(names)

@@ -110,8 +110,12 @@ def replay(cfg: Config, pieces: list[Flight], gen_dir, learned: str | None = "fl
     robots = pieces[0].robots or [None] * len(types)
     if law is not None and controller != "authors":
         raise ValueError("law is flown by controller='authors' only")
-    authors = (None if controller != "authors" else [read_law_gains(t, law) for t in types] if law is not None
-               else [authors_gains(t, r) for t, r in zip(types, robots)])
+    if controller != "authors":
+        authors = None
+    elif law is not None:
+        authors = [read_law_gains(t, law) for t in types]
+    else:
+        authors = [authors_gains(t, r) for t, r in zip(types, robots)]
     given = logged_prediction(pieces) if learned == "logged" else None
     sw = CLoopSwarm(cfg, types, gen_dir, start, aero=True, learned=None if given is not None else learned, seed=seed,
                     rough=rough, controllers=[controller] * len(types), authors=authors, fa_given=given)
