@@ -368,6 +368,14 @@ def calibration_wave(cases: list, seeds, plans: int, done: dict) -> list:
     return wave
 
 
+def _outcomes(tasks: list, done: list) -> dict:
+    """case (scenario, dims) -> [(seed, planned)] of the flown ``tasks`` (fly_plans' results ``done``)."""
+    out: dict = {}
+    for (name, d, s), res in zip(tasks, done):
+        out.setdefault((name, d), []).append((s, res[1] is not None))
+    return out
+
+
 def calibrated_margin(cfg: Config, fm: ForceModel, checkpoint, gen_dir, held_out: list, scenarios, dims,
                       seeds=CALIBRATION_SEEDS, plans: int = CALIBRATION_PLANS, rounds: int = CALIBRATION_ROUNDS,
                       rrt: RRTParams = RRTParams(), scp_params: SCPParams = SCPParams(), workers: int = 2, log=print,
@@ -397,11 +405,9 @@ def calibrated_margin(cfg: Config, fm: ForceModel, checkpoint, gen_dir, held_out
         for r in range(rounds):
             m = rep["margin_g"]
             log(f"margin calibration round {r}: {plans} NN plans per case of seeds {list(seeds)} with margin {m}")
-            tasks, done, tried = [], [], {}
-            while wave := calibration_wave(cases, seeds, plans, tried):
+            tasks, done = [], []
+            while wave := calibration_wave(cases, seeds, plans, _outcomes(tasks, done)):
                 flown = fly_plans(fm, checkpoint, gen_dir, wave, m, rrt, scp_params, workers, pool)
-                for (name, d, s), res in zip(wave, flown):
-                    tried.setdefault((name, d), []).append((s, res[1] is not None))
                 log("  " + ", ".join(f"{d}D {name} seed {s}: {'planned' if res[1] is not None else 'no plan'}"
                                      for (name, d, s), res in zip(wave, flown)))
                 tasks += wave

@@ -520,6 +520,9 @@ def test_calibration_plans_every_case_from_further_seeds_when_its_first_find_no_
                                {("SL", 2): [(1000, True), (1001, True)], ("SLL", 2): [(1000, False), (1001, True)]}
                                ) == [("SLL", 2, 1002)]
     assert ex.calibration_wave([("SLL", 2)], range(1000, 1002), 2, {("SLL", 2): [(1000, False), (1001, False)]}) == []
+    assert ex._outcomes([("SL", 2, 1000), ("SLL", 2, 1000), ("SLL", 2, 1001)], [(None, object(), None),
+                        (None, None, None), (None, object(), None)]) == {
+        ("SL", 2): [(1000, True)], ("SLL", 2): [(1000, False), (1001, True)]}
 
     P = np.tile(np.array([[0.0, 0.0, 1.0], [0.0, 0.0, 1.6]]), (4, 1, 1))
     held = [_flight(P, np.zeros_like(P), np.array([[-4.0, 0.0]] * 4))]
