@@ -5,7 +5,9 @@
    battery (the logged voltage), thrust scatter (the robots' hover thrust within a
    type), IMU vibration (one free-air probe flight per type and parameter: the fast
    part of the residual rises with the accelerometer's noise, the motor-command
-   noise with the gyro's, each in quadrature), wake turbulence (replays of the pair
+   noise with the gyro's, each in quadrature), the wake's profile (fit_wake: the
+   truth at the logged states of robots under a neighbour against their labels, no
+   replay), wake turbulence (replays of the pair
    swaps with the other effects on: the real scatter under a neighbour beyond the
    simulator's, per unit of the wake's force; tau from its fast share); and the z
    law that flew (fit_read_law: the authors' law with the gains, the share of the
@@ -206,6 +208,109 @@ def lateral_k_xy(cfg: Config, flights: list[Flight]) -> dict:
                                    for key, a in sorted(num.items())}}
 
 
+WAKE_FIT_EVERY = 8            # every 8th labelled step of the swap flights for the wake's fit
+WAKE_FIT_MIN_Z_M = 0.3        # m: above the ground effect (a calibration of its own)
+WAKE_PROFILE_R_M = (0.0, 0.05, 0.10, 0.15, 0.22, 0.30)   # offset bins of the wake profile table (m)
+
+
+def wake_samples(cfg: Config, flights: list[Flight], every: int = WAKE_FIT_EVERY) -> dict:
+    """Every robot of ``flights`` under a neighbour (flightstats.WAKE's gap and
+    horizontal range, the nearest such neighbour by gap) above WAKE_FIT_MIN_Z_M, every
+    ``every``-th labelled step: per team (types) the logged states P, V [K, N, 3], the
+    robot i [K], its real label f_a,z (g), the pair ("small under large") and the
+    horizontal offset r (m)."""
+    from ns2codegen.data.from_logs import labelled_steps
+
+    w = fs.WAKE
+    out: dict = {}
+    for fl, i, steps, fa in labelled_steps(cfg, flights):
+        d = fl.p[steps] - fl.p[steps, i][:, None, :]
+        r = np.hypot(d[..., 0], d[..., 1])
+        under = (d[..., 2] >= w["gap_m"][0]) & (d[..., 2] <= w["gap_m"][1]) & (r <= w["max_horizontal_m"])
+        under[:, i] = False
+        ok = under.any(1) & (fl.p[steps, i, 2] > WAKE_FIT_MIN_Z_M) & np.isfinite(fa[steps, 2])
+        ok &= np.arange(len(steps)) % every == 0
+        if not ok.any():
+            continue
+        j = np.argmin(np.where(under, d[..., 2], np.inf), axis=1)[ok]
+        k = steps[ok]
+        t = out.setdefault(tuple(fl.types), {"P": [], "V": [], "i": [], "label_g": [], "pair": [], "r_m": []})
+        t["P"].append(fl.p[k])
+        t["V"].append(fl.v[k])
+        t["i"].append(np.full(len(k), i))
+        t["label_g"].append(fa[k, 2] * 1e3 / G)
+        t["pair"] += [f"{fl.types[i]} under {fl.types[jj]}" for jj in j]
+        t["r_m"].append(r[ok][np.arange(len(j)), j])
+    return {types: {key: (np.concatenate(v) if key != "pair" else np.array(v)) for key, v in t.items()}
+            for types, t in sorted(out.items())}
+
+
+def wake_truth_g(cfg: Config, samples: dict, sigma0_scale: float = 1.0, spread_scale: float = 1.0) -> np.ndarray:
+    """The ground truth's f_a,z (g) at every sample of wake_samples (teams in order),
+    with the wake's profile scaled (aero.calibrated)."""
+    from ns2host.sim.aero import calibrated, forces_of_snapshots
+    from ns2host.sim.vehicle import vehicle
+
+    small = vehicle(cfg, cfg.robot_types[0])
+    out = []
+    for types, t in samples.items():
+        vs = [vehicle(cfg, ty) for ty in types]
+        f = forces_of_snapshots(lambda k: calibrated(vs * k, small, sigma0_scale=sigma0_scale,
+                                                     spread_scale=spread_scale), t["P"], t["V"])
+        out.append(f[np.arange(len(t["i"])), t["i"], 2] * 1e3 / G)
+    return np.concatenate(out) if out else np.zeros(0)
+
+
+def wake_profile(samples: dict, truths: dict) -> dict:
+    """Per pair and bin of horizontal offset (WAKE_PROFILE_R_M): the samples, the real
+    labels' mean and each truth's mean (g) at the same states (``truths``: label ->
+    wake_truth_g)."""
+    pair = np.concatenate([t["pair"] for t in samples.values()])
+    r = np.concatenate([t["r_m"] for t in samples.values()])
+    lab = np.concatenate([t["label_g"] for t in samples.values()])
+    out: dict = {}
+    for p in sorted(set(pair)):
+        for lo, hi in zip(WAKE_PROFILE_R_M[:-1], WAKE_PROFILE_R_M[1:]):
+            m = (pair == p) & (r >= lo) & (r < hi)
+            if m.any():
+                out.setdefault(p, []).append({"r_m": [lo, hi], "samples": int(m.sum()), "real_g": fs._r(lab[m].mean()),
+                                              **{k: fs._r(v[m].mean()) for k, v in truths.items()}})
+    return out
+
+
+def fit_wake_scales(cfg: Config, samples: dict) -> tuple[float, float]:
+    """(sigma0_scale, spread_scale), 3 decimals, minimizing the rms of label - truth over
+    ``samples`` (wake_samples' form): Nelder-Mead on the logarithms from (1, 1)."""
+    from scipy.optimize import minimize
+
+    lab = np.concatenate([t["label_g"] for t in samples.values()])
+    rms = lambda x: float(np.sqrt(np.mean((wake_truth_g(cfg, samples, *np.exp(x)) - lab) ** 2)))  # noqa: E731
+    res = minimize(rms, np.zeros(2), method="Nelder-Mead", options={"xatol": 0.005, "fatol": 1e-4})
+    s0, sp = (round(float(v), 3) for v in np.exp(res.x))
+    return s0, sp
+
+
+def fit_wake(cfg: Config, flights: list[Flight]) -> tuple[float, float, dict]:
+    """The wake's profile read off the real flights (roughness.py "wake"): the scales
+    of the truth's initial jet width and spreading rate that minimize the rms of real
+    label - truth at the logged states of every robot under a neighbour in the swap
+    flights (wake_samples; Nelder-Mead on the logarithms from the paper's wake, no
+    controller and no replay).  Returns the two scales (3 decimals) and the report:
+    samples, rms before and after, per pair and the profile by offset."""
+    samples = wake_samples(cfg, swap_flights(flights))
+    lab = np.concatenate([t["label_g"] for t in samples.values()])
+    s0, sp = fit_wake_scales(cfg, samples)
+    paper, fitted = wake_truth_g(cfg, samples), wake_truth_g(cfg, samples, s0, sp)
+    pair = np.concatenate([t["pair"] for t in samples.values()])
+    by_pair = {p: {"samples": int((pair == p).sum()),
+                   "rms_paper_g": fs._r(np.sqrt(np.mean((paper - lab)[pair == p] ** 2))),
+                   "rms_fitted_g": fs._r(np.sqrt(np.mean((fitted - lab)[pair == p] ** 2)))} for p in sorted(set(pair))}
+    return s0, sp, {"samples": int(lab.size), "sigma0_scale": s0, "spread_scale": sp,
+                    "rms_paper_g": fs._r(np.sqrt(np.mean((paper - lab) ** 2))),
+                    "rms_fitted_g": fs._r(np.sqrt(np.mean((fitted - lab) ** 2))), "by_pair": by_pair,
+                    "profile": wake_profile(samples, {"paper_g": paper, "fitted_g": fitted})}
+
+
 def read_law_pieces(flights: list[Flight]) -> dict:
     """The swap flights the z law's fit replays: READ_LAW_FLIGHTS_PER_FOLDER per swap
     folder (the first ones by name)."""
@@ -289,15 +394,17 @@ def fit(cfg: Config, gen_dir, flights: list[Flight], hover_by_robot: dict, robot
     bat = real["battery"]
     start = float(np.median([b["start_V"] for b in bat.values()]))
     sag = -float(np.median([b["slope_V_per_min"] for b in bat.values()]))
+    s0, sp, wake = fit_wake(cfg, flights)
     base = Roughness(battery_start_V=round(start, 3), battery_sag_V_per_min=round(sag, 4),
-                     thrust_sd=round(thrust_sd(hover_by_robot, robot_type_of), 4))
+                     thrust_sd=round(thrust_sd(hover_by_robot, robot_type_of), 4),
+                     wake_sigma0_scale=s0, wake_spread_scale=sp)
     acc, gyro, vib_rows = fit_vibration(cfg, gen_dir, real["free_air"], base)
     base = replace(base, vibration_acc_g={k: round(v, 4) for k, v in acc.items()},
                    vibration_gyro_dps={k: round(v, 3) for k, v in gyro.items()})
     ratio, tau, turb_rows = fit_turbulence(cfg, gen_dir, flights, base, workers)
     rough = replace(base, turbulence_ratio=round(ratio, 3), turbulence_tau_s=round(tau, 4),
                     hover_motor_noise={ty: real["free_air"][ty]["motor_noise"] for ty in cfg.robot_types})
-    return rough, {"real": real, "vibration_probes": vib_rows, "turbulence": turb_rows}
+    return rough, {"real": real, "wake": wake, "vibration_probes": vib_rows, "turbulence": turb_rows}
 
 
 # label -> (rough, controller, learned, the z law read off the logs) of the replays (replay.replay)
@@ -382,7 +489,8 @@ def calibrate(cfg: Config, gen_dir, flights: list[Flight], hover_by_robot: dict,
               rough: Roughness | None = None) -> dict:
     """Fit (unless ``rough`` is given), compare, write out_dir/calibration.json and
     calibration.md; returns the JSON."""
-    from ns2host.sim.calibration import paper_l2s_table, read_law_table, roughness_table, sim_to_real_table
+    from ns2host.sim.calibration import (paper_l2s_table, read_law_table, roughness_table, sim_to_real_table,
+                                         wake_profile_table)
 
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -398,6 +506,8 @@ def calibrate(cfg: Config, gen_dir, flights: list[Flight], hover_by_robot: dict,
     md = ("# The simulator against the real flights\n\n" + roughness_table(cmp) + "\n\n## Replayed swaps\n\n"
           + sim_to_real_table(cmp) + "\n\n## The paper's L2S swap, the authors' controller, rough simulator\n\n"
           + paper_l2s_table(l2s) + "\n\n## The z law read off the logs\n\n"
-          + read_law_table(law, fit_report["read_law"] if fit_report else None) + "\n")
+          + read_law_table(law, fit_report["read_law"] if fit_report else None)
+          + ("\n\n## The wake at the real states\n\n" + wake_profile_table(fit_report["wake"]) if fit_report else "")
+          + "\n")
     atomic_write_bytes(out_dir / "calibration.md", md.encode())
     return res

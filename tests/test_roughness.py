@@ -58,6 +58,10 @@ def test_each_effect_does_its_part(cfg, exported):
     t_from_start = np.asarray(log["t"]) + 0.2
     want = r.battery_start_V - r.battery_sag_V_per_min * t_from_start / 60
     assert np.allclose(log["battery_V"][:, 0], want, atol=1e-3)
+    sw, _ = _fly(cfg, exported, replace(r, wake_sigma0_scale=0.8, wake_spread_scale=0.5).only("wake"), seconds=0.1)
+    paper, _ = _fly(cfg, exported, r.only(), seconds=0.1)
+    assert np.allclose(sw.aero.sigma0, 0.8 * paper.aero.sigma0, rtol=1e-12) and sw.aero.spread == 0.5 * paper.aero.spread
+    assert r.without("wake").wake_scales() == {}
     _, clean = _fly(cfg, exported, None)
     _, turb = _fly(cfg, exported, replace(r, turbulence_ratio=0.3).only("turbulence"))
     d = turb["truth_fa"][0, :, 2] - clean["truth_fa"][0, :, 2]     # first log row: same state, own step
@@ -395,3 +399,42 @@ def test_first_per_folder():
     assert first_per_folder(names, 2) == ["swap_ll/00", "swap_ll/01", "swap_sl/00", "swap_sl/01", "swap_ss/00"]
     assert first_per_folder(names, 1, ("swap_sl", "swap_ll")) == ["swap_sl/00", "swap_ll/00"]
     assert first_per_folder(names, 5) == sorted(names)
+
+
+def test_the_wake_read_off_labels_at_logged_states(cfg):
+    """fit_wake's pieces: the truth of many snapshots at once is each snapshot's own to
+    within rounding; labels made by a wake 0.8 x as wide at the rotor and spreading
+    at 0.6 x the rate, at states under a neighbour, are read back as those scales; the
+    profile and its table put real and truth side by side per pair and offset."""
+    from ns2exp.calibrate import fit_wake_scales, wake_profile, wake_truth_g
+    from ns2host.sim.aero import calibrated, forces_of_snapshots
+    from ns2host.sim.calibration import wake_profile_table
+    from ns2host.sim.vehicle import vehicle
+
+    types = ("small", "large")
+    rng = np.random.default_rng(3)
+    K = 240
+    P = np.zeros((K, 2, 3))
+    P[:, 0] = [0.0, 0.0, 1.0]
+    P[:, 1, :2] = rng.uniform(-0.2, 0.2, (K, 2))
+    P[:, 1, 2] = 1.0 + rng.uniform(0.15, 0.9, K)
+    V = rng.normal(0.0, 0.3, (K, 2, 3))
+    vs = [vehicle(cfg, t) for t in types]
+    small = vehicle(cfg, "small")
+    one = np.array([calibrated(vs, small).forces(P[k], V[k]) for k in range(K)])
+    assert np.allclose(forces_of_snapshots(lambda k: calibrated(vs * k, small), P, V), one, rtol=0, atol=1e-9)
+    r = np.hypot(*P[:, 1, :2].T)
+    samples = {types: {"P": P, "V": V, "i": np.zeros(K, int), "label_g": np.zeros(K),
+                       "pair": np.array(["small under large"] * K), "r_m": r}}
+    samples[types]["label_g"] = wake_truth_g(cfg, samples, 0.8, 0.6)
+    assert np.allclose(wake_truth_g(cfg, samples), one[:, 0, 2] * 1e3 / 9.81, atol=1e-6)
+    s0, sp = fit_wake_scales(cfg, samples)
+    assert s0 == pytest.approx(0.8, abs=0.02) and sp == pytest.approx(0.6, abs=0.02)
+    prof = wake_profile(samples, {"paper_g": wake_truth_g(cfg, samples), "fitted_g": samples[types]["label_g"]})
+    rows = prof["small under large"]
+    assert sum(x["samples"] for x in rows) == int((r < 0.3).sum()) and rows[0]["r_m"] == [0.0, 0.05]
+    assert rows[0]["real_g"] == rows[0]["fitted_g"]
+    assert abs(rows[2]["paper_g"]) > abs(rows[2]["real_g"])    # the wider wake reads more 10-15 cm off its axis
+    t = wake_profile_table({"sigma0_scale": s0, "spread_scale": sp, "samples": K, "rms_paper_g": 1.0,
+                            "rms_fitted_g": 0.0, "profile": prof}).splitlines()
+    assert t[0].startswith("The wake's initial width x 0.8") and t[4].startswith("| small under large | 0-5 | ")

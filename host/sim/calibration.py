@@ -277,6 +277,23 @@ def read_law_table(law: dict, fit_rows: list | None = None) -> str:
     return "\n".join(lines) + "\n"
 
 
+def wake_profile_table(wake: dict) -> str:
+    """experiments/calibrate.py fit_wake: the real labels of robots under a neighbour
+    against the truth at the same logged states, with the paper's wake and the fitted
+    one, per pair and horizontal offset; the rms of the difference."""
+    lines = [f"The wake's initial width x {wake['sigma0_scale']:.3f}, spreading rate x {wake['spread_scale']:.3f} "
+             f"(rms of label - truth over {wake['samples']} samples: {wake['rms_paper_g']:.2f} g with the paper's "
+             f"wake, {wake['rms_fitted_g']:.2f} g fitted).", "",
+             "| pair | offset (cm) | samples | real f_a,z (g) | truth, the paper's wake | truth, fitted |",
+             "|---|---|---|---|---|---|"]
+    for pair, rows in wake["profile"].items():
+        for r in rows:
+            lo, hi = (100 * v for v in r["r_m"])
+            lines.append(f"| {pair} | {lo:.0f}-{hi:.0f} | {r['samples']} | {r['real_g']:.1f} | {r['paper_g']:.1f} | "
+                         f"{r['fitted_g']:.1f} |")
+    return "\n".join(lines) + "\n"
+
+
 def paper_l2s_table(l2s: dict) -> str:
     """experiments/calibrate.py paper_l2s: simulated against the paper's median worst z error."""
     lines = ["| controller | swaps | simulated (cm) | paper (cm) | simulated / paper | within 30 % |",

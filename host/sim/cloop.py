@@ -96,7 +96,8 @@ class CLoopSwarm:
         self.dyn = Dynamics(self.vehicles)
         self.state = SwarmState.hover(positions, self.vehicles)
         self.learned = learned
-        self.aero = calibrated(self.vehicles, vehicle(cfg, cfg.robot_types[0])) if aero else None
+        self.aero = (calibrated(self.vehicles, vehicle(cfg, cfg.robot_types[0]),
+                                **(rough.wake_scales() if rough is not None else {})) if aero else None)
         self.battery_V = battery_V
         self.sensing = sensing or Sensing()
         self.rng = np.random.default_rng(seed)

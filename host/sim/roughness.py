@@ -23,6 +23,12 @@ thrust       per-robot thrust scatter: each robot's psi_1 (PWM -> force) scaled 
              within a type (experiments/real.py hover_masses).
 battery      battery sag: the voltage the motors and the controller see falls
              linearly from start_V at sag_V_per_min.  Source: the logged pm.vbat.
+wake         the wake's profile read off the real flights: the ground truth's initial
+             jet width sigma_0 and spreading rate S (aero.py) scaled by
+             wake_sigma0_scale and wake_spread_scale.  Source: the real labels of
+             every robot under a neighbour, against the truth evaluated at the same
+             logged states (least squares of the difference; no controller, no
+             replay): the paper-calibrated wake is too wide beside its axis.
 """
 from __future__ import annotations
 
@@ -33,7 +39,7 @@ import numpy as np
 
 from .vehicle import base_type
 
-EFFECTS = ("vibration", "turbulence", "thrust", "battery")
+EFFECTS = ("vibration", "turbulence", "thrust", "battery", "wake")
 
 
 @dataclass(frozen=True)
@@ -49,6 +55,9 @@ class Roughness:
     # battery sag
     battery_start_V: float = 3.552
     battery_sag_V_per_min: float = 0.1063
+    # the wake's profile (aero.calibrated's scales)
+    wake_sigma0_scale: float = 0.848
+    wake_spread_scale: float = 0.474
     # not an effect: the motor-command noise of the real robots in free air (flightstats),
     # the bound of BL-tuned's gain search in the rough simulator (experiments/swarm.py)
     hover_motor_noise: dict = field(default_factory=lambda: {"small": 0.0274, "large": 0.04613})
@@ -81,6 +90,12 @@ class Roughness:
         if not self.on("thrust"):
             return np.ones(n)
         return 1.0 + np.random.default_rng([seed, 0x54]).normal(0.0, self.thrust_sd, n)
+
+    def wake_scales(self) -> dict:
+        """aero.calibrated's keyword arguments of the wake's profile (none without the effect)."""
+        if not self.on("wake"):
+            return {}
+        return {"sigma0_scale": self.wake_sigma0_scale, "spread_scale": self.wake_spread_scale}
 
     def battery_V(self, t_s: float, nominal_V: float) -> float:
         if not self.on("battery"):
