@@ -56,8 +56,8 @@ def authors_gains(robot_type: str, robot: str | None = None) -> dict:
 # logs say flew (softer than crazyflieTypes.yaml, no integral to speak of, the small
 # robots taking off about a third of their prediction).  The values make calibrate
 # fitted (docs/simulator.md).
-READ_LAW = {"small": {"kp": 7.9187, "kd": 2.4986, "ki": 0.378, "k_fa": 0.36, "mass_kg": 0.031884},
-            "large": {"kp": 9.1304, "kd": 2.8212, "ki": 0.5057, "k_fa": 1.0107, "mass_kg": 0.070265}}
+READ_LAW = {"small": {"kp": 8.2264, "kd": 2.5926, "ki": 0.4078, "k_fa": 0.3341, "mass_kg": 0.031679},
+            "large": {"kp": 9.2542, "kd": 2.8499, "ki": 0.4665, "k_fa": 1.0128, "mass_kg": 0.06911}}
 
 
 def read_law_gains(robot_type: str, law: dict | None = None) -> dict:
