@@ -242,17 +242,11 @@ def closest_gap(cfg: Config, fm: ForceModel, lower: str, upper: str, bound_g: fl
     return float(gaps[np.flatnonzero(over)[-1] + 1]) if over.any() else float(gaps[0])
 
 
-def measure(cfg: Config, fm: ForceModel, flights: list, limits: Limits, old_margin_g: float | None = None) -> dict:
-    """The margin per robot type and its evidence (plan.json's ``margin``): error
-    statistics per type and flight kind (and team size beyond a pair), the spectral-norm
-    bound and what it gives over the logs' sample spacing, and the closest hovering
-    gaps per type pair with this
-    margin, with ``old_margin_g`` and with the largest one-sided error as margin.  The
-    margin the planner takes (``margin_g``) is conditioned on the relative speed
-    (SPEED_EDGES_MPS, a speed table); ``margin_constant_g`` is the one over all speeds."""
+def _margin(cfg: Config, fm: ForceModel, flights: list, limits: Limits) -> tuple[dict, dict, dict]:
+    """(the planner's margin, the errors over all flights, per team size its margin and
+    speed bins): measure's and planning_margin's common part."""
     err = errors(cfg, fm, flights, limits)
     m = margin_from_errors(err, limits.fa_max_g, speed_edges=SPEED_EDGES_MPS)
-    m_const = margin_from_errors(err, limits.fa_max_g)
     sizes = sorted({len(fl.types) for fl in flights})
     by_size = {}
     if len(sizes) > 1:          # a team of n robots can only reach states of at most n robots: their evidence
@@ -261,6 +255,25 @@ def measure(cfg: Config, fm: ForceModel, flights: list, limits: Limits, old_marg
             by_size[str(n)] = {"margin_g": margin_from_errors(e, limits.fa_max_g, speed_edges=SPEED_EDGES_MPS),
                                "speed_bins": speed_bins(e, limits.fa_max_g)}
         m = {"by_team_size": {n: v["margin_g"] for n, v in by_size.items()}}
+    return m, err, by_size
+
+
+def planning_margin(cfg: Config, fm: ForceModel, flights: list, limits: Limits) -> dict:
+    """The margin the planner takes (measure's ``margin_g``) alone, without the
+    evidence tables and gaps measure adds."""
+    return _margin(cfg, fm, flights, limits)[0]
+
+
+def measure(cfg: Config, fm: ForceModel, flights: list, limits: Limits, old_margin_g: float | None = None) -> dict:
+    """The margin per robot type and its evidence (plan.json's ``margin``): error
+    statistics per type and flight kind (and team size beyond a pair), the spectral-norm
+    bound and what it gives over the logs' sample spacing, and the closest hovering
+    gaps per type pair with this
+    margin, with ``old_margin_g`` and with the largest one-sided error as margin.  The
+    margin the planner takes (``margin_g``) is conditioned on the relative speed
+    (SPEED_EDGES_MPS, a speed table); ``margin_constant_g`` is the one over all speeds."""
+    m, err, by_size = _margin(cfg, fm, flights, limits)
+    m_const = margin_from_errors(err, limits.fa_max_g)
     pair = for_team(m, 2)
     evidence = over_limit(err, limits.fa_max_g)
     stats = {}

@@ -486,7 +486,7 @@ def plan_trained_checkpoint(cfg: Config, checkpoint, gen_dir, held_out: list, sc
     for r in range(rounds):
         tasks = [(n, d, s + 100 * r) for d in dims for n in scenarios for s in seeds]
         fm = load_force_model(cfg, ck)
-        m = margin.measure(cfg, fm, held_out, LIMITS_3D)["margin_g"]     # what the plans are planned with
+        m = margin.planning_margin(cfg, fm, held_out, LIMITS_3D)     # what the plans are planned with
         tag = hashlib.sha256(json.dumps([names, tasks, m]).encode()).hexdigest()[:10]
         nxt = folder / f"model_r{r + 1}_{tag}.pt"
         data = folder / f"data_plans_r{r}_{tag}.npz"

@@ -367,7 +367,7 @@ def test_margin_by_team_size_from_the_flights_of_at_most_that_many_robots(cfg):
     """With flights of pairs and of three robots, measure gives a margin per team size:
     a pair's from the pair flights alone (a pair cannot reach a three-robot state), three
     robots' from both; scenario_problem plans each case with its team's entry."""
-    from ns2exp.margin import compare_table, for_team, margin_table, measure
+    from ns2exp.margin import compare_table, for_team, margin_table, measure, planning_margin
     from ns2exp.planning import scenario_problem
     from ns2plan.problem import Limits
 
@@ -381,6 +381,8 @@ def test_margin_by_team_size_from_the_flights_of_at_most_that_many_robots(cfg):
     only_pairs = measure(cfg, ForceModel(cfg, None), [pair], lim)
     assert "by_team_size" not in only_pairs["margin_g"]                  # one team size: the plain table
     rep = measure(cfg, ForceModel(cfg, None), [pair, trio], lim)
+    assert planning_margin(cfg, ForceModel(cfg, None), [pair, trio], lim) == rep["margin_g"]
+    assert planning_margin(cfg, ForceModel(cfg, None), [pair], lim) == only_pairs["margin_g"]
     m2, m3 = for_team(rep["margin_g"], 2), for_team(rep["margin_g"], 3)
     assert m2 == only_pairs["margin_g"] and for_team(rep["margin_g"], 1) == m2 and for_team(rep["margin_g"], 5) == m3
     np.testing.assert_allclose(m2["small"]["margins_g"], [5.1] * 6)     # f_a = 0 read where 5.4 g: 5.1
