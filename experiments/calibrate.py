@@ -224,12 +224,12 @@ def wake_samples(cfg: Config, flights: list[Flight], every: int = WAKE_FIT_EVERY
     w = fs.WAKE
     out: dict = {}
     for fl, i, steps, fa in labelled_steps(cfg, flights):
+        steps = steps[::every]
         d = fl.p[steps] - fl.p[steps, i][:, None, :]
         r = np.hypot(d[..., 0], d[..., 1])
         under = (d[..., 2] >= w["gap_m"][0]) & (d[..., 2] <= w["gap_m"][1]) & (r <= w["max_horizontal_m"])
         under[:, i] = False
         ok = under.any(1) & (fl.p[steps, i, 2] > WAKE_FIT_MIN_Z_M) & np.isfinite(fa[steps, 2])
-        ok &= np.arange(len(steps)) % every == 0
         if not ok.any():
             continue
         j = np.argmin(np.where(under, d[..., 2], np.inf), axis=1)[ok]
@@ -243,6 +243,11 @@ def wake_samples(cfg: Config, flights: list[Flight], every: int = WAKE_FIT_EVERY
         t["r_m"].append(r[ok][np.arange(len(j)), j])
     return {types: {key: (np.concatenate(v) if key != "pair" else np.array(v)) for key, v in t.items()}
             for types, t in sorted(out.items())}
+
+
+def _column(samples: dict, key: str) -> np.ndarray:
+    """One field of wake_samples over every team, in order."""
+    return np.concatenate([t[key] for t in samples.values()])
 
 
 def wake_truth_g(cfg: Config, samples: dict, sigma0_scale: float = 1.0, spread_scale: float = 1.0) -> np.ndarray:
@@ -265,9 +270,7 @@ def wake_profile(samples: dict, truths: dict) -> dict:
     """Per pair and bin of horizontal offset (WAKE_PROFILE_R_M): the samples, the real
     labels' mean and each truth's mean (g) at the same states (``truths``: label ->
     wake_truth_g)."""
-    pair = np.concatenate([t["pair"] for t in samples.values()])
-    r = np.concatenate([t["r_m"] for t in samples.values()])
-    lab = np.concatenate([t["label_g"] for t in samples.values()])
+    pair, r, lab = _column(samples, "pair"), _column(samples, "r_m"), _column(samples, "label_g")
     out: dict = {}
     for p in sorted(set(pair)):
         for lo, hi in zip(WAKE_PROFILE_R_M[:-1], WAKE_PROFILE_R_M[1:]):
@@ -283,7 +286,7 @@ def fit_wake_scales(cfg: Config, samples: dict) -> tuple[float, float]:
     ``samples`` (wake_samples' form): Nelder-Mead on the logarithms from (1, 1)."""
     from scipy.optimize import minimize
 
-    lab = np.concatenate([t["label_g"] for t in samples.values()])
+    lab = _column(samples, "label_g")
     rms = lambda x: float(np.sqrt(np.mean((wake_truth_g(cfg, samples, *np.exp(x)) - lab) ** 2)))  # noqa: E731
     res = minimize(rms, np.zeros(2), method="Nelder-Mead", options={"xatol": 0.005, "fatol": 1e-4})
     s0, sp = (round(float(v), 3) for v in np.exp(res.x))
@@ -298,10 +301,9 @@ def fit_wake(cfg: Config, flights: list[Flight]) -> tuple[float, float, dict]:
     controller and no replay).  Returns the two scales (3 decimals) and the report:
     samples, rms before and after, per pair and the profile by offset."""
     samples = wake_samples(cfg, swap_flights(flights))
-    lab = np.concatenate([t["label_g"] for t in samples.values()])
+    lab, pair = _column(samples, "label_g"), _column(samples, "pair")
     s0, sp = fit_wake_scales(cfg, samples)
     paper, fitted = wake_truth_g(cfg, samples), wake_truth_g(cfg, samples, s0, sp)
-    pair = np.concatenate([t["pair"] for t in samples.values()])
     by_pair = {p: {"samples": int((pair == p).sum()),
                    "rms_paper_g": fs._r(np.sqrt(np.mean((paper - lab)[pair == p] ** 2))),
                    "rms_fitted_g": fs._r(np.sqrt(np.mean((fitted - lab)[pair == p] ** 2)))} for p in sorted(set(pair))}
