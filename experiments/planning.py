@@ -515,6 +515,70 @@ def plan_trained_checkpoint(cfg: Config, checkpoint, gen_dir, held_out: list, sc
     return ck
 
 
+RESUME_DIR = "resume"     # planning_experiments' finished work, in its output folder (TrialStore)
+# the sources a trial's outcome depends on (planner, experiments, simulator, the C it flies), relative to the
+# repository: a change to any of them starts a resumed run afresh
+CODE_GLOBS = ("planner/*.py", "experiments/*.py", "host/*.py", "host/sim/*.py", "host/*.c", "host/*.h",
+              "firmware/src/*.c", "firmware/include/*.h", "ns2codegen/*.py", "ns2codegen/data/*.py", "templates/*")
+
+
+def code_tag(root: Path | None = None) -> str:
+    """sha256 (16 hex) over the sources of CODE_GLOBS under ``root`` (this repository)."""
+    import hashlib
+
+    root = Path(__file__).resolve().parents[1] if root is None else Path(root)
+    h = hashlib.sha256()
+    for pattern in CODE_GLOBS:
+        for f in sorted(root.glob(pattern)):
+            if f.is_file():
+                h.update(f.relative_to(root).as_posix().encode() + b"\0" + f.read_bytes() + b"\0")
+    return h.hexdigest()[:16]
+
+
+class TrialStore:
+    """planning_experiments' finished work kept in ``folder`` so that a run cut short
+    goes on where it stopped: the margin (``margin_<key>.json``), every trial's record
+    (``trial_<key>.json``) and the plan and flight of each case's example trial
+    (``example_<key>.pkl``, for the figures and the Crazyflie files).  A key is a hash
+    of everything the result depends on: the checkpoint's bytes, the code (code_tag),
+    the case, seed, margin and parameters; anything else changed, nothing is reused."""
+
+    def __init__(self, folder, checkpoint, *inputs):
+        import hashlib
+
+        self.folder = Path(folder)
+        h = hashlib.sha256(Path(checkpoint).read_bytes() if checkpoint is not None else b"BL")
+        h.update(json.dumps([code_tag(), *map(repr, inputs)]).encode())
+        self.base = h.hexdigest()
+
+    def _path(self, kind: str, suffix: str, *key) -> Path:
+        import hashlib
+
+        tag = hashlib.sha256(json.dumps([self.base, *map(repr, key)]).encode()).hexdigest()[:20]
+        return self.folder / f"{kind}_{tag}{suffix}"
+
+    def get(self, kind: str, *key):
+        """The stored JSON value of ``kind`` and ``key``, or None."""
+        p = self._path(kind, ".json", *key)
+        return json.loads(p.read_text()) if p.is_file() else None
+
+    def put(self, kind: str, value, *key) -> None:
+        self.folder.mkdir(parents=True, exist_ok=True)
+        atomic_write_bytes(self._path(kind, ".json", *key), (json.dumps(value, default=float) + "\n").encode())
+
+    def get_example(self, *key):
+        import pickle
+
+        p = self._path("example", ".pkl", *key)
+        return pickle.loads(p.read_bytes()) if p.is_file() else None
+
+    def put_example(self, value, *key) -> None:
+        import pickle
+
+        self.folder.mkdir(parents=True, exist_ok=True)
+        atomic_write_bytes(self._path("example", ".pkl", *key), pickle.dumps(value))
+
+
 def planning_experiments(cfg: Config, checkpoint, gen_dir, out_dir, scenarios=None, dims=(2, 3), trials: int = 5,
                          rrt: RRTParams = RRTParams(), scp_params: SCPParams = SCPParams(), log=print,
                          progress=None, fa_margin_g=None, modes=("NN", "BL"), calibrate: bool = False,
@@ -524,7 +588,9 @@ def planning_experiments(cfg: Config, checkpoint, gen_dir, out_dir, scenarios=No
     processes; a trial's outcome does not depend on it); writes plan.json, plan.md and
     the figures.  ``fa_margin_g`` None: the margin measured on held-out flights
     (measured_margin; with ``calibrate`` also on the NN's flown plans of calibration
-    seeds, calibrated_margin), else this one (g, one value or per type)."""
+    seeds, calibrated_margin), else this one (g, one value or per type).  The margin
+    and every finished trial are kept in ``out_dir``/RESUME_DIR (TrialStore): the same
+    call again, after a run was cut short, reuses them and plans only the rest."""
     from contextlib import nullcontext
 
     from ns2plan.output import write_plan
@@ -535,23 +601,35 @@ def planning_experiments(cfg: Config, checkpoint, gen_dir, out_dir, scenarios=No
     out.mkdir(parents=True, exist_ok=True)
     models = [m for m in ("NN", "BL") if m in modes]
     nn = load_force_model(cfg, checkpoint)
+    names = list(scenarios or SCENARIOS)
+    store = TrialStore(out / RESUME_DIR, checkpoint, names, list(dims), rrt, scp_params)
     rep = None
     if fa_margin_g is None:
-        cal = (dict(checkpoint=checkpoint, scenarios=list(scenarios or SCENARIOS), dims=dims, rrt=rrt,
-                    scp_params=scp_params, workers=workers, cache=out / "calibration_flights.npz")
-               if calibrate else None)
-        rep = measured_margin(cfg, nn, gen_dir, cache=out / "held_out_flights.npz", log=log, calibration=cal,
-                              workers=workers)
+        rep = store.get("margin", calibrate)
+        if rep is None:
+            cal = (dict(checkpoint=checkpoint, scenarios=names, dims=dims, rrt=rrt,
+                        scp_params=scp_params, workers=workers, cache=out / "calibration_flights.npz")
+                   if calibrate else None)
+            rep = measured_margin(cfg, nn, gen_dir, cache=out / "held_out_flights.npz", log=log, calibration=cal,
+                                  workers=workers)
+            rep = json.loads(json.dumps(rep, default=float))     # as a resumed run reads it back
+            store.put("margin", rep, calibrate)
+        else:
+            log(f"the margin of an earlier run of these inputs ({store.folder})")
         fa_margin_g = rep["margin_g"]
         log(f"planning margin (g): {fa_margin_g}")
-    names = list(scenarios or SCENARIOS)
     tasks = [(mode, name, d, trial) for d in dims for name in names for mode in models for trial in range(trials)]
-    pool = _plan_pool(checkpoint, gen_dir, workers)
+    tkey = lambda mode, name, d, trial: (mode, name, d, trial, fa_margin_g)  # noqa: E731
+    kept = {t: store.get("trial", *tkey(*t)) for t in tasks}
+    todo = [t for t in tasks if kept[t] is None]
+    if len(todo) < len(tasks):
+        log(f"{len(tasks) - len(todo)} of {len(tasks)} trials from an earlier run of these inputs ({store.folder})")
+    pool = _plan_pool(checkpoint, gen_dir, workers) if todo else None
     with pool or nullcontext():
         if pool is None:
             _set_worker_model(nn)
-        args = [(mode, name, d, trial, fa_margin_g, str(gen_dir), rrt, scp_params) for mode, name, d, trial in tasks]
-        runs = iter([pool.submit(_experiment_trial, *a) for a in args] if pool is not None else [])
+        args = {t: (*t[:4], fa_margin_g, str(gen_dir), rrt, scp_params) for t in todo}
+        futures = {t: pool.submit(_experiment_trial, *a) for t, a in args.items()} if pool is not None else {}
         results, figures = {}, {}
         for d in dims:
             for name in names:
@@ -562,9 +640,17 @@ def planning_experiments(cfg: Config, checkpoint, gen_dir, out_dir, scenarios=No
                 for mode in models:
                     recs = []
                     for trial in range(trials):
-                        rec, res, flight = (next(runs).result() if pool is not None else
-                                            _experiment_trial(mode, name, d, trial, fa_margin_g, gen_dir, rrt,
-                                                              scp_params))
+                        t = (mode, name, d, trial)
+                        if kept[t] is not None:
+                            rec, res, flight = kept[t], None, None
+                            if rec["error"] is None and mode not in examples:
+                                res, flight = store.get_example(*tkey(*t)) or (None, None)
+                        else:
+                            rec, res, flight = (futures[t].result() if pool is not None else
+                                                _experiment_trial(*args[t]))
+                            if res is not None and mode not in examples:
+                                store.put_example((res, flight), *tkey(*t))
+                            store.put("trial", rec, *tkey(*t))
                         recs.append(rec)
                         if progress is not None:
                             progress(1)

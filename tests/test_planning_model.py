@@ -646,6 +646,75 @@ def test_planning_experiments_run_trials_in_workers_as_in_one_process(cfg, expor
     assert f"| 3D SL | NN | {s['planned']}/2 | {s['planned'] - s['trials_any_over_limit']}/{s['planned']} |" in md
 
 
+def test_planning_experiments_resume_a_run_cut_short_from_its_kept_trials(cfg, exported, tmp_path, monkeypatch):
+    """planning_experiments keeps every finished trial (TrialStore): the same call again
+    plans only the trials missing and gives the same results and plan.json; another
+    margin or other code reuses nothing."""
+    import json
+
+    from ns2exp import planning as ex
+    from ns2plan.problem import RRTParams, SCPParams, SearchParams
+
+    rrt = RRTParams(SearchParams(max_samples=6000), ao_iterations=1)
+    scp = SCPParams(max_iterations=3)
+    calls = []
+    real = ex._experiment_trial
+
+    def counted(*a):
+        calls.append(a[:4])
+        return real(*a)
+
+    monkeypatch.setattr(ex, "_experiment_trial", counted)
+    run = lambda margin: ex.planning_experiments(cfg, exported.checkpoint, exported.gen_dir, tmp_path, ["SL"], (3,),  # noqa: E731
+                                                 2, rrt, scp, log=lambda m: None, fa_margin_g=margin, workers=1)
+    first = run(2.0)
+    assert sorted(calls) == sorted([(m, "SL", 3, s) for m in ("NN", "BL") for s in (0, 1)])
+    plan_json = (tmp_path / "plan.json").read_text()
+    kept = sorted((tmp_path / ex.RESUME_DIR).glob("trial_*.json"))
+    assert len(kept) == 4 and len(list((tmp_path / ex.RESUME_DIR).glob("example_*.pkl"))) >= 1
+    # a run cut short: one trial lost, only it is planned again
+    kept[0].unlink()
+    calls.clear()
+    again = run(2.0)
+    assert len(calls) == 1
+    mode, _, _, seed = calls[0]
+    as_json = lambda rec: json.dumps(rec, default=float, sort_keys=True)  # noqa: E731
+    for m in ("NN", "BL"):
+        for a, b in zip(first["3D SL"][m]["trials"], again["3D SL"][m]["trials"]):
+            if (m, a["seed"]) != (mode, seed):
+                assert as_json(a) == as_json(b)         # read back as written
+            else:                                       # planned again: the same outcome, its own timings
+                assert a["error"] == b["error"] and a.get("track") == b.get("track")
+                assert a.get("stage1_costs") == b.get("stage1_costs")
+    assert json.loads(plan_json)["margin"] == json.loads((tmp_path / "plan.json").read_text())["margin"]
+    assert (tmp_path / "trajectories").is_dir()
+    # another margin: every trial planned again
+    calls.clear()
+    run(2.5)
+    assert len(calls) == 4
+    # other code: nothing reused either
+    calls.clear()
+    monkeypatch.setattr(ex, "code_tag", lambda root=None: "another version")
+    run(2.0)
+    assert len(calls) == 4
+
+
+def test_code_tag_follows_every_source_a_trial_depends_on(tmp_path):
+    from ns2exp.planning import code_tag
+
+    (tmp_path / "planner").mkdir()
+    (tmp_path / "host" / "sim").mkdir(parents=True)
+    (tmp_path / "planner" / "a.py").write_text("x = 1\n")
+    (tmp_path / "host" / "sim" / "b.py").write_text("y = 1\n")
+    (tmp_path / "README.md").write_text("docs\n")
+    tag = code_tag(tmp_path)
+    (tmp_path / "README.md").write_text("other docs\n")
+    assert code_tag(tmp_path) == tag                     # not a source
+    (tmp_path / "host" / "sim" / "b.py").write_text("y = 2\n")
+    assert code_tag(tmp_path) != tag
+    assert len(code_tag()) == 16 and code_tag() == code_tag()
+
+
 def test_default_checkpoint_collects_who_flights_of_pairs_and_of_three_and_reuses_by_its_data(cfg, monkeypatch,
                                                                                                tmp_path):
     """default_checkpoint: the base, who-moves (pairs) and who-moves-with-a-bystander
