@@ -665,13 +665,14 @@ def test_planning_experiments_resume_a_run_cut_short_from_its_kept_trials(cfg, e
         return real(*a)
 
     monkeypatch.setattr(ex, "_experiment_trial", counted)
-    run = lambda margin: ex.planning_experiments(cfg, exported.checkpoint, exported.gen_dir, tmp_path, ["SL"], (3,),  # noqa: E731
-                                                 2, rrt, scp, log=lambda m: None, fa_margin_g=margin, workers=1)
+    run = lambda margin, modes=("NN", "BL"), trials=1: ex.planning_experiments(  # noqa: E731
+        cfg, exported.checkpoint, exported.gen_dir, tmp_path, ["SL"], (3,), trials, rrt, scp,
+        log=lambda m: None, fa_margin_g=margin, modes=modes, workers=1)
     first = run(2.0)
-    assert sorted(calls) == sorted([(m, "SL", 3, s) for m in ("NN", "BL") for s in (0, 1)])
+    assert sorted(calls) == [("BL", "SL", 3, 0), ("NN", "SL", 3, 0)]
     plan_json = (tmp_path / "plan.json").read_text()
     kept = sorted((tmp_path / ex.RESUME_DIR).glob("trial_*.json"))
-    assert len(kept) == 4 and len(list((tmp_path / ex.RESUME_DIR).glob("example_*.pkl"))) >= 1
+    assert len(kept) == 2 and len(list((tmp_path / ex.RESUME_DIR).glob("example_*.pkl"))) >= 1
     # a run cut short: one trial lost, only it is planned again
     kept[0].unlink()
     calls.clear()
@@ -688,15 +689,19 @@ def test_planning_experiments_resume_a_run_cut_short_from_its_kept_trials(cfg, e
                 assert a.get("stage1_costs") == b.get("stage1_costs")
     assert json.loads(plan_json)["margin"] == json.loads((tmp_path / "plan.json").read_text())["margin"]
     assert (tmp_path / "trajectories").is_dir()
+    # BL seeds 0 and 1: seed 0 kept, seed 1 planned
+    calls.clear()
+    run(2.0, ("BL",), 2)
+    assert calls == [("BL", "SL", 3, 1)]
     # another margin: every trial planned again
     calls.clear()
-    run(2.5)
-    assert len(calls) == 4
+    run(2.5, ("BL",))
+    assert len(calls) == 1
     # other code: nothing reused either
     calls.clear()
     monkeypatch.setattr(ex, "code_tag", lambda root=None: "another version")
-    run(2.0)
-    assert len(calls) == 4
+    run(2.0, ("BL",))
+    assert len(calls) == 1
 
 
 def test_code_tag_follows_every_source_a_trial_depends_on(tmp_path):
