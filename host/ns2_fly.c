@@ -61,6 +61,8 @@ void ns2_fly_init(ns2_fly_robot_t *r, const ns2_fly_init_t *in)
     r->type = in->type;
     memcpy(r->par, in->par, sizeof(r->par));
     memcpy(r->psi1, in->psi1, sizeof(r->psi1));
+    r->pwm_exact = in->kind == NS2_FLY_AUTHORS && in->pwm_exact;
+    memcpy(r->psi1_nominal, in->psi1_nominal, sizeof(r->psi1_nominal));
     memcpy(r->bias_acc_g, in->bias_acc_g, sizeof(r->bias_acc_g));
     memcpy(r->bias_gyro_dps, in->bias_gyro_dps, sizeof(r->bias_gyro_dps));
     r->acc_scale = in->acc_scale > 0.5f ? in->acc_scale : 1.0f;
@@ -162,6 +164,30 @@ static void mellinger_tick(ns2_fly_robot_t *r, const ns2_setpoint_t *sp, uint32_
     }
 }
 
+/* PWM in [0, 1] whose force through psi_1 k (grams, in PWM and V / 4.2) is u_N: the root of
+ * k3 p^2 + (k1 + k4 v) p + k0 + k2 v - f = 0 on the map's rising branch (its vertex when f is
+ * below the map's least force), 0 for u_N <= 0. */
+static float pwm_psi1_inverse(const double k[5], float u_N, float battery_V)
+{
+    if (!(u_N > 0.0f)) {
+        return 0.0f;
+    }
+    const double f = (double)u_N * 1000.0 / G_SIM;
+    const double v = (double)battery_V / 4.2;
+    const double a = k[3], b = k[1] + k[4] * v, c = k[0] + k[2] * v - f;
+    double p;
+    if (fabs(a) < 1e-12) {
+        p = fabs(b) > 1e-12 ? -c / b : 0.0;
+    } else {
+        const double disc = b * b - 4.0 * a * c;
+        p = (-b + (a > 0.0 ? 1.0 : -1.0) * sqrt(disc > 0.0 ? disc : 0.0)) / (2.0 * a);
+    }
+    if (!(p > 0.0)) {
+        return 0.0f;
+    }
+    return p < 1.0 ? (float)p : 1.0f;
+}
+
 static void trace(ns2_fly_trace_t *t, const ns2_fly_robot_t *r, const ns2_ctrl_state_t *s,
                   const ns2_setpoint_t *sp, int do_pos, uint32_t now_ms, float battery_V)
 {
@@ -170,7 +196,7 @@ static void trace(ns2_fly_trace_t *t, const ns2_fly_robot_t *r, const ns2_ctrl_s
     t->do_pos = (uint32_t)do_pos;
     t->now_ms = now_ms;
     t->battery_V = battery_V;
-    memcpy(t->pwm, r->pilot.ctrl.pwm, sizeof(t->pwm));
+    memcpy(t->pwm, r->pwm, sizeof(t->pwm));
     t->fa_hat_g = r->pilot.fa_hat_g;
 }
 
@@ -232,6 +258,13 @@ uint32_t ns2_fly_run(ns2_fly_robot_t *rob, uint32_t n, double *x, const double *
                     ns2_pilot_tick(&r->pilot, &s, &sp[i], do_pos, r->id, tick, battery_V);
                 }
                 memcpy(r->pwm, r->pilot.ctrl.pwm, sizeof(r->pwm));
+                if (r->pwm_exact) { /* the motor forces commanded, realized through psi_1 */
+                    for (int m = 0; m < 4; ++m) {
+                        r->pwm[m] = r->pilot.ctrl.pwm[m] > 0.0f
+                                        ? pwm_psi1_inverse(r->psi1_nominal, r->pilot.ctrl.u[m], battery_V)
+                                        : 0.0f;
+                    }
+                }
                 if (tr != NULL && i == tr_robot && n_tr < tr_max) {
                     ns2_fly_trace_t *t = &tr[n_tr++];
                     trace(t, r, &s, &sp[i], do_pos, tick, battery_V);

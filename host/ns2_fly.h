@@ -34,6 +34,10 @@ typedef struct {
     ns2_gains_t gains;
     ns2_pilot_cfg_t pilot_cfg;
     ns2_authors_gains_t authors; /* NS2_FLY_AUTHORS only */
+    uint32_t pwm_exact;        /* NS2_FLY_AUTHORS: 1 = the motor forces the controller commands turned into PWM by
+                                * the exact inverse of psi1_nominal (what flew the real flights, vehicle.py
+                                * AUTHORS_PWM_MAP), 0 = by the controller's own psi_2 */
+    double psi1_nominal[5];    /* the type's psi_1 (psi1 above may carry the robot's thrust scatter) */
 } ns2_fly_init_t;
 
 typedef struct {
@@ -56,6 +60,8 @@ typedef struct {
     control_t control;
     float supply_V;
     float pwm[4];              /* motor commands in [0, 1] */
+    uint32_t pwm_exact;        /* ns2_fly_init_t's */
+    double psi1_nominal[5];
     uint32_t fa_given;         /* NS2_FLY_AUTHORS: 1 = fly fa_given_g instead of the network's f_a,z-hat */
     float fa_given_g;          /* a prediction given from outside (a real flight's logged ctrlFa.Faz), g */
     uint32_t n_peers;          /* peer-localization table */

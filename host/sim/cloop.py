@@ -22,7 +22,7 @@ from .aero import calibrated
 from .dynamics import Dynamics, SwarmState
 from .roughness import Roughness, Turbulence
 from .sensing import Sensing
-from .vehicle import G, authors_gains, base_type, default_gains, vehicle
+from .vehicle import AUTHORS_PWM_EXACT, G, authors_gains, base_type, default_gains, vehicle
 
 TICK_HZ, ATT_HZ, POS_HZ = 1000, 500, 100
 STEP_TICKS = TICK_HZ // ATT_HZ  # ticks per Python step (the interaction force is held over it)
@@ -120,6 +120,7 @@ class CLoopSwarm:
             if a is not None:
                 it.authors.mass_kg, it.authors.i_max, it.authors.k_fa = a["mass_kg"], a["i_max"], a.get("k_fa", 1.0)
                 it.authors.kp, it.authors.kd, it.authors.ki = list(a["kp"]), list(a["kd"]), list(a["ki"])
+                it.pwm_exact, it.psi1_nominal = int(AUTHORS_PWM_EXACT), list(veh.psi1)
             it.id, it.type = i + 1, int(self.type_idx[i])
             it.par, it.psi1, it.p0 = list(self.dyn.par[i]), list(np.asarray(veh.psi1) * thrust[i]), list(self.state.p[i])
             it.bias_acc_g, it.bias_gyro_dps, it.acc_scale = list(acc_b[i]), list(gyro_b[i]), acc_scale[i]

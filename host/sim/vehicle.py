@@ -2,7 +2,7 @@
 the simulator, the controller's gains and the generated firmware header)."""
 from ns2codegen.vehicle import G, STRONG, Vehicle, base_type, default_gains, vehicle
 
-__all__ = ["AUTHORS_GAINS", "G", "READ_LAW", "read_law_gains", "STRONG", "Vehicle", "authors_gains", "base_type", "default_gains", "vehicle"]
+__all__ = ["AUTHORS_GAINS", "AUTHORS_PWM_EXACT", "G", "READ_LAW", "read_law_gains", "STRONG", "Vehicle", "authors_gains", "base_type", "default_gains", "vehicle"]
 
 # The controller that flew the paper's real flights (host/ctrl_authors.c): the position
 # gains of controller_sjc.c in the authors' Crazyswarm configuration
@@ -34,6 +34,15 @@ AUTHORS_GAINS = {
                                         "Gw": [0.005, 0.005, 0.005], "int_w_max": 2.0}},
 }
 AUTHORS_TYPE = {"small": "CF21SingleMarker", "large": "parrotFrameCF21SingleMarker"}
+# The motor map of the firmware that flew the real flights: the motor forces its controller
+# commands become PWM through the exact inverse of psi_1 (host/ns2_fly.c), not through psi_2
+# as the project's firmware does.  Table cfprops' psi_1 and psi_2 are not each other's
+# inverse: psi_1(psi_2(f)) of the large robot is 8 % under f at hover and its slope is 0.86
+# there, 0.68-0.79 at 1.3-1.6 times hover (the small robot's 1.1).  The real flights show no
+# such compression: the z law read off them (flightstats.z_law) leaves a flat residual through
+# a large robot's passage under another (L2L), where a replay through psi_2 falls up to
+# 1.5 m/s^2 under its own law as the wake arrives (docs/simulator.md).
+AUTHORS_PWM_EXACT = True
 AUTHORS_ROBOT_TYPE = {"cf100": "parrotFrameSingleMarker"}
 
 
