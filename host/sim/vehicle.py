@@ -65,8 +65,8 @@ def authors_gains(robot_type: str, robot: str | None = None) -> dict:
 # logs say flew (softer than crazyflieTypes.yaml, no integral to speak of, the small
 # robots taking off about a third of their prediction).  The values make calibrate
 # fitted (docs/simulator.md).
-READ_LAW = {"small": {"kp": 8.2264, "kd": 2.5926, "ki": 0.4078, "k_fa": 0.3341, "mass_kg": 0.031679},
-            "large": {"kp": 9.2542, "kd": 2.8499, "ki": 0.4665, "k_fa": 1.0128, "mass_kg": 0.06911}}
+READ_LAW = {"small": {"kp": 8.9463, "kd": 2.8232, "ki": 0.4536, "k_fa": 0.3802, "mass_kg": 0.033164},
+            "large": {"kp": 8.3561, "kd": 2.4793, "ki": 0.4174, "k_fa": 0.8476, "mass_kg": 0.063921}}
 
 
 def read_law_gains(robot_type: str, law: dict | None = None) -> dict:
