@@ -474,3 +474,22 @@ def test_cli_plan_problem_file(cfg, exported, tmp_path):
                                   "--plan-data-rounds", "1"])
     assert r.exit_code == 1 and f"{exported.checkpoint}: data_files:" in r.output, r.output
     assert not (tmp_path / "o5").exists()
+
+
+def test_nearest_is_the_brute_force_nearest_across_rebuilds():
+    """ns2plan.nearest.Nearest: a growing set of nodes queried in batches, through many
+    rebuilds of its kd-tree, answers exactly what brute force over every node does."""
+    from ns2plan.nearest import STALE_FRACTION, Nearest
+
+    rng = np.random.default_rng(5)
+    keys = rng.random((6000, 7))
+    nn, n, rebuilds, last = Nearest(keys), 1, 0, None
+    while n < len(keys):
+        q = rng.random((32, 7))
+        got = nn.query(q, n)
+        want = np.linalg.norm(q[:, None, :] - keys[None, :n], axis=2).argmin(1)
+        assert np.array_equal(got, want)
+        rebuilds += nn.built != last
+        last = nn.built
+        n += 10
+    assert rebuilds > 10 and STALE_FRACTION > 4
