@@ -629,7 +629,11 @@ def planning_experiments(cfg: Config, checkpoint, gen_dir, out_dir, scenarios=No
         if pool is None:
             _set_worker_model(nn)
         args = {t: (*t[:4], fa_margin_g, str(gen_dir), rrt, scp_params) for t in todo}
-        futures = {t: pool.submit(_experiment_trial, *a) for t, a in args.items()} if pool is not None else {}
+        futures = {}
+        for t, a in (args.items() if pool is not None else ()):
+            futures[t] = pool.submit(_experiment_trial, *a)     # kept as it finishes, in any order
+            futures[t].add_done_callback(lambda f, t=t: f.exception() is None and store.put("trial", f.result()[0],
+                                                                                            *tkey(*t)))
         results, figures = {}, {}
         for d in dims:
             for name in names:
@@ -650,7 +654,8 @@ def planning_experiments(cfg: Config, checkpoint, gen_dir, out_dir, scenarios=No
                                                 _experiment_trial(*args[t]))
                             if res is not None and mode not in examples:
                                 store.put_example((res, flight), *tkey(*t))
-                            store.put("trial", rec, *tkey(*t))
+                            if pool is None:
+                                store.put("trial", rec, *tkey(*t))
                         recs.append(rec)
                         if progress is not None:
                             progress(1)

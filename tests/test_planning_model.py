@@ -702,6 +702,12 @@ def test_planning_experiments_resume_a_run_cut_short_from_its_kept_trials(cfg, e
     monkeypatch.setattr(ex, "code_tag", lambda root=None: "another version")
     run(2.0, ("BL",))
     assert len(calls) == 1
+    # in forked workers every trial is kept as it finishes
+    monkeypatch.setattr(ex, "_experiment_trial", real)
+    kept = set((tmp_path / ex.RESUME_DIR).glob("trial_*.json"))
+    ex.planning_experiments(cfg, exported.checkpoint, exported.gen_dir, tmp_path, ["SL"], (3,), 2, rrt, scp,
+                            log=lambda m: None, fa_margin_g=3.0, modes=("BL",), workers=2)
+    assert len(set((tmp_path / ex.RESUME_DIR).glob("trial_*.json")) - kept) == 2
 
 
 def test_code_tag_follows_every_source_a_trial_depends_on(tmp_path):
