@@ -629,11 +629,15 @@ def planning_experiments(cfg: Config, checkpoint, gen_dir, out_dir, scenarios=No
         if pool is None:
             _set_worker_model(nn)
         args = {t: (*t[:4], fa_margin_g, str(gen_dir), rrt, scp_params) for t in todo}
+
+        def keep(t, future) -> None:            # a trial kept as soon as it finishes, in any order
+            if future.exception() is None:
+                store.put("trial", future.result()[0], *tkey(*t))
+
         futures = {}
         for t, a in (args.items() if pool is not None else ()):
-            futures[t] = pool.submit(_experiment_trial, *a)     # kept as it finishes, in any order
-            futures[t].add_done_callback(lambda f, t=t: f.exception() is None and store.put("trial", f.result()[0],
-                                                                                            *tkey(*t)))
+            futures[t] = pool.submit(_experiment_trial, *a)
+            futures[t].add_done_callback(lambda f, t=t: keep(t, f))
         results, figures = {}, {}
         for d in dims:
             for name in names:

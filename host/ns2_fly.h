@@ -36,7 +36,7 @@ typedef struct {
     ns2_authors_gains_t authors; /* NS2_FLY_AUTHORS only */
     uint32_t pwm_exact;        /* NS2_FLY_AUTHORS: 1 = the motor forces the controller commands turned into PWM by
                                 * the exact inverse of psi1_nominal (what flew the real flights, vehicle.py
-                                * AUTHORS_PWM_MAP), 0 = by the controller's own psi_2 */
+                                * AUTHORS_PWM_EXACT), 0 = by the controller's own psi_2 */
     double psi1_nominal[5];    /* the type's psi_1 (psi1 above may carry the robot's thrust scatter) */
 } ns2_fly_init_t;
 

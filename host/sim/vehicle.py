@@ -40,8 +40,8 @@ AUTHORS_TYPE = {"small": "CF21SingleMarker", "large": "parrotFrameCF21SingleMark
 # inverse: psi_1(psi_2(f)) of the large robot is 8 % under f at hover and its slope is 0.86
 # there, 0.68-0.79 at 1.3-1.6 times hover (the small robot's 1.1).  The real flights show no
 # such compression: the z law read off them (flightstats.z_law) leaves a flat residual through
-# a large robot's passage under another (L2L), where a replay through psi_2 falls up to
-# 1.5 m/s^2 under its own law as the wake arrives (docs/simulator.md).
+# a large robot's passage under another (L2L), where a replay through psi_2 falls 1.3-2.7
+# m/s^2 under its own law as the wake arrives (docs/simulator.md).
 AUTHORS_PWM_EXACT = True
 AUTHORS_ROBOT_TYPE = {"cf100": "parrotFrameSingleMarker"}
 
