@@ -7,7 +7,8 @@
    part of the residual rises with the accelerometer's noise, the motor-command
    noise with the gyro's, each in quadrature), the wake's profile (fit_wake: the
    truth at the logged states of robots under a neighbour against their labels, no
-   replay), wake turbulence (replays of the pair
+   replay), the wakes' moment (fit_moment: replays of the pair swaps, the bottom
+   robot's largest motor departure from the motors' mean), wake turbulence (replays of the pair
    swaps with the other effects on: the real scatter under a neighbour beyond the
    simulator's, per unit of the wake's force; tau from its fast share); and the z
    law that flew (fit_read_law: the authors' law with the gains, the share of the
@@ -174,6 +175,53 @@ def fit_turbulence(cfg: Config, gen_dir, flights: list[Flight], base: Roughness,
     taus = np.geomspace(0.002, 2.0, 400)
     tau = float(taus[int(np.argmin([abs(hp_share(t) - share) for t in taus]))])
     return ratio, tau, {"pairs": rows, "fast_share_of_excess": round(share, 3), "flights": sorted(pieces)}
+
+
+MOMENT_PROBE_GAIN = 2.0
+MOMENT_KEY = "median_max_motor_spread"   # flightstats.swap_attitude: the attitude loop's largest ask
+
+
+def moment_gain(real: dict, without: dict, probed: dict, probe: float) -> float:
+    """The gain g with sum_c w_c real_c^2 = sum_c w_c (without_c^2 + (probed_c^2 -
+    without_c^2) (g / probe)^2) over the scenarios c of ``real`` (swap_attitude's,
+    weights: its swaps) that every replay has."""
+    num = den = 0.0
+    for case, r in real.items():
+        if case in without and case in probed:
+            r0, r1 = without[case][MOMENT_KEY], probed[case][MOMENT_KEY]
+            num += r["swaps"] * (r[MOMENT_KEY] ** 2 - r0 ** 2)
+            den += r["swaps"] * (r1 ** 2 - r0 ** 2)
+    if den <= 0:
+        raise ValueError(f"the moment at gain {probe} did not raise the motors' departure")
+    return probe * math.sqrt(max(num, 0.0) / den)
+
+
+def fit_moment(cfg: Config, gen_dir, flights: list[Flight], base: Roughness, workers: int = 1) -> tuple[float, dict]:
+    """moment_gain: the bottom robot's largest motor departure from the four motors'
+    mean in the real pair swaps (fit_pieces, flightstats.swap_attitude), matched by
+    replays of the same flights (the authors' controller flying the prediction the
+    real robots logged, turbulence off): without the moment and at a probe gain g_p,
+    real^2 = without^2 + (probe^2 - without^2) (gain / g_p)^2 summed over the swap
+    scenarios weighted by their swaps; twice, the second time with the first answer
+    as the probe (the departure grows faster than the gain: the motors saturate)."""
+    pieces = fit_pieces(flights)
+    real = fs.swap_attitude([p for ps in pieces.values() for p in ps])
+    b = base.without("turbulence")
+
+    def departure(g: float) -> dict:
+        rough = replace(b, moment_gain=g) if g else b.without("moment")
+        return fs.swap_attitude(replay_all(cfg, gen_dir, pieces, rough, workers, controller="authors", learned="logged"))
+
+    sims = {0.0: departure(0.0)}
+    probe, steps = MOMENT_PROBE_GAIN, []
+    for _ in range(2):
+        sims[probe] = departure(probe)
+        gain = round(moment_gain(real, sims[0.0], sims[probe], probe), 3)
+        steps.append({"probe_gain": probe, "gain": gain})
+        probe = gain
+    rows = {case: {"swaps": r["swaps"], "real": r[MOMENT_KEY],
+                   **{f"gain {g}": sims[g].get(case, {}).get(MOMENT_KEY) for g in sims}} for case, r in real.items()}
+    return gain, {"statistic": MOMENT_KEY, "by_case": rows, "steps": steps, "flights": sorted(pieces), "gain": gain}
 
 
 LATERAL_FIT_EVERY = 4   # labelled steps: every 4th (40 ms) for the least squares of lateral_k_xy
@@ -403,10 +451,12 @@ def fit(cfg: Config, gen_dir, flights: list[Flight], hover_by_robot: dict, robot
     acc, gyro, vib_rows = fit_vibration(cfg, gen_dir, real["free_air"], base)
     base = replace(base, vibration_acc_g={k: round(v, 4) for k, v in acc.items()},
                    vibration_gyro_dps={k: round(v, 3) for k, v in gyro.items()})
+    gain, moment = fit_moment(cfg, gen_dir, flights, base, workers)
+    base = replace(base, moment_gain=round(gain, 3))
     ratio, tau, turb_rows = fit_turbulence(cfg, gen_dir, flights, base, workers)
     rough = replace(base, turbulence_ratio=round(ratio, 3), turbulence_tau_s=round(tau, 4),
                     hover_motor_noise={ty: real["free_air"][ty]["motor_noise"] for ty in cfg.robot_types})
-    return rough, {"real": real, "wake": wake, "vibration_probes": vib_rows, "turbulence": turb_rows}
+    return rough, {"real": real, "wake": wake, "vibration_probes": vib_rows, "moment": moment, "turbulence": turb_rows}
 
 
 # label -> (rough, controller, learned, the z law read off the logs) of the replays (replay.replay)
@@ -491,8 +541,8 @@ def calibrate(cfg: Config, gen_dir, flights: list[Flight], hover_by_robot: dict,
               rough: Roughness | None = None) -> dict:
     """Fit (unless ``rough`` is given), compare, write out_dir/calibration.json and
     calibration.md; returns the JSON."""
-    from ns2host.sim.calibration import (paper_l2s_table, read_law_table, roughness_table, sim_to_real_table,
-                                         wake_profile_table)
+    from ns2host.sim.calibration import (moment_table, paper_l2s_table, read_law_table, roughness_table,
+                                         sim_to_real_table, wake_profile_table)
 
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -510,6 +560,7 @@ def calibrate(cfg: Config, gen_dir, flights: list[Flight], hover_by_robot: dict,
           + paper_l2s_table(l2s) + "\n\n## The z law read off the logs\n\n"
           + read_law_table(law, fit_report["read_law"] if fit_report else None)
           + ("\n\n## The wake at the real states\n\n" + wake_profile_table(fit_report["wake"]) if fit_report else "")
+          + ("\n\n## The wakes' moment\n\n" + moment_table(fit_report["moment"]) if fit_report else "")
           + "\n")
     atomic_write_bytes(out_dir / "calibration.md", md.encode())
     return res

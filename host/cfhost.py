@@ -92,7 +92,8 @@ typedef struct { ns2_ctrl_state_t s; ns2_setpoint_t sp; uint32_t do_pos, now_ms;
                  uint8_t peer_id[...]; uint8_t peer_type[...]; uint32_t peer_t[...]; float peer_p[...][3];
                  float pwm[4]; float fa_hat_g; } ns2_fly_trace_t;
 void ns2_fly_init(ns2_fly_robot_t *r, const ns2_fly_init_t *in);
-uint32_t ns2_fly_run(ns2_fly_robot_t *rob, uint32_t n, double *x, const double *f_a, uint32_t ms0, uint32_t ticks,
+uint32_t ns2_fly_run(ns2_fly_robot_t *rob, uint32_t n, double *x, const double *f_a, const double *tau_a,
+                     uint32_t ms0, uint32_t ticks,
                      const float *noise, const ns2_setpoint_t *sp, const ns2_fly_frame_t *frame, float battery_V,
                      ns2_fly_trace_t *tr, uint32_t tr_robot, uint32_t tr_max);
 void ns2_fly_estimate(const ns2_fly_robot_t *r, float out[13]);

@@ -200,7 +200,8 @@ static void trace(ns2_fly_trace_t *t, const ns2_fly_robot_t *r, const ns2_ctrl_s
     t->fa_hat_g = r->pilot.fa_hat_g;
 }
 
-uint32_t ns2_fly_run(ns2_fly_robot_t *rob, uint32_t n, double *x, const double *f_a, uint32_t ms0, uint32_t ticks,
+uint32_t ns2_fly_run(ns2_fly_robot_t *rob, uint32_t n, double *x, const double *f_a, const double *tau_a,
+                     uint32_t ms0, uint32_t ticks,
                      const float *noise, const ns2_setpoint_t *sp, const ns2_fly_frame_t *frame, float battery_V,
                      ns2_fly_trace_t *tr, uint32_t tr_robot, uint32_t tr_max)
 {
@@ -323,7 +324,7 @@ uint32_t ns2_fly_run(ns2_fly_robot_t *rob, uint32_t n, double *x, const double *
         for (uint32_t i = 0; i < n; ++i) {
             memcpy(&par[FLY_PAR * i], rob[i].par, sizeof(rob[i].par));
         }
-        ns2_sim_rk4(n, x, par, u_c, f_a, zeros, 1e-3);
+        ns2_sim_rk4(n, x, par, u_c, f_a, tau_a != NULL ? tau_a : zeros, 1e-3);
     }
     return n_tr;
 }

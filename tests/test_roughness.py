@@ -13,7 +13,7 @@ from conftest import REAL_DATA, needs, real_logs
 from ns2codegen.data.labels import psi1_newtons
 from ns2codegen.logs.align import logs_to_flights
 from ns2codegen.logs.collection import COLLECTION
-from ns2exp.calibrate import _quadrature, lateral_k_xy, thrust_sd
+from ns2exp.calibrate import MOMENT_KEY, _quadrature, lateral_k_xy, moment_gain, thrust_sd
 from ns2host.sim import flightstats as fs
 from ns2host.sim.aero import K_XY
 from ns2host.sim.cloop import CLoopSwarm, hover_setpoints
@@ -66,6 +66,38 @@ def test_each_effect_does_its_part(cfg, exported):
     _, turb = _fly(cfg, exported, replace(r, turbulence_ratio=0.3).only("turbulence"))
     d = turb["truth_fa"][0, :, 2] - clean["truth_fa"][0, :, 2]     # first log row: same state, own step
     assert np.all(np.abs(d) > 0) and np.all(np.abs(d) <= 0.3 * 6 * np.abs(clean["truth_fa"][0, :, 2]))
+
+
+def test_the_wakes_moment_turns_the_robot_under_a_wake(cfg, exported):
+    """roughness "moment": aero.py's per-rotor moment, scaled by moment_gain, flown as
+    the body torque tau_a of the dynamics; gain 0 is no effect, bit for bit."""
+    def hover(rough):   # a small robot 0.3 m under a large one, 5 cm off its axis along y
+        start = [[0.0, 0.0, 1.0], [0.0, 0.05, 1.3]]
+        sw = CLoopSwarm(cfg, ["small", "large"], exported.gen_dir, start, aero=True, seed=2, rough=rough)
+        return sw.run(0.6, hover_setpoints(np.array(start)), settle_s=0.1)
+
+    r = Roughness()
+    none, zero = hover(r.only()), hover(replace(r, moment_gain=0.0).only("moment"))
+    mom = hover(replace(r, moment_gain=1.0).only("moment"))
+    for k in ("p", "q", "pwm"):
+        assert np.array_equal(none[k], zero[k]), k
+    # the small robot's rotors on +y (M3, M4) in the wake: its attitude loop holds the
+    # roll with more thrust there than on -y (M1, M2)
+    side = lambda log: float(np.mean(log["pwm"][-20:, 0, 2:] - log["pwm"][-20:, 0, :2]))  # noqa: E731
+    assert side(mom) > 0.01 and abs(side(none)) < 0.2 * side(mom)
+    assert np.abs(mom["pwm"][:, 1] - none["pwm"][:, 1]).max() < 0.2 * side(mom)   # the large robot above: little
+
+
+def test_moment_gain_in_quadrature():
+    k = MOMENT_KEY
+    real = {"L2L": {"swaps": 3, k: 0.5}, "S2S": {"swaps": 1, k: 0.3}, "X": {"swaps": 9, k: 0.9}}
+    without = {"L2L": {k: 0.1}, "S2S": {k: 0.1}}
+    # excess^2 at gain 2 is a quarter of what the real flights ask in both: gain 4
+    probed = {"L2L": {k: math.sqrt(0.01 + 0.24 / 4)}, "S2S": {k: math.sqrt(0.01 + 0.08 / 4)}}
+    assert moment_gain(real, without, probed, 2.0) == pytest.approx(4.0)
+    assert moment_gain({"L2L": {"swaps": 1, k: 0.05}}, without, probed, 2.0) == 0.0   # already rougher
+    with pytest.raises(ValueError, match="did not raise"):
+        moment_gain(real, without, without, 2.0)
 
 
 def test_turbulence_is_the_stated_process():
@@ -243,7 +275,8 @@ def test_a_real_swap_measured_and_replayed(cfg, exported):
         got = np.array([sp(tt - t0).p for tt in p.t[k]])
         assert np.abs(got - p.p_d[k]).max() < 1e-6
     assert np.allclose(start, pieces[0].p_d[0])
-    sim = replay(cfg, pieces, exported.gen_dir, learned="float", rough=Roughness())
+    # without the wakes' moment: its attitude response reads as a lateral force too (its own tests above)
+    sim = replay(cfg, pieces, exported.gen_dir, learned="float", rough=Roughness().without("moment"))
     assert sim.t[0] == pytest.approx(t0) and sim.t[-1] == pytest.approx(t0 + dur, abs=0.011)
     s = fs.swap_errors([sim])
     assert list(s) == ["S2L"] and abs(s["S2L"]["swaps"] - r["swaps"]) <= 1

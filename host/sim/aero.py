@@ -49,6 +49,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ns2codegen.data.labels import quat_to_R
+
 from .vehicle import G, Vehicle
 
 RHO = 1.2              # kg/m^3
@@ -61,6 +63,7 @@ K_XY = 0.15            # lateral push relative to the wake's vertical force, per
 C_DRAG = 0.38          # 1/s: horizontal linear drag per kg of vehicle mass
 Z_MIN = 0.02           # m, landing-gear height: the ground terms are held below it
 SWEEPS = 3             # Jacobi sweeps of the wake cascade (exact for stacks of 4 robots)
+ROTORS = np.array([[1.0, -1.0, 0.0], [-1.0, -1.0, 0.0], [-1.0, 1.0, 0.0], [1.0, 1.0, 0.0]])  # x (arm / sqrt 2), B0's order
 
 
 def rotor_radius(veh: Vehicle) -> float:
@@ -123,12 +126,11 @@ class AeroModel:
         np.fill_diagonal(w, 0.0)
         return w, o, np.sqrt(sig_e2)
 
-    def forces(self, p: np.ndarray, v: np.ndarray, thrust: np.ndarray | None = None,
-               ground: bool = True, sources: np.ndarray | None = None) -> np.ndarray:
-        """f_a [N, 3] in newtons; thrust [N] defaults to hover thrust m g.  ground=False
-        takes the ground away (free air); sources [N] bool: only those robots shed a
-        wake (the others still feel the flow)."""
-        p, v = np.asarray(p, float), np.asarray(v, float)
+    def _flow(self, p, v, thrust, ground: bool, sources):
+        """The flow of every robot through the wake cascade: thrust [N], v_h [N], the
+        edgewise speed h and own axial inflow (/ v_h, m/s) [N], the thrust ratio t and
+        induced velocity nu [N], and the wakes' (w, o, sigma_e) of _wakes with the
+        final cascade's inflow w_in [N] (None for one robot)."""
         n = len(p)
         thrust = self.mass * G if thrust is None else np.clip(np.asarray(thrust, float), 1e-4, None)
         v_h = np.sqrt(thrust / (2.0 * RHO * self.area))
@@ -139,15 +141,30 @@ class AeroModel:
             own = own - v_h * np.minimum((self.r_e / (4.0 * z)) ** 2, 0.9)
         mask = np.ones(n, bool) if sources is None else np.asarray(sources, bool)
         t, nu = rotor_response(own / v_h, h, self.kappa)
-        w_in = np.zeros(n)
+        w_in, wakes = np.zeros(n), None
         for _ in range(SWEEPS if n > 1 else 0):                   # wakes feed the rotors below
             w, o, sig = self._wakes(p, v, nu * v_h, w_in, ground)
             w = w * mask[None, :]
+            wakes = (w, o, sig, w_in)
             w_in = w.sum(1)
             t, nu = rotor_response((w_in + own) / v_h, h, self.kappa)
+        return thrust, v_h, h, own, mask, t, nu, wakes
+
+    def forces(self, p: np.ndarray, v: np.ndarray, thrust: np.ndarray | None = None,
+               ground: bool = True, sources: np.ndarray | None = None) -> np.ndarray:
+        """f_a [N, 3] in newtons; thrust [N] defaults to hover thrust m g.  ground=False
+        takes the ground away (free air); sources [N] bool: only those robots shed a
+        wake (the others still feel the flow)."""
+        p, v = np.asarray(p, float), np.asarray(v, float)
+        return self._forces(p, v, self._flow(p, v, thrust, ground, sources))
+
+    def _forces(self, p, v, flow) -> np.ndarray:
+        thrust, v_h, _, _, _, t, _, wakes = flow
+        n = len(p)
         f = np.zeros((n, 3))
         f[:, 2] = thrust * (t - 1.0)
         if n > 1:
+            w, o, sig, _ = wakes
             c0 = self.kappa * (1.0 - (1.0 + self.kappa) / (2.0 + self.kappa))   # -dt/dx at x = 0
             r = np.linalg.norm(o, axis=2)
             with np.errstate(invalid="ignore", divide="ignore"):
@@ -156,6 +173,54 @@ class AeroModel:
             f[:, :2] = (push[..., None] * e).sum(1)
         f[:, :2] -= C_DRAG * self.mass[:, None] * v[:, :2]
         return f
+
+    def forces_moments(self, p: np.ndarray, v: np.ndarray, q: np.ndarray, thrust: np.ndarray | None = None,
+                       ground: bool = True) -> tuple[np.ndarray, np.ndarray]:
+        """forces() and the wakes' moment tau_a [N, 3] (N m, body frame) on every robot:
+        each of its four rotors (at arm / sqrt 2 (+-1, +-1) in the body, q [N, 4] w x y z
+        body to world) responds to the downwash of the others' wakes at its own disc
+        (the wake profile of _wakes at the rotor's centre, averaged over the rotor's
+        disc, the ground's upwash and the robot's own flow as for the whole robot),
+        and the four rotors' vertical forces make a moment about the centre of mass.
+        A uniform flow makes none: only the wakes' gradient across the robot does."""
+        p, v, q = np.asarray(p, float), np.asarray(v, float), np.asarray(q, float)
+        flow = self._flow(p, v, thrust, ground, None)
+        f = self._forces(p, v, flow)
+        n = len(p)
+        tau = np.zeros((n, 3))
+        if n < 2:
+            return f, tau
+        thrust, v_h, h, own, mask, _, nu, (_, _, _, w_in) = flow
+        R = quat_to_R(q / np.linalg.norm(q, axis=1, keepdims=True))   # [N, 3, 3]
+        arm = np.array([self.vehicles[i].arm for i in range(n)]) / np.sqrt(2.0)
+        lever = np.einsum("nab,nkb->nka", R, arm[:, None, None] * ROTORS[None])   # [N, 4, 3] world
+        pts = p[:, None, :] + lever                                # rotor centres [N, 4, 3]
+        w = self._wake_at(pts.reshape(4 * n, 3), np.repeat(np.arange(n), 4), p, v, nu * v_h, w_in, ground)
+        w_rot = (w * mask[None, :]).sum(1).reshape(n, 4)
+        t_rot, _ = rotor_response((w_rot + own[:, None]) / v_h[:, None], h[:, None], self.kappa[:, None])
+        f_rot = thrust[:, None] / 4.0 * (t_rot - 1.0)               # [N, 4] vertical, world
+        tau_w = np.stack([(lever[..., 1] * f_rot).sum(1), -(lever[..., 0] * f_rot).sum(1), np.zeros(n)], axis=1)
+        return f, np.einsum("nba,nb->na", R, tau_w)
+
+    def _wake_at(self, pts, owner, p, v, v_i, w_in, ground: bool):
+        """_wakes' downward speed w[m, j] of robot j's wake at point m (a rotor of robot
+        owner[m]), averaged over a rotor's disc; 0 for j = owner[m]."""
+        s = p[None, :, 2] - pts[:, None, 2]
+        sp = np.maximum(s, 0.0)
+        r_j, s0 = self.r_rot[None, :], self.sigma0[None, :]
+        sigma = s0 + self.spread * sp
+        axial = 1.0 + s / np.sqrt(s * s + r_j * r_j)
+        u_c = v_i[None, :] * axial * s0 / sigma
+        speed = np.maximum(2.0 * v_i + w_in, 0.5)[None, :]
+        tau = sp * (1.0 + self.spread * sp / (2.0 * s0)) / speed
+        o = p[None, :, :2] - v[None, :, :2] * tau[..., None] - pts[:, None, :2]
+        sig_e2 = sigma ** 2 + self.r_rot[owner][:, None] ** 2 / 4.0
+        w = u_c * (sigma ** 2 / sig_e2) * np.exp(-(o ** 2).sum(-1) / (2.0 * sig_e2))
+        if ground:
+            zi = np.maximum(pts[:, None, 2], 0.0)
+            w = w * np.tanh(zi / (C_IMPINGE * np.maximum(p[None, :, 2], Z_MIN)))
+        w[np.arange(len(pts)), owner] = 0.0
+        return w
 
     def __call__(self, p: np.ndarray, v: np.ndarray, thrust: np.ndarray | None = None) -> np.ndarray:
         """f_a [N, 3] in newtons; thrust [N] defaults to hover thrust m g."""

@@ -294,6 +294,22 @@ def wake_profile_table(wake: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
+def moment_table(moment: dict) -> str:
+    """experiments/calibrate.py fit_moment: per swap scenario of its flights, the bottom
+    robot's median largest motor departure from the motors' mean (PWM), real and
+    replayed at every gain the fit flew, then the fit's steps."""
+    gains = [k for k in next(iter(moment["by_case"].values())) if k.startswith("gain ")]
+    lines = ["| scenario | swaps | real | " + " | ".join(f"replay, {g}" for g in gains) + " |",
+             "|---|---|---|" + "---|" * len(gains)]
+    for case, r in sorted(moment["by_case"].items()):
+        lines.append(f"| {case} | {r['swaps']} | {_cell(r['real'], 4)} | "
+                     + " | ".join(_cell(r[g], 4) for g in gains) + " |")
+    steps = "; ".join(f"probe {s['probe_gain']} -> {s['gain']}" for s in moment["steps"])
+    return ("\n".join(lines) + f"\n\nFitted gain {moment['gain']} ({steps}; in quadrature, weighted by swaps; "
+            "replays of " + ", ".join(moment["flights"]) + ", the authors' controller flying the logged prediction, "
+            "turbulence off).\n")
+
+
 def paper_l2s_table(l2s: dict) -> str:
     """experiments/calibrate.py paper_l2s: simulated against the paper's median worst z error."""
     lines = ["| controller | swaps | simulated (cm) | paper (cm) | simulated / paper | within 30 % |",

@@ -111,6 +111,7 @@ class CLoopSwarm:
         self.rough = rough
         thrust = rough.thrust_factors(seed, n) if rough is not None else np.ones(n)
         self.turbulence = Turbulence(rough, n, 1.0 / ATT_HZ, seed) if rough is not None else None
+        self.moment_gain = rough.moment_gain if rough is not None and rough.on("moment") else 0.0
         for i, veh in enumerate(self.vehicles):
             it = ffi.new("ns2_fly_init_t *")
             it.kind = {"ns2": lib.NS2_FLY_PILOT, "mellinger": lib.NS2_FLY_MELLINGER,
@@ -203,7 +204,14 @@ class CLoopSwarm:
                 tick, p_meas, rx = frames.popleft()
                 frame.tick, frame.p, frame.rx = tick, ptr("float *", p_meas), ptr("uint8_t *", rx)
                 fr = frame
-            f_a = self.aero(st.p, st.v, st.u.sum(axis=1)) if self.aero else np.zeros((n, 3))
+            tau = None   # the wakes' moment (body, N m), kept alive while ns2_fly_run reads it
+            if self.aero is None:
+                f_a = np.zeros((n, 3))
+            elif self.moment_gain:
+                f_a, tau = self.aero.forces_moments(st.p, st.v, st.q, st.u.sum(axis=1))
+                tau = np.ascontiguousarray(self.moment_gain * tau)
+            else:
+                f_a = self.aero(st.p, st.v, st.u.sum(axis=1))
             if self.turbulence is not None:
                 f_a = f_a + self.turbulence.force(f_a)
             battery_V = (self.battery_V if self.rough is None
@@ -226,7 +234,8 @@ class CLoopSwarm:
                 log.pilot_status.append([self.robots[i].pilot.status for i in range(n)])
             noise = self.rng.standard_normal((STEP_TICKS, n, 6), dtype=np.float32)
             fa = np.ascontiguousarray(f_a, float)
-            n_tr += lib.ns2_fly_run(self.robots, n, ptr("double *", x), ptr("double *", fa), ms, STEP_TICKS,
+            n_tr += lib.ns2_fly_run(self.robots, n, ptr("double *", x), ptr("double *", fa),
+                                    ptr("double *", tau) if tau is not None else ffi.NULL, ms, STEP_TICKS,
                                     ptr("float *", noise), ptr("ns2_setpoint_t *", self.sps), fr, battery_V,
                                     tr + n_tr if tr != ffi.NULL else ffi.NULL, trace_robot or 0, tr_max - n_tr)
         self.state = SwarmState.unpack(x.copy())

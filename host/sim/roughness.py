@@ -29,6 +29,14 @@ wake         the wake's profile read off the real flights: the ground truth's in
              every robot under a neighbour, against the truth evaluated at the same
              logged states (least squares of the difference; no controller, no
              replay): the paper-calibrated wake is too wide beside its axis.
+moment       the wakes' moment on a robot: each rotor responds to the downwash at its
+             own disc (aero.py AeroModel.forces_moments: the truth's wake profile at
+             the rotor, the same rotor response), the four rotors' forces make a
+             moment about the centre of mass, scaled by ``moment_gain``.  Source: the
+             bottom robot's motor commands in the real swaps (flightstats.swap_attitude:
+             its attitude loop's largest departure from the four motors' mean, 0.40-0.67
+             of full PWM in the real swaps, 0.02-0.2 in the simulator without it),
+             matched by replays (experiments/calibrate.py fit_moment).
 """
 from __future__ import annotations
 
@@ -39,7 +47,7 @@ import numpy as np
 
 from .vehicle import base_type
 
-EFFECTS = ("vibration", "turbulence", "thrust", "battery", "wake")
+EFFECTS = ("vibration", "turbulence", "thrust", "battery", "wake", "moment")
 
 
 @dataclass(frozen=True)
@@ -58,6 +66,8 @@ class Roughness:
     # the wake's profile (aero.calibrated's scales)
     wake_sigma0_scale: float = 0.848
     wake_spread_scale: float = 0.474
+    # the wakes' moment (a factor on aero.py's per-rotor moment)
+    moment_gain: float = 1.0
     # not an effect: the motor-command noise of the real robots in free air (flightstats),
     # the bound of BL-tuned's gain search in the rough simulator (experiments/swarm.py)
     hover_motor_noise: dict = field(default_factory=lambda: {"small": 0.0274, "large": 0.04613})
