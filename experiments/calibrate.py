@@ -209,7 +209,7 @@ def fit_moment(cfg: Config, gen_dir, flights: list[Flight], base: Roughness, wor
     b = base.without("turbulence")
 
     def departure(g: float) -> dict:
-        rough = replace(b, moment_gain=g) if g else b.without("moment")
+        rough = replace(b, moment_gain=g).plus("moment") if g else b.without("moment")
         return fs.swap_attitude(replay_all(cfg, gen_dir, pieces, rough, workers, controller="authors", learned="logged"))
 
     sims = {0.0: departure(0.0)}
@@ -452,7 +452,7 @@ def fit(cfg: Config, gen_dir, flights: list[Flight], hover_by_robot: dict, robot
     base = replace(base, vibration_acc_g={k: round(v, 4) for k, v in acc.items()},
                    vibration_gyro_dps={k: round(v, 3) for k, v in gyro.items()})
     gain, moment = fit_moment(cfg, gen_dir, flights, base, workers)
-    base = replace(base, moment_gain=round(gain, 3))
+    base = replace(base, moment_gain=round(gain, 3))    # the effect stays as base has it (off by default)
     ratio, tau, turb_rows = fit_turbulence(cfg, gen_dir, flights, base, workers)
     rough = replace(base, turbulence_ratio=round(ratio, 3), turbulence_tau_s=round(tau, 4),
                     hover_motor_noise={ty: real["free_air"][ty]["motor_noise"] for ty in cfg.robot_types})

@@ -77,6 +77,8 @@ def test_the_wakes_moment_turns_the_robot_under_a_wake(cfg, exported):
         return sw.run(0.6, hover_setpoints(np.array(start)), settle_s=0.1)
 
     r = Roughness()
+    assert not r.on("moment") and r.plus("moment").on("moment")    # off in the calibrated simulator
+    assert r.plus("moment").without("moment") == r
     none, zero = hover(r.only()), hover(replace(r, moment_gain=0.0).only("moment"))
     mom = hover(replace(r, moment_gain=1.0).only("moment"))
     for k in ("p", "q", "pwm"):
