@@ -38,7 +38,7 @@ moment       the wakes' moment on a robot (OFF by default: not in DEFAULT_EFFECT
              departure from the four motors' mean, 0.40-0.67 of full PWM in the real
              swaps, 0.02-0.2 in the simulator without it), matched by replays
              (experiments/calibrate.py fit_moment: gain 2.7).  At that gain the replayed
-             robots tilt 1.3-3x as far as the real ones and the project's controller
+             robots tilt 1.3-4x as far as the real ones and the project's controller
              loses some of them (docs/simulator.md): a steady moment that parts the
              motors as far as the real ones turns the robot too far, so the real
              motors' departure is not this moment alone.  Kept switchable for that work.
@@ -80,15 +80,11 @@ class Roughness:
     enabled: tuple = DEFAULT_EFFECTS
 
     def without(self, *names: str) -> "Roughness":
-        unknown = [n for n in names if n not in EFFECTS]
-        if unknown:
-            raise ValueError(f"unknown roughness effects {unknown}: {EFFECTS}")
+        _known(names)
         return replace(self, enabled=tuple(e for e in self.enabled if e not in names))
 
     def only(self, *names: str) -> "Roughness":
-        unknown = [n for n in names if n not in EFFECTS]
-        if unknown:
-            raise ValueError(f"unknown roughness effects {unknown}: {EFFECTS}")
+        _known(names)
         return replace(self, enabled=tuple(e for e in EFFECTS if e in names))
 
     def plus(self, *names: str) -> "Roughness":
@@ -124,6 +120,12 @@ class Roughness:
         if not self.on("battery"):
             return nominal_V
         return self.battery_start_V - self.battery_sag_V_per_min * max(t_s, 0.0) / 60.0
+
+
+def _known(names) -> None:
+    unknown = [n for n in names if n not in EFFECTS]
+    if unknown:
+        raise ValueError(f"unknown roughness effects {unknown}: {EFFECTS}")
 
 
 class Turbulence:
