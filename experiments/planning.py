@@ -634,10 +634,9 @@ def planning_experiments(cfg: Config, checkpoint, gen_dir, out_dir, scenarios=No
             if future.exception() is None:
                 store.put("trial", future.result()[0], *tkey(*t))
 
-        futures = {}
-        for t, a in (args.items() if pool is not None else ()):
-            futures[t] = pool.submit(_experiment_trial, *a)
-            futures[t].add_done_callback(lambda f, t=t: keep(t, f))
+        futures = {t: pool.submit(_experiment_trial, *a) for t, a in args.items()} if pool is not None else {}
+        for t, f in futures.items():
+            f.add_done_callback(lambda f, t=t: keep(t, f))
         results, figures = {}, {}
         for d in dims:
             for name in names:

@@ -98,6 +98,7 @@ class AeroModel:
         self.r_rot = np.array([rotor_radius(v) for v in vehicles])
         self.area = 4.0 * np.pi * self.r_rot ** 2                 # four rotors
         self.disc = np.array([v.diameter / 2.0 for v in vehicles])  # the receiver's disc
+        self.arm = np.array([v.arm for v in vehicles]) / np.sqrt(2.0)   # rotor offset along x and y (B0)
         self.sigma0 = sigma0_scale * np.sqrt(2.0) * self.r_rot    # jet of the rotors' momentum flux
         v_h = np.sqrt(self.mass * G / (2.0 * RHO * self.area))
         self.kappa = SIGMA_A * TIP_SPEED / (8.0 * v_h)            # sigma a / (8 lambda_h) at hover
@@ -109,7 +110,14 @@ class AeroModel:
     def _wakes(self, p, v, v_i, w_in, ground: bool):
         """Downward speed w[i, j] of robot j's wake at robot i's disc, with the wake
         axis offset o[i, j] (xy) and the disc-averaged width sigma_e[i, j]."""
-        s = p[None, :, 2] - p[:, None, 2]                          # depth of i below j
+        return self._wake_at(p, self.disc, np.arange(len(p)), p, v, v_i, w_in, ground)
+
+    def _wake_at(self, pts, radius, owner, p, v, v_i, w_in, ground: bool):
+        """Downward speed w[m, j] of robot j's wake (robots at p, v, induced velocity
+        v_i, inflow w_in) at receiver m (centre pts[m], a disc of radius[m], belonging
+        to robot owner[m]: 0 for j = owner[m]), with the wake axis offset o[m, j] (xy)
+        and the disc-averaged width sigma_e[m, j]."""
+        s = p[None, :, 2] - pts[:, None, 2]                        # depth of m below j
         sp = np.maximum(s, 0.0)
         r_j, s0 = self.r_rot[None, :], self.sigma0[None, :]
         sigma = s0 + self.spread * sp
@@ -117,13 +125,13 @@ class AeroModel:
         u_c = v_i[None, :] * axial * s0 / sigma                    # centre line, momentum flux kept
         speed = np.maximum(2.0 * v_i + w_in, 0.5)[None, :]
         tau = sp * (1.0 + self.spread * sp / (2.0 * s0)) / speed   # wake travel time to depth s
-        o = p[None, :, :2] - v[None, :, :2] * tau[..., None] - p[:, None, :2]
-        sig_e2 = sigma ** 2 + self.disc[:, None] ** 2 / 4.0         # averaged over the receiver's disc
+        o = p[None, :, :2] - v[None, :, :2] * tau[..., None] - pts[:, None, :2]
+        sig_e2 = sigma ** 2 + radius[:, None] ** 2 / 4.0           # averaged over the receiver's disc
         w = u_c * (sigma ** 2 / sig_e2) * np.exp(-(o ** 2).sum(-1) / (2.0 * sig_e2))
         if ground:
-            zi = np.maximum(p[:, None, 2], 0.0)
+            zi = np.maximum(pts[:, None, 2], 0.0)
             w = w * np.tanh(zi / (C_IMPINGE * np.maximum(p[None, :, 2], Z_MIN)))
-        np.fill_diagonal(w, 0.0)
+        w[np.arange(len(pts)), owner] = 0.0
         return w, o, np.sqrt(sig_e2)
 
     def _flow(self, p, v, thrust, ground: bool, sources):
@@ -192,35 +200,15 @@ class AeroModel:
             return f, tau
         thrust, v_h, h, own, mask, _, nu, (_, _, _, w_in) = flow
         R = quat_to_R(q / np.linalg.norm(q, axis=1, keepdims=True))   # [N, 3, 3]
-        arm = np.array([self.vehicles[i].arm for i in range(n)]) / np.sqrt(2.0)
-        lever = np.einsum("nab,nkb->nka", R, arm[:, None, None] * ROTORS[None])   # [N, 4, 3] world
+        lever = np.einsum("nab,nkb->nka", R, self.arm[:, None, None] * ROTORS[None])   # [N, 4, 3] world
         pts = p[:, None, :] + lever                                # rotor centres [N, 4, 3]
-        w = self._wake_at(pts.reshape(4 * n, 3), np.repeat(np.arange(n), 4), p, v, nu * v_h, w_in, ground)
+        owner = np.repeat(np.arange(n), 4)
+        w, _, _ = self._wake_at(pts.reshape(4 * n, 3), self.r_rot[owner], owner, p, v, nu * v_h, w_in, ground)
         w_rot = (w * mask[None, :]).sum(1).reshape(n, 4)
         t_rot, _ = rotor_response((w_rot + own[:, None]) / v_h[:, None], h[:, None], self.kappa[:, None])
         f_rot = thrust[:, None] / 4.0 * (t_rot - 1.0)               # [N, 4] vertical, world
         tau_w = np.stack([(lever[..., 1] * f_rot).sum(1), -(lever[..., 0] * f_rot).sum(1), np.zeros(n)], axis=1)
         return f, np.einsum("nba,nb->na", R, tau_w)
-
-    def _wake_at(self, pts, owner, p, v, v_i, w_in, ground: bool):
-        """_wakes' downward speed w[m, j] of robot j's wake at point m (a rotor of robot
-        owner[m]), averaged over a rotor's disc; 0 for j = owner[m]."""
-        s = p[None, :, 2] - pts[:, None, 2]
-        sp = np.maximum(s, 0.0)
-        r_j, s0 = self.r_rot[None, :], self.sigma0[None, :]
-        sigma = s0 + self.spread * sp
-        axial = 1.0 + s / np.sqrt(s * s + r_j * r_j)
-        u_c = v_i[None, :] * axial * s0 / sigma
-        speed = np.maximum(2.0 * v_i + w_in, 0.5)[None, :]
-        tau = sp * (1.0 + self.spread * sp / (2.0 * s0)) / speed
-        o = p[None, :, :2] - v[None, :, :2] * tau[..., None] - pts[:, None, :2]
-        sig_e2 = sigma ** 2 + self.r_rot[owner][:, None] ** 2 / 4.0
-        w = u_c * (sigma ** 2 / sig_e2) * np.exp(-(o ** 2).sum(-1) / (2.0 * sig_e2))
-        if ground:
-            zi = np.maximum(pts[:, None, 2], 0.0)
-            w = w * np.tanh(zi / (C_IMPINGE * np.maximum(p[None, :, 2], Z_MIN)))
-        w[np.arange(len(pts)), owner] = 0.0
-        return w
 
     def __call__(self, p: np.ndarray, v: np.ndarray, thrust: np.ndarray | None = None) -> np.ndarray:
         """f_a [N, 3] in newtons; thrust [N] defaults to hover thrust m g."""
