@@ -7,10 +7,11 @@
    part of the residual rises with the accelerometer's noise, the motor-command
    noise with the gyro's, each in quadrature), the wake's profile (fit_wake: the
    truth at the logged states of robots under a neighbour against their labels, no
-   replay), the wakes' moment (fit_moment: replays of the pair swaps, the bottom
-   robot's largest motor departure from the motors' mean), wake turbulence (replays of the pair
-   swaps with the other effects on: the real scatter under a neighbour beyond the
-   simulator's, per unit of the wake's force; tau from its fast share); and the z
+   replay), wake turbulence (replays of the pair swaps with the other effects on:
+   the real scatter under a neighbour beyond the simulator's, per unit of the
+   wake's force; tau from its fast share), the wakes' moments (fit_moment: replays
+   of the pair swaps, the bottom robot's largest motor departure from the motors'
+   mean, its slow part for the steady moment, the whole for the turbulent one); and the z
    law that flew (fit_read_law: the authors' law with the gains, the share of the
    prediction taken off and the mass parameter with which replays read back what the
    real swaps read, flightstats.z_law);
@@ -178,50 +179,68 @@ def fit_turbulence(cfg: Config, gen_dir, flights: list[Flight], base: Roughness,
 
 
 MOMENT_PROBE_GAIN = 2.0
-MOMENT_KEY = "median_max_motor_spread"   # flightstats.swap_attitude: the attitude loop's largest ask
+MOMENT_KEY = "median_max_slow_motor_spread"        # flightstats.swap_attitude: the slow part of the attitude loop's ask
+MOMENT_TURBULENCE_PROBE = 1.0
+MOMENT_TURBULENCE_KEY = "median_max_motor_spread"  # ... and the whole of it
 
 
-def moment_gain(real: dict, without: dict, probed: dict, probe: float) -> float:
-    """The gain g with sum_c w_c real_c^2 = sum_c w_c (without_c^2 + (probed_c^2 -
-    without_c^2) (g / probe)^2) over the scenarios c of ``real`` (swap_attitude's,
-    weights: its swaps) that every replay has."""
+def quadrature_fit(real: dict, without: dict, probed: dict, probe: float, key: str) -> float:
+    """The factor g with sum_c w_c real_c^2 = sum_c w_c (without_c^2 + (probed_c^2 -
+    without_c^2) (g / probe)^2) of statistic ``key`` over the scenarios c of ``real``
+    (swap_attitude's, weights: its swaps) that every replay has."""
     num = den = 0.0
     for case, r in real.items():
         if case in without and case in probed:
-            r0, r1 = without[case][MOMENT_KEY], probed[case][MOMENT_KEY]
-            num += r["swaps"] * (r[MOMENT_KEY] ** 2 - r0 ** 2)
+            r0, r1 = without[case][key], probed[case][key]
+            num += r["swaps"] * (r[key] ** 2 - r0 ** 2)
             den += r["swaps"] * (r1 ** 2 - r0 ** 2)
     if den <= 0:
-        raise ValueError(f"the moment at gain {probe} did not raise the motors' departure")
+        raise ValueError(f"{key}: the probe {probe} did not raise it")
     return probe * math.sqrt(max(num, 0.0) / den)
 
 
-def fit_moment(cfg: Config, gen_dir, flights: list[Flight], base: Roughness, workers: int = 1) -> tuple[float, dict]:
-    """moment_gain: the bottom robot's largest motor departure from the four motors'
+def fit_moment(cfg: Config, gen_dir, flights: list[Flight], base: Roughness,
+               workers: int = 1) -> tuple[float, float, dict]:
+    """The wakes' moments from the bottom robot's motor departure from the four motors'
     mean in the real pair swaps (fit_pieces, flightstats.swap_attitude), matched by
     replays of the same flights (the authors' controller flying the prediction the
-    real robots logged, turbulence off): without the moment and at a probe gain g_p,
-    real^2 = without^2 + (probe^2 - without^2) (gain / g_p)^2 summed over the swap
-    scenarios weighted by their swaps; twice, the second time with the first answer
-    as the probe (the departure grows faster than the gain: the motors saturate)."""
+    real robots logged, the force's turbulence off), each in quadrature (real^2 =
+    without^2 + (probe^2 - without^2) (x / probe)^2, summed over the swap scenarios
+    weighted by their swaps), twice, the second time with the first answer as the
+    probe (the departure grows faster than the moment: the motors saturate):
+    moment_gain, the steady moment, on the slow part of the departure (its 0.2 s
+    average), with no turbulent moment; then moment_turbulence_ratio on the whole
+    departure, with the steady moment at its fitted gain."""
     pieces = fit_pieces(flights)
     real = fs.swap_attitude([p for ps in pieces.values() for p in ps])
-    b = base.without("turbulence")
+    b = base.without("turbulence", "moment", "moment_turbulence")
 
-    def departure(g: float) -> dict:
-        rough = replace(b, moment_gain=g).plus("moment") if g else b.without("moment")
+    def attitude(gain: float, ratio: float) -> dict:
+        rough = replace(b, moment_gain=gain, moment_turbulence_ratio=ratio)
+        rough = rough.plus(*(["moment"] if gain else []) + (["moment_turbulence"] if ratio else []))
         return fs.swap_attitude(replay_all(cfg, gen_dir, pieces, rough, workers, controller="authors", learned="logged"))
 
-    sims = {0.0: departure(0.0)}
-    probe, steps = MOMENT_PROBE_GAIN, []
-    for _ in range(2):
-        sims[probe] = departure(probe)
-        gain = round(moment_gain(real, sims[0.0], sims[probe], probe), 3)
-        steps.append({"probe_gain": probe, "gain": gain})
-        probe = gain
-    rows = {case: {"swaps": r["swaps"], "real": r[MOMENT_KEY],
-                   **{f"gain {g}": sims[g].get(case, {}).get(MOMENT_KEY) for g in sims}} for case, r in real.items()}
-    return gain, {"statistic": MOMENT_KEY, "by_case": rows, "steps": steps, "flights": sorted(pieces), "gain": gain}
+    def two_steps(flown: dict, fly, probe: float, key: str) -> tuple[float, list]:
+        steps = []
+        for _ in range(2):
+            flown[probe] = fly(probe)
+            x = round(quadrature_fit(real, flown[0.0], flown[probe], probe, key), 3)
+            steps.append({"probe": probe, "fit": x})
+            probe = x
+        return x, steps
+
+    steady = {0.0: attitude(0.0, 0.0)}
+    gain, gain_steps = two_steps(steady, lambda g: attitude(g, 0.0), MOMENT_PROBE_GAIN, MOMENT_KEY)
+    turb = {0.0: attitude(gain, 0.0)}
+    ratio, ratio_steps = two_steps(turb, lambda r: attitude(gain, r), MOMENT_TURBULENCE_PROBE, MOMENT_TURBULENCE_KEY)
+    keys = (MOMENT_KEY, MOMENT_TURBULENCE_KEY, "median_max_tilt_deg")
+    rows = {case: {"swaps": r["swaps"], "real": {k: r[k] for k in keys},
+                   **{f"gain {g}": {k: steady[g].get(case, {}).get(k) for k in keys} for g in steady},
+                   **{f"gain {gain}, turbulence {x}": {k: turb[x].get(case, {}).get(k) for k in keys} for x in turb}}
+            for case, r in real.items()}
+    return gain, ratio, {"statistics": list(keys), "by_case": rows, "gain_steps": gain_steps,
+                         "ratio_steps": ratio_steps, "flights": sorted(pieces), "gain": gain, "ratio": ratio,
+                         "tau_s": base.turbulence_tau_s}
 
 
 LATERAL_FIT_EVERY = 4   # labelled steps: every 4th (40 ms) for the least squares of lateral_k_xy
@@ -451,10 +470,11 @@ def fit(cfg: Config, gen_dir, flights: list[Flight], hover_by_robot: dict, robot
     acc, gyro, vib_rows = fit_vibration(cfg, gen_dir, real["free_air"], base)
     base = replace(base, vibration_acc_g={k: round(v, 4) for k, v in acc.items()},
                    vibration_gyro_dps={k: round(v, 3) for k, v in gyro.items()})
-    gain, moment = fit_moment(cfg, gen_dir, flights, base, workers)
-    base = replace(base, moment_gain=round(gain, 3))    # the effect stays as base has it (off by default)
     ratio, tau, turb_rows = fit_turbulence(cfg, gen_dir, flights, base, workers)
-    rough = replace(base, turbulence_ratio=round(ratio, 3), turbulence_tau_s=round(tau, 4),
+    base = replace(base, turbulence_ratio=round(ratio, 3), turbulence_tau_s=round(tau, 4))
+    gain, m_ratio, moment = fit_moment(cfg, gen_dir, flights, base, workers)
+    # the moments' effects stay as base has them (off by default)
+    rough = replace(base, moment_gain=gain, moment_turbulence_ratio=m_ratio,
                     hover_motor_noise={ty: real["free_air"][ty]["motor_noise"] for ty in cfg.robot_types})
     return rough, {"real": real, "wake": wake, "vibration_probes": vib_rows, "moment": moment, "turbulence": turb_rows}
 

@@ -13,12 +13,12 @@ from conftest import REAL_DATA, needs, real_logs
 from ns2codegen.data.labels import psi1_newtons
 from ns2codegen.logs.align import logs_to_flights
 from ns2codegen.logs.collection import COLLECTION
-from ns2exp.calibrate import MOMENT_KEY, _quadrature, lateral_k_xy, moment_gain, thrust_sd
+from ns2exp.calibrate import MOMENT_KEY, _quadrature, lateral_k_xy, quadrature_fit, thrust_sd
 from ns2host.sim import flightstats as fs
 from ns2host.sim.aero import K_XY
 from ns2host.sim.cloop import CLoopSwarm, hover_setpoints
 from ns2host.sim.replay import logged_prediction, logged_setpoints, pieces_by_flight, replay
-from ns2host.sim.roughness import Roughness, Turbulence, hp_share
+from ns2host.sim.roughness import MomentTurbulence, Roughness, Turbulence, hp_share
 from ns2host.sim.scenarios import swap
 
 SWAPS = "neural-swarm-2020-06-16-swaps.tar.xz"
@@ -88,18 +88,48 @@ def test_the_wakes_moment_turns_the_robot_under_a_wake(cfg, exported):
     side = lambda log: float(np.mean(log["pwm"][-20:, 0, 2:] - log["pwm"][-20:, 0, :2]))  # noqa: E731
     assert side(mom) > 0.01 and abs(side(none)) < 0.2 * side(mom)
     assert np.abs(mom["pwm"][:, 1] - none["pwm"][:, 1]).max() < 0.2 * side(mom)   # the large robot above: little
+    # the turbulent moment ("moment_turbulence"): the small robot's motors part, the large
+    # robot above (no wake on it) keeps its commands; ratio 0 is no effect, bit for bit
+    assert not r.on("moment_turbulence")
+    zero_t = hover(replace(r, moment_turbulence_ratio=0.0).only("moment_turbulence"))
+    turb = hover(replace(r, moment_turbulence_ratio=1.0).only("moment_turbulence"))
+    for k in ("p", "q", "pwm"):
+        assert np.array_equal(none[k], zero_t[k]), k
+
+    def departure(log, i):
+        pwm = log["pwm"][:, i]
+        return float(np.abs(pwm - pwm.mean(1, keepdims=True)).max())
+    assert departure(turb, 0) > 3 * departure(none, 0)
+    assert np.abs(turb["pwm"][:, 1] - none["pwm"][:, 1]).max() < 0.2 * departure(turb, 0)
 
 
-def test_moment_gain_in_quadrature():
+def test_moment_fit_in_quadrature():
     k = MOMENT_KEY
     real = {"L2L": {"swaps": 3, k: 0.5}, "S2S": {"swaps": 1, k: 0.3}, "X": {"swaps": 9, k: 0.9}}
     without = {"L2L": {k: 0.1}, "S2S": {k: 0.1}}
     # excess^2 at gain 2 is a quarter of what the real flights ask in both: gain 4
     probed = {"L2L": {k: math.sqrt(0.01 + 0.24 / 4)}, "S2S": {k: math.sqrt(0.01 + 0.08 / 4)}}
-    assert moment_gain(real, without, probed, 2.0) == pytest.approx(4.0)
-    assert moment_gain({"L2L": {"swaps": 1, k: 0.05}}, without, probed, 2.0) == 0.0   # already rougher
+    assert quadrature_fit(real, without, probed, 2.0, k) == pytest.approx(4.0)
+    assert quadrature_fit({"L2L": {"swaps": 1, k: 0.05}}, without, probed, 2.0, k) == 0.0   # already rougher
     with pytest.raises(ValueError, match="did not raise"):
-        moment_gain(real, without, without, 2.0)
+        quadrature_fit(real, without, without, 2.0, k)
+
+
+def test_the_turbulent_moment_is_the_stated_process():
+    """roughness "moment_turbulence": per robot two Gauss-Markov torques (body x, y) of
+    the turbulence's tau, sd ratio x |f_a,z| x arm, none without a wake, a stream of its own."""
+    r = Roughness(moment_turbulence_ratio=0.5, turbulence_tau_s=0.02).plus("moment_turbulence")
+    mt = MomentTurbulence(r, [0.046, 0.07], 0.002, seed=1)
+    f = np.array([[0.0, 0.0, -0.1], [0.0, 0.0, 0.0]])
+    x = np.array([mt.moment(f) for _ in range(40000)])
+    assert np.all(x[:, 1] == 0.0) and np.all(x[:, 0, 2] == 0.0)     # no wake, none; no yaw
+    for a in (0, 1):
+        assert np.std(x[:, 0, a]) == pytest.approx(0.5 * 0.1 * 0.046, rel=0.05)
+        lag1 = np.corrcoef(x[1:, 0, a], x[:-1, 0, a])[0, 1]
+        assert lag1 == pytest.approx(math.exp(-0.002 / 0.02), abs=0.02)
+    assert abs(np.corrcoef(x[:, 0, 0], x[:, 0, 1])[0, 1]) < 0.05      # independent axes
+    off = MomentTurbulence(Roughness(moment_turbulence_ratio=0.5), [0.046], 0.002, seed=1)
+    assert not off.on and np.all(off.moment(f[:1]) == 0.0)             # off by default
 
 
 def test_turbulence_is_the_stated_process():

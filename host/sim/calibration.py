@@ -220,6 +220,8 @@ def roughness_table(cmp: dict, judged: str = "rough") -> str:
         row(f"swap {case}, bottom robot: median largest xy error (m)", ("attitude", case, "median_max_xy_error_m"), 4)
         row(f"swap {case}, bottom robot: median largest motor departure from the motors' mean (PWM)",
             ("attitude", case, "median_max_motor_spread"), 4)
+        row(f"swap {case}, bottom robot: median largest departure of its 0.2 s average (PWM)",
+            ("attitude", case, "median_max_slow_motor_spread"), 4)
         row(f"swap {case}, bottom robot: median rise of the motors' mean PWM", ("attitude", case, "median_mean_pwm_rise"), 4)
         row(f"swap {case}, bottom robot: median largest single motor command (PWM, 1: saturated)",
             ("attitude", case, "median_max_motor_pwm"), 4)
@@ -296,18 +298,25 @@ def wake_profile_table(wake: dict) -> str:
 
 def moment_table(moment: dict) -> str:
     """experiments/calibrate.py fit_moment: per swap scenario of its flights, the bottom
-    robot's median largest motor departure from the motors' mean (PWM), real and
-    replayed at every gain the fit flew, then the fit's steps."""
-    gains = [k for k in next(iter(moment["by_case"].values())) if k.startswith("gain ")]
-    lines = ["| scenario | swaps | real | " + " | ".join(f"replay, {g}" for g in gains) + " |",
-             "|---|---|---|" + "---|" * len(gains)]
+    robot's median largest motor departure from the motors' mean, of its 0.2 s average
+    and whole (PWM), and its median largest tilt, real and replayed at every moment the
+    fit flew, then the fit's steps."""
+    flown = [k for k in next(iter(moment["by_case"].values())) if k.startswith("gain ")]
+    lines = ["| scenario | swaps | real: slow / whole departure / tilt (deg) | "
+             + " | ".join(f"replay, {g}" for g in flown) + " |", "|---|---|---|" + "---|" * len(flown)]
+
+    def cell(r: dict) -> str:
+        return " / ".join(_cell(r[k], 1 if "tilt" in k else 3) for k in moment["statistics"])
     for case, r in sorted(moment["by_case"].items()):
-        lines.append(f"| {case} | {r['swaps']} | {_cell(r['real'], 4)} | "
-                     + " | ".join(_cell(r[g], 4) for g in gains) + " |")
-    steps = "; ".join(f"probe {s['probe_gain']} -> {s['gain']}" for s in moment["steps"])
-    return ("\n".join(lines) + f"\n\nFitted gain {moment['gain']} ({steps}; in quadrature, weighted by swaps; "
-            "replays of " + ", ".join(moment["flights"]) + ", the authors' controller flying the logged prediction, "
-            "turbulence off).\n")
+        lines.append(f"| {case} | {r['swaps']} | {cell(r['real'])} | " + " | ".join(cell(r[g]) for g in flown) + " |")
+
+    def steps(key):
+        return "; ".join(f"probe {s['probe']} -> {s['fit']}" for s in moment[key])
+    return ("\n".join(lines) + f"\n\nSteady moment: gain {moment['gain']} on the slow departure ({steps('gain_steps')}); "
+            f"turbulent moment: ratio {moment['ratio']} (torque sd per unit |f_a,z| x arm, tau {moment['tau_s']} s) on the "
+            f"whole departure with the steady one on ({steps('ratio_steps')}); in quadrature, weighted by swaps; replays of "
+            + ", ".join(moment["flights"]) + ", the authors' controller flying the logged prediction, the force's "
+            "turbulence off.\n")
 
 
 def paper_l2s_table(l2s: dict) -> str:

@@ -20,7 +20,7 @@ from ..cbuild import fill_gains, fill_vehicle
 from ..cfhost import load_fly
 from .aero import calibrated
 from .dynamics import Dynamics, SwarmState
-from .roughness import Roughness, Turbulence
+from .roughness import MomentTurbulence, Roughness, Turbulence
 from .sensing import Sensing
 from .vehicle import AUTHORS_PWM_EXACT, G, authors_gains, base_type, default_gains, vehicle
 
@@ -112,6 +112,8 @@ class CLoopSwarm:
         thrust = rough.thrust_factors(seed, n) if rough is not None else np.ones(n)
         self.turbulence = Turbulence(rough, n, 1.0 / ATT_HZ, seed) if rough is not None else None
         self.moment_gain = rough.moment_gain if rough is not None and rough.on("moment") else 0.0
+        self.moment_turbulence = (MomentTurbulence(rough, [v.arm for v in self.vehicles], 1.0 / ATT_HZ, seed)
+                                  if rough is not None else None)
         for i, veh in enumerate(self.vehicles):
             it = ffi.new("ns2_fly_init_t *")
             it.kind = {"ns2": lib.NS2_FLY_PILOT, "mellinger": lib.NS2_FLY_MELLINGER,
@@ -212,6 +214,8 @@ class CLoopSwarm:
                 tau = np.ascontiguousarray(self.moment_gain * tau)
             else:
                 f_a = self.aero(st.p, st.v, st.u.sum(axis=1))
+            if self.moment_turbulence is not None and self.moment_turbulence.on:
+                tau = self.moment_turbulence.moment(f_a) + (tau if tau is not None else 0.0)
             if self.turbulence is not None:
                 f_a = f_a + self.turbulence.force(f_a)
             battery_V = (self.battery_V if self.rough is None

@@ -452,18 +452,21 @@ def swap_attitude(flights: list[Flight]) -> dict:
     swaps of its largest tilt (deg), its largest horizontal error |p_xy - p_d,xy| (m),
     from its own estimate as logged, its largest motor command's departure from the
     four motors' mean (PWM in [0, 1]: what its attitude loop asked), how far the
-    four motors' mean rose above its median over the swap (what its z loop got), and
-    its largest single motor command (PWM; 1 is saturation: no thrust left to fight a
-    wake with)."""
+    four motors' mean rose above its median over the swap (what its z loop got), its
+    largest single motor command (PWM; 1 is saturation: no thrust left to fight a
+    wake with), and the largest departure of the departure's HP_WINDOW moving average
+    (its slow part: what a moment steadier than 0.2 s asks; the rest is fast)."""
     per: dict = {}
     for fl, bottom, case, a, b in swaps(flights):
         eh = np.hypot(*(fl.p[a:b, bottom, :2] - fl.p_d[a:b, bottom, :2]).T)
         pwm = fl.pwm[a:b, bottom]
         mean = pwm.mean(1)
+        dep = pwm - mean[:, None]
         per.setdefault(case, []).append((float(np.nanmax(tilt_deg(fl.q[a:b, bottom]))), float(np.nanmax(eh)),
-                                         float(np.nanmax(np.abs(pwm - mean[:, None]))),
-                                         float(np.nanmax(mean) - np.nanmedian(mean)), float(np.nanmax(pwm))))
+                                         float(np.nanmax(np.abs(dep))),
+                                         float(np.nanmax(mean) - np.nanmedian(mean)), float(np.nanmax(pwm)),
+                                         float(np.nanmax(np.abs(moving_average(dep, HP_WINDOW))))))
     keys = ("median_max_tilt_deg", "median_max_xy_error_m", "median_max_motor_spread", "median_mean_pwm_rise",
-            "median_max_motor_pwm")
+            "median_max_motor_pwm", "median_max_slow_motor_spread")
     return {case: {"swaps": len(w), **{k: _r(np.median([x[n] for x in w]), 2 if n == 0 else 4)
                                        for n, k in enumerate(keys)}} for case, w in sorted(per.items())}

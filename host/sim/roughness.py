@@ -36,12 +36,23 @@ moment       the wakes' moment on a robot (OFF by default: not in DEFAULT_EFFECT
              mass, scaled by ``moment_gain``.  Source: the bottom robot's motor commands
              in the real swaps (flightstats.swap_attitude: its attitude loop's largest
              departure from the four motors' mean, 0.40-0.67 of full PWM in the real
-             swaps, 0.02-0.2 in the simulator without it), matched by replays
-             (experiments/calibrate.py fit_moment: gain 2.7).  At that gain the replayed
-             robots tilt 1.3-4x as far as the real ones and the project's controller
-             loses some of them (docs/simulator.md): a steady moment that parts the
-             motors as far as the real ones turns the robot too far, so the real
-             motors' departure is not this moment alone.  Kept switchable for that work.
+             swaps, 0.02-0.2 in the simulator without it; its 0.2 s average, 0.18-0.32
+             real, 0.01-0.03 without it), matched by replays (experiments/calibrate.py
+             fit_moment: gain 2.5 on the slow part).  At that gain the pair swaps tilt
+             1.1-1.7x as far as the real ones, and robots under two others lose control
+             (docs/simulator.md): kept switchable, off.
+moment_turbulence
+             the wakes' turbulent moment (OFF by default): a torque about the body x
+             and y axes, each a first-order Gauss-Markov process of the turbulence's
+             correlation time, standard deviation ``moment_turbulence_ratio`` x
+             |f_a,z| of the truth at the robot x its arm (no wake, none).  Source: the
+             real bottom robots' motor departure is about half fast (faster than its
+             0.2 s average, flightstats.swap_attitude): a moment faster than the
+             attitude responds parts the motors without turning the robot; fitted on
+             the raw departure with the steady moment fitted on the slow part
+             (experiments/calibrate.py fit_moment).  It parts them, but neither tilts
+             the robots nor moves their z error (docs/simulator.md): kept
+             switchable, off.
 """
 from __future__ import annotations
 
@@ -52,7 +63,7 @@ import numpy as np
 
 from .vehicle import base_type
 
-EFFECTS = ("vibration", "turbulence", "thrust", "battery", "wake", "moment")
+EFFECTS = ("vibration", "turbulence", "thrust", "battery", "wake", "moment", "moment_turbulence")
 DEFAULT_EFFECTS = ("vibration", "turbulence", "thrust", "battery", "wake")   # the calibrated simulator's
 
 
@@ -73,7 +84,9 @@ class Roughness:
     wake_sigma0_scale: float = 0.848
     wake_spread_scale: float = 0.474
     # the wakes' moment (a factor on aero.py's per-rotor moment; the effect is off by default)
-    moment_gain: float = 2.727
+    moment_gain: float = 2.472
+    # the wakes' turbulent moment (torque sd per unit |f_a,z| x arm; off by default)
+    moment_turbulence_ratio: float = 0.177
     # not an effect: the motor-command noise of the real robots in free air (flightstats),
     # the bound of BL-tuned's gain search in the rough simulator (experiments/swarm.py)
     hover_motor_noise: dict = field(default_factory=lambda: {"small": 0.0274, "large": 0.04613})
@@ -88,7 +101,7 @@ class Roughness:
         return replace(self, enabled=tuple(e for e in EFFECTS if e in names))
 
     def plus(self, *names: str) -> "Roughness":
-        """These effects on as well (the moment, off by default)."""
+        """These effects on as well (the moments, off by default)."""
         return self.only(*set(self.enabled) | set(names))
 
     def on(self, name: str) -> bool:
@@ -146,6 +159,28 @@ class Turbulence:
             return out
         self.x = self.rho * self.x + math.sqrt(1.0 - self.rho ** 2) * self.rng.standard_normal(len(self.x))
         out[:, 2] = self.ratio * np.abs(f_a[:, 2]) * self.x
+        return out
+
+
+class MomentTurbulence:
+    """The wakes' turbulent moment of one flight: per robot two unit Gauss-Markov states
+    (body x, y) of the turbulence's correlation time, advanced once per simulator step,
+    scaled by ratio x |f_a,z| x arm; a stream of its own (the force's is untouched)."""
+
+    def __init__(self, rough: Roughness, arm_m: np.ndarray, dt: float, seed: int):
+        self.on = rough.on("moment_turbulence") and rough.moment_turbulence_ratio > 0.0
+        self.ratio, self.arm = rough.moment_turbulence_ratio, np.asarray(arm_m, float)
+        self.rho = math.exp(-dt / rough.turbulence_tau_s) if rough.turbulence_tau_s > 0 else 0.0
+        self.rng = np.random.default_rng([seed, 0x4D])
+        self.x = self.rng.standard_normal((len(self.arm), 2)) if self.on else np.zeros((len(self.arm), 2))
+
+    def moment(self, f_a: np.ndarray) -> np.ndarray:
+        """The turbulent moment [N, 3] (N m, body frame) for the truth f_a [N, 3] (N) of this step."""
+        out = np.zeros_like(f_a)
+        if not self.on:
+            return out
+        self.x = self.rho * self.x + math.sqrt(1.0 - self.rho ** 2) * self.rng.standard_normal(self.x.shape)
+        out[:, :2] = (self.ratio * np.abs(f_a[:, 2]) * self.arm)[:, None] * self.x
         return out
 
 
