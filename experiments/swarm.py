@@ -41,7 +41,12 @@ SWAP_CASES = {
     "LL2S": ("small", "large", "large"),
     "LL2S*": ("small*", "large", "large"),  # the small robot with stronger motors
 }
-SWAP_S, REST_S, SPACING_M, BOTTOM_M = 2.5, 0.5, 0.3, 0.5
+# The paper's swaps are "similar, but not identical" to those of its data collection
+# (section on swaps): each robot crosses 2 SWAP_RADIUS_M, the median travel of the 16 June
+# 2020 swaps (0.495 m), in SWAP_S with its peak setpoint speed pi r / SWAP_S their median
+# (0.363 m/s; flightstats.swap_geometry, checked on the logs by the tests), with the
+# cosine profile of scenarios.swap; SPACING_M apart vertically (the paper: 0.2-0.3 m).
+SWAP_RADIUS_M, SWAP_S, REST_S, SPACING_M, BOTTOM_M = 0.25, 2.15, 0.5, 0.3, 0.5
 
 
 CONTROLLERS = ("BL", "BL-tuned", "NN", "NN-default", "Mellinger")
@@ -95,7 +100,7 @@ def run_swaps(cfg: Config, gen_dir, case: str, learned: str | None = None, swaps
     robot per swap, its z error rms and motor-command noise."""
     team = SWAP_CASES[case]
     heights = BOTTOM_M + SPACING_M * np.arange(len(team))
-    sp, start = swap(len(team), heights, radius=0.4, duration=SWAP_S, rest=REST_S, seed=seed)
+    sp, start = swap(len(team), heights, radius=SWAP_RADIUS_M, duration=SWAP_S, rest=REST_S, seed=seed)
     period = SWAP_S + REST_S
     if law is not None and controller not in AUTHORS_CONTROLLERS:
         raise ValueError(f"law is flown by {AUTHORS_CONTROLLERS} only, not {controller!r}")

@@ -288,6 +288,30 @@ def test_swap_statistics_by_hand():
 
 
 @needs(REAL_DATA)
+def test_the_swap_experiments_fly_the_real_swaps_geometry(cfg):
+    """experiments/swarm.py's swap (the paper's swap experiments, "similar" to its data
+    collection's swaps): travel 2 r and peak setpoint speed pi r / T of the cosine
+    profile within 3 % of the medians over every swap of the 16 June collection."""
+    import tarfile
+
+    from ns2codegen.logs.collection import write_manifest
+    from ns2exp.calibrate import swap_flights
+    from ns2exp.swarm import SWAP_RADIUS_M, SWAP_S
+    from ns2host import crazyflie
+
+    with tarfile.open(crazyflie.SHARED / "neural-swarm-data" / SWAPS) as tar:
+        logs = sorted(m.name for m in tar.getmembers() if m.isfile() and m.name.startswith(f"{COLLECTION}/swap_")
+                      and "/cf" in m.name)
+    root = real_logs(SWAPS, logs)
+    write_manifest(root)
+    flights, _ = logs_to_flights(cfg, root)
+    geo = fs.swap_geometry(swap_flights(flights))
+    assert geo["swaps"] > 200
+    assert 2 * SWAP_RADIUS_M == pytest.approx(geo["median_travel_m"], rel=0.03)
+    assert math.pi * SWAP_RADIUS_M / SWAP_S == pytest.approx(geo["median_peak_speed_mps"], rel=0.03)
+
+
+@needs(REAL_DATA)
 def test_a_real_swap_measured_and_replayed(cfg, exported):
     root = real_logs(SWAPS, SL)
     (root / "flights.toml").write_text(

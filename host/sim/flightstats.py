@@ -27,6 +27,9 @@ swap_errors   the worst z error of the bottom robot of each swap (the paper's me
               Fig. swap): per scenario, the median over swaps
 swap_attitude the bottom robot's largest tilt and horizontal error in each swap: per
               scenario, the medians over swaps (what the wakes do beside the z force)
+swap_geometry the swaps' setpoints: the bottom robot's horizontal travel and peak
+              setpoint speed per swap, medians over every swap (the paper's swap
+              experiments are "similar" to these, its section on swaps)
 unpredicted   what the prediction flown in the loop left of the bottom robot's residual
               in the swaps (label minus the logged on-board f_a,z-hat where |label|
               > UNPREDICTED_MIN_G): the force its controller had to absorb
@@ -438,6 +441,20 @@ def swaps(flights: list[Flight]):
         starts = [s for s, e in runs(moving) if s > 0 and fl.t[e - 1] - fl.t[s] >= SWAP_MIN_S]
         for a, b in zip(starts[:-1], starts[1:]):
             yield fl, bottom, case, a, b
+
+
+def swap_geometry(flights: list[Flight]) -> dict:
+    """Over every swap (swaps()): the medians of the bottom robot's horizontal setpoint
+    travel (m, start of the movement to the next one's) and peak setpoint speed (m/s)."""
+    travel, peak, vd = [], [], {}
+    for fl, bottom, _, a, b in swaps(flights):
+        if id(fl) not in vd:
+            vd = {id(fl): setpoint_derivatives(fl.t, fl.p_d)[0]}
+        pd = fl.p_d[a:b, bottom, :2]
+        travel.append(float(np.hypot(*(pd[-1] - pd[0]))))
+        peak.append(float(np.nanmax(np.hypot(*vd[id(fl)][a:b, bottom, :2].T))))
+    return {"swaps": len(travel), "median_travel_m": float(np.median(travel)) if travel else None,
+            "median_peak_speed_mps": float(np.median(peak)) if peak else None}
 
 
 def tilt_deg(q: np.ndarray) -> np.ndarray:
