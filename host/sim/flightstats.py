@@ -446,13 +446,13 @@ def swaps(flights: list[Flight]):
 def swap_geometry(flights: list[Flight]) -> dict:
     """Over every swap (swaps()): the medians of the bottom robot's horizontal setpoint
     travel (m, start of the movement to the next one's) and peak setpoint speed (m/s)."""
-    travel, peak, vd = [], [], {}
+    travel, peak, last, v_d = [], [], None, None
     for fl, bottom, _, a, b in swaps(flights):
-        if id(fl) not in vd:
-            vd = {id(fl): setpoint_derivatives(fl.t, fl.p_d)[0]}
+        if fl is not last:                    # swaps() yields a flight's swaps one after another
+            last, v_d = fl, setpoint_derivatives(fl.t, fl.p_d)[0]
         pd = fl.p_d[a:b, bottom, :2]
         travel.append(float(np.hypot(*(pd[-1] - pd[0]))))
-        peak.append(float(np.nanmax(np.hypot(*vd[id(fl)][a:b, bottom, :2].T))))
+        peak.append(float(np.nanmax(np.hypot(*v_d[a:b, bottom, :2].T))))
     return {"swaps": len(travel), "median_travel_m": float(np.median(travel)) if travel else None,
             "median_peak_speed_mps": float(np.median(peak)) if peak else None}
 

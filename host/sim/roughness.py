@@ -141,24 +141,37 @@ def _known(names) -> None:
         raise ValueError(f"unknown roughness effects {unknown}: {EFFECTS}")
 
 
+class GaussMarkov:
+    """Unit first-order Gauss-Markov states of correlation time tau_s, ``shape`` of
+    them, advanced once per simulator step dt, from a random stream of their own
+    (``stream``: one per effect, so no effect moves another's noise); all zero and
+    never advanced when off."""
+
+    def __init__(self, shape, dt: float, tau_s: float, seed: int, stream: int, on: bool):
+        self.on = on
+        self.rho = math.exp(-dt / tau_s) if tau_s > 0 else 0.0
+        self.rng = np.random.default_rng([seed, stream])
+        self.x = self.rng.standard_normal(shape) if on else np.zeros(shape)
+
+    def step(self) -> np.ndarray:
+        self.x = self.rho * self.x + math.sqrt(1.0 - self.rho ** 2) * self.rng.standard_normal(self.x.shape)
+        return self.x
+
+
 class Turbulence:
     """The wake turbulence of one flight: per robot a unit Gauss-Markov state along z,
     advanced once per simulator step (dt), scaled by ratio x |f_a,z|."""
 
     def __init__(self, rough: Roughness, n: int, dt: float, seed: int):
-        self.on = rough.on("turbulence") and rough.turbulence_ratio > 0.0
         self.ratio = rough.turbulence_ratio
-        self.rho = math.exp(-dt / rough.turbulence_tau_s) if rough.turbulence_tau_s > 0 else 0.0
-        self.rng = np.random.default_rng([seed, 0x7B])
-        self.x = self.rng.standard_normal(n) if self.on else np.zeros(n)
+        self.gm = GaussMarkov(n, dt, rough.turbulence_tau_s, seed, 0x7B,
+                              rough.on("turbulence") and rough.turbulence_ratio > 0.0)
 
     def force(self, f_a: np.ndarray) -> np.ndarray:
         """The turbulent force [N, 3] (N) to add to the truth f_a [N, 3] of this step."""
         out = np.zeros_like(f_a)
-        if not self.on:
-            return out
-        self.x = self.rho * self.x + math.sqrt(1.0 - self.rho ** 2) * self.rng.standard_normal(len(self.x))
-        out[:, 2] = self.ratio * np.abs(f_a[:, 2]) * self.x
+        if self.gm.on:
+            out[:, 2] = self.ratio * np.abs(f_a[:, 2]) * self.gm.step()
         return out
 
 
@@ -168,19 +181,19 @@ class MomentTurbulence:
     scaled by ratio x |f_a,z| x arm; a stream of its own (the force's is untouched)."""
 
     def __init__(self, rough: Roughness, arm_m: np.ndarray, dt: float, seed: int):
-        self.on = rough.on("moment_turbulence") and rough.moment_turbulence_ratio > 0.0
         self.ratio, self.arm = rough.moment_turbulence_ratio, np.asarray(arm_m, float)
-        self.rho = math.exp(-dt / rough.turbulence_tau_s) if rough.turbulence_tau_s > 0 else 0.0
-        self.rng = np.random.default_rng([seed, 0x4D])
-        self.x = self.rng.standard_normal((len(self.arm), 2)) if self.on else np.zeros((len(self.arm), 2))
+        self.gm = GaussMarkov((len(self.arm), 2), dt, rough.turbulence_tau_s, seed, 0x4D,
+                              rough.on("moment_turbulence") and rough.moment_turbulence_ratio > 0.0)
+
+    @property
+    def on(self) -> bool:
+        return self.gm.on
 
     def moment(self, f_a: np.ndarray) -> np.ndarray:
         """The turbulent moment [N, 3] (N m, body frame) for the truth f_a [N, 3] (N) of this step."""
         out = np.zeros_like(f_a)
-        if not self.on:
-            return out
-        self.x = self.rho * self.x + math.sqrt(1.0 - self.rho ** 2) * self.rng.standard_normal(self.x.shape)
-        out[:, :2] = (self.ratio * np.abs(f_a[:, 2]) * self.arm)[:, None] * self.x
+        if self.gm.on:
+            out[:, :2] = (self.ratio * np.abs(f_a[:, 2]) * self.arm)[:, None] * self.gm.step()
         return out
 
 
