@@ -479,23 +479,30 @@ def fit(cfg: Config, gen_dir, flights: list[Flight], hover_by_robot: dict, robot
     return rough, {"real": real, "wake": wake, "vibration_probes": vib_rows, "moment": moment, "turbulence": turb_rows}
 
 
-# label -> (rough, controller, learned, the z law read off the logs) of the replays (replay.replay)
-VARIANTS = {"clean": (False, "ns2", "float", False), "rough": (True, "ns2", "float", False),
-            "rough, the authors' controller": (True, "authors", "float", False),
-            "rough, the authors' controller, the prediction flown": (True, "authors", "logged", False),
-            "rough, the z law read off the logs, the prediction flown": (True, "authors", "logged", True)}
+# label -> (rough, controller, learned, the z law read off the logs, the wakes' moments on)
+# of the replays (replay.replay)
+VARIANTS = {"clean": (False, "ns2", "float", False, False), "rough": (True, "ns2", "float", False, False),
+            "rough, the authors' controller": (True, "authors", "float", False, False),
+            "rough, the authors' controller, the prediction flown": (True, "authors", "logged", False, False),
+            "rough, the z law read off the logs, the prediction flown": (True, "authors", "logged", True, False),
+            "rough with the wakes' moments, the authors' controller, the prediction flown":
+                (True, "authors", "logged", False, True),
+            "rough with the wakes' moments, the z law read off the logs, the prediction flown":
+                (True, "authors", "logged", True, True)}
 
 
 def compare(cfg: Config, gen_dir, flights: list[Flight], rough: Roughness, names: list[str] | None = None,
             workers: int = 1, real_all: dict | None = None, law: dict | None = None) -> dict:
-    """Statistics of step 1 for the real flights and five simulators (VARIANTS): clean,
+    """Statistics of step 1 for the real flights and seven simulators (VARIANTS): clean,
     rough (``rough``), rough with the position law and gains of the controller that
     flew the real flights (host/ctrl_authors.c) and the network of ``gen_dir`` in the
     loop, the same controller flying the prediction the real robots logged instead of
     a network, and that with the z law read off the logs (``law``, READ_LAW by
-    default; fit_read_law): free air from the probes (no neighbour, no learned force:
-    the stored law's variants share theirs), the rest over the replayed swap flights
-    (``names``: a subset; the real side is the same subset).  real_all: the free-air
+    default; fit_read_law), the last two also with the wakes' moments on: free air
+    from the probes (no neighbour, no learned force: the stored law's variants share
+    theirs), the rest over the replayed swap flights (``names``: a subset; the real
+    side is the same subset).  The replays fly each robot's logged battery, so the
+    battery rows are the probes' (the simulator's own sag).  real_all: the free-air
     and battery statistics of every real flight if already measured (fit's)."""
     law = READ_LAW if law is None else law
     by = pieces_by_flight(swap_flights(flights))
@@ -513,14 +520,16 @@ def compare(cfg: Config, gen_dir, flights: list[Flight], rough: Roughness, names
                                           "unpredicted": fs.unpredicted(cfg, real_sw),
                                           "lateral_k_xy": lateral_k_xy(cfg, real_sw)}}
     probed: dict = {}
-    for label, (is_rough, ctrl, learned, read) in VARIANTS.items():
+    for label, (is_rough, ctrl, learned, read, moments) in VARIANTS.items():
         r, zl = (rough if is_rough else None), (law if read else None)
-        if (is_rough, ctrl, read) not in probed:
+        if moments:
+            r = r.plus("moment", "moment_turbulence")
+        if (is_rough, ctrl, read) not in probed:   # free air: the moments need a wake
             probed[is_rough, ctrl, read] = [probe_flight(cfg, gen_dir, ty, r, ctrl, zl) for ty in cfg.robot_types]
         probes = probed[is_rough, ctrl, read]
         sims = replay_all(cfg, gen_dir, by, r, workers, controller=ctrl, learned=learned, law=zl)
         out[label] = {"free_air": {ty: fs.free_air(cfg, [p])[ty] for ty, p in zip(cfg.robot_types, probes)},
-                      "z_loop": fs.z_loop(cfg, probes), "z_law": fs.z_law(cfg, sims), "battery": fs.battery(sims),
+                      "z_loop": fs.z_loop(cfg, probes), "z_law": fs.z_law(cfg, sims), "battery": fs.battery(probes),
                       "wake_scatter": fs.wake_scatter(cfg, sims), "wake_lateral": fs.wake_lateral(cfg, sims),
                       "swaps": fs.swap_errors(sims),
                       "attitude": fs.swap_attitude(sims), "lateral_k_xy": lateral_k_xy(cfg, sims),

@@ -94,7 +94,7 @@ typedef struct { ns2_ctrl_state_t s; ns2_setpoint_t sp; uint32_t do_pos, now_ms;
 void ns2_fly_init(ns2_fly_robot_t *r, const ns2_fly_init_t *in);
 uint32_t ns2_fly_run(ns2_fly_robot_t *rob, uint32_t n, double *x, const double *f_a, const double *tau_a,
                      uint32_t ms0, uint32_t ticks,
-                     const float *noise, const ns2_setpoint_t *sp, const ns2_fly_frame_t *frame, float battery_V,
+                     const float *noise, const ns2_setpoint_t *sp, const ns2_fly_frame_t *frame, const float *battery_V,
                      ns2_fly_trace_t *tr, uint32_t tr_robot, uint32_t tr_max);
 void ns2_fly_estimate(const ns2_fly_robot_t *r, float out[13]);
 float motorsCompensateBatteryVoltage(uint32_t id, float iThrust, float supplyVoltage);

@@ -202,7 +202,7 @@ static void trace(ns2_fly_trace_t *t, const ns2_fly_robot_t *r, const ns2_ctrl_s
 
 uint32_t ns2_fly_run(ns2_fly_robot_t *rob, uint32_t n, double *x, const double *f_a, const double *tau_a,
                      uint32_t ms0, uint32_t ticks,
-                     const float *noise, const ns2_setpoint_t *sp, const ns2_fly_frame_t *frame, float battery_V,
+                     const float *noise, const ns2_setpoint_t *sp, const ns2_fly_frame_t *frame, const float *battery_V,
                      ns2_fly_trace_t *tr, uint32_t tr_robot, uint32_t tr_max)
 {
     double u_c[4 * NS2_FLY_MAX_ROBOTS];
@@ -215,6 +215,7 @@ uint32_t ns2_fly_run(ns2_fly_robot_t *rob, uint32_t n, double *x, const double *
         const uint32_t tick = ms0 + k;
         for (uint32_t i = 0; i < n; ++i) {
             ns2_fly_robot_t *r = &rob[i];
+            const float bat_V = battery_V[i];
             const double *xi = &x[FLY_X * i];
             const float *nz = &noise[6u * (n * k + i)];
             /* sensorsTask: one IMU sample */
@@ -235,7 +236,7 @@ uint32_t ns2_fly_run(ns2_fly_robot_t *rob, uint32_t n, double *x, const double *
             r->sensors.acc.z = af[2];
             /* stabilizer: state of the last estimator run, then the controller */
             if (r->kind == NS2_FLY_MELLINGER) {
-                mellinger_tick(r, &sp[i], tick, battery_V);
+                mellinger_tick(r, &sp[i], tick, bat_V);
             } else if (RATE_DO_EXECUTE(RATE_500_HZ, tick)) {
                 ns2_ctrl_state_t s;
                 to_ctrl_state(&r->est, &r->sensors, &s);
@@ -254,21 +255,21 @@ uint32_t ns2_fly_run(ns2_fly_robot_t *rob, uint32_t n, double *x, const double *
                                              1.0f / (float)NS2_PILOT_POS_HZ);
                     }
                     ns2_pilot_slice(&r->pilot);
-                    ns2_pilot_attitude(&r->pilot, &s, battery_V);
+                    ns2_pilot_attitude(&r->pilot, &s, bat_V);
                 } else {
-                    ns2_pilot_tick(&r->pilot, &s, &sp[i], do_pos, r->id, tick, battery_V);
+                    ns2_pilot_tick(&r->pilot, &s, &sp[i], do_pos, r->id, tick, bat_V);
                 }
                 memcpy(r->pwm, r->pilot.ctrl.pwm, sizeof(r->pwm));
                 if (r->pwm_exact) { /* the motor forces commanded, realized through psi_1 */
                     for (int m = 0; m < 4; ++m) {
                         r->pwm[m] = r->pilot.ctrl.pwm[m] > 0.0f
-                                        ? pwm_psi1_inverse(r->psi1_nominal, r->pilot.ctrl.u[m], battery_V)
+                                        ? pwm_psi1_inverse(r->psi1_nominal, r->pilot.ctrl.u[m], bat_V)
                                         : 0.0f;
                     }
                 }
                 if (tr != NULL && i == tr_robot && n_tr < tr_max) {
                     ns2_fly_trace_t *t = &tr[n_tr++];
-                    trace(t, r, &s, &sp[i], do_pos, tick, battery_V);
+                    trace(t, r, &s, &sp[i], do_pos, tick, bat_V);
                     t->n_peers = do_pos ? r->n_peers : 0u;
                     for (uint32_t j = 0; j < t->n_peers; ++j) {
                         t->peer_id[j] = r->peer_id[j];
@@ -312,7 +313,7 @@ uint32_t ns2_fly_run(ns2_fly_robot_t *rob, uint32_t n, double *x, const double *
             (void)kalmanCoreFinalize(&r->kc);
             kalmanCoreExternalizeState(&r->kc, &r->est, &r->acc_latest);
             /* motors: PWM -> force through psi_1 (Table cfprops; ns2codegen.data.labels.psi1_newtons) */
-            const double v = (double)battery_V / 4.2;
+            const double v = (double)bat_V / 4.2;
             for (int m = 0; m < 4; ++m) {
                 const double p = (double)r->pwm[m];
                 const double *c = r->psi1;

@@ -94,11 +94,12 @@ typedef struct {
 void ns2_fly_init(ns2_fly_robot_t *r, const ns2_fly_init_t *in);
 /* ticks 1 kHz ticks from ms0 for n robots; x [n][17] true states (advanced in place),
  * f_a [n][3] world and tau_a [n][3] body (NULL: none) held, noise [ticks][n][6] standard
- * normal (gyro, acc), sp [n], frame NULL or one broadcast delivered at frame->tick.
+ * normal (gyro, acc), sp [n], frame NULL or one broadcast delivered at frame->tick,
+ * battery_V [n] each robot's supply voltage (V).
  * Returns the trace records written. */
 uint32_t ns2_fly_run(ns2_fly_robot_t *rob, uint32_t n, double *x, const double *f_a, const double *tau_a,
                      uint32_t ms0, uint32_t ticks,
-                     const float *noise, const ns2_setpoint_t *sp, const ns2_fly_frame_t *frame, float battery_V,
+                     const float *noise, const ns2_setpoint_t *sp, const ns2_fly_frame_t *frame, const float *battery_V,
                      ns2_fly_trace_t *tr, uint32_t tr_robot, uint32_t tr_max);
 /* p, v, q, w (ns2_ctrl_state_t layout) the controllers see now. */
 void ns2_fly_estimate(const ns2_fly_robot_t *r, float out[13]);

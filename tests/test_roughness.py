@@ -17,7 +17,7 @@ from ns2exp.calibrate import MOMENT_KEY, _quadrature, lateral_k_xy, quadrature_f
 from ns2host.sim import flightstats as fs
 from ns2host.sim.aero import K_XY
 from ns2host.sim.cloop import CLoopSwarm, hover_setpoints
-from ns2host.sim.replay import logged_prediction, logged_setpoints, pieces_by_flight, replay
+from ns2host.sim.replay import logged_battery, logged_prediction, logged_setpoints, pieces_by_flight, replay
 from ns2host.sim.roughness import MomentTurbulence, Roughness, Turbulence, hp_share
 from ns2host.sim.scenarios import swap
 
@@ -113,6 +113,30 @@ def test_moment_fit_in_quadrature():
     assert quadrature_fit({"L2L": {"swaps": 1, k: 0.05}}, without, probed, 2.0, k) == 0.0   # already rougher
     with pytest.raises(ValueError, match="did not raise"):
         quadrature_fit(real, without, without, 2.0, k)
+
+
+def test_the_steady_moment_is_bounded_by_the_wakes_whole_force_on_one_side():
+    """roughness.steady_moment: gain x the per-rotor moment while that stays within
+    |f_a,z| x arm / sqrt 2 about the horizontal axes; beyond it, that bound in the
+    same direction; the yaw part only scaled; no force, no horizontal moment."""
+    from ns2host.sim.roughness import steady_moment
+    rng = np.random.default_rng(3)
+    tau = rng.normal(0.0, 1e-3, (200, 3))
+    f_a = rng.normal(0.0, 0.1, (200, 3))
+    arm = rng.uniform(0.04, 0.07, 200)
+    out = steady_moment(tau, f_a, arm, 2.5)
+    cap = np.abs(f_a[:, 2]) * arm / np.sqrt(2.0)
+    raw = 2.5 * tau
+    norm_raw, norm = np.hypot(raw[:, 0], raw[:, 1]), np.hypot(out[:, 0], out[:, 1])
+    inside = norm_raw <= cap
+    assert 20 < inside.sum() < 180                                     # both cases drawn
+    assert np.array_equal(out[inside], raw[inside])
+    np.testing.assert_allclose(norm[~inside], cap[~inside], rtol=1e-12)
+    np.testing.assert_allclose(out[~inside, :2] / norm[~inside, None], raw[~inside, :2] / norm_raw[~inside, None],
+                               rtol=1e-12)
+    assert np.array_equal(out[:, 2], raw[:, 2])
+    f_a[:5, 2] = 0.0
+    assert np.all(steady_moment(tau, f_a, arm, 2.5)[:5, :2] == 0.0)
 
 
 def test_the_turbulent_moment_is_the_stated_process():
@@ -371,6 +395,23 @@ def test_a_real_swap_measured_and_replayed(cfg, exported):
     assert lg.w is not None and lg.w.shape == lg.p.shape and np.isfinite(lg.w).all()   # the gyro, as logged
     sl = fs.swap_errors([lg])
     assert list(sl) == ["S2L"] and abs(sl["S2L"]["swaps"] - r["swaps"]) <= 1
+    # every robot flies on the voltage its real robot logged (pm.vbat); the simulator's own
+    # sag instead puts the motors elsewhere: the replay hovers on the real robots' PWM
+    bat = logged_battery(pieces)
+    assert np.allclose(lg.battery_V, [bat(tt - t0) for tt in lg.t])
+    for p in pieces:
+        got, ok = np.array([bat(tt - t0) for tt in p.t]), np.isfinite(p.battery_V)
+        assert ok.mean() > 0.9 and np.abs(got[ok] - p.battery_V[ok]).max() < 1e-6
+    own = replay(cfg, pieces, exported.gen_dir, learned="logged", rough=Roughness(), controller="authors",
+                 battery="model")
+    assert np.allclose(own.battery_V[:, 0], [Roughness().battery_V(tt - t0 + 2.0, 0.0) for tt in own.t], atol=1e-3)
+    real_V = np.nanmean(np.concatenate([p.battery_V for p in pieces]))
+    assert abs(real_V - own.battery_V.mean()) > 0.05                 # this flight's battery is not the model's
+    real_pwm = np.nanmean(np.concatenate([p.pwm for p in pieces]))
+    print("mean PWM real", real_pwm, "logged battery", lg.pwm.mean(), "model", own.pwm.mean())
+    assert abs(lg.pwm.mean() - real_pwm) < 0.6 * abs(own.pwm.mean() - real_pwm)
+    with pytest.raises(ValueError, match="battery"):
+        replay(cfg, pieces, exported.gen_dir, learned="logged", controller="authors", battery="full")
     assert 0 < fs.unpredicted(cfg, [lg])["S2L"]["slow_rms_g"] < 20
     # the position law read off the same flight, real and replayed: the replay's is the authors' law
     # (Kp 10, Kd 5, Ki 3 on z; read with the motors' delay and the estimator in the loop)

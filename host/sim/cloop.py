@@ -20,7 +20,7 @@ from ..cbuild import fill_gains, fill_vehicle
 from ..cfhost import load_fly
 from .aero import calibrated
 from .dynamics import Dynamics, SwarmState
-from .roughness import MomentTurbulence, Roughness, Turbulence
+from .roughness import MomentTurbulence, Roughness, Turbulence, steady_moment
 from .sensing import Sensing
 from .vehicle import AUTHORS_PWM_EXACT, G, authors_gains, base_type, default_gains, vehicle
 
@@ -69,7 +69,7 @@ class CLoopSwarm:
     def __init__(self, cfg: Config, types: list[str], gen_dir, positions, learned: str | None = None,
                  aero: bool = False, battery_V: float = 3.9, controllers=None, gains=None,
                  sensing: Sensing | None = None, seed: int = 0, rough: Roughness | None = None,
-                 authors=None, fa_given: Callable | None = None):
+                 authors=None, fa_given: Callable | None = None, battery_given: Callable | None = None):
         """learned: None (baseline, f_a = 0), "float" or "fixed"; aero: ground-truth
         interactions (host/sim/aero.py) on or off; controllers: per robot "ns2" (the
         app's path, default), "mellinger" (the firmware's) or "authors" (the app's path
@@ -82,7 +82,10 @@ class CLoopSwarm:
         rough: a real Crazyflie's unmodelled effects (host/sim/roughness.py; None: the
         clean simulator); fa_given: None, or ``fa_given(t)`` -> f_a,z-hat [N] in g that
         the "authors" robots fly instead of their network's (read at 100 Hz: a real
-        flight's logged prediction, replay.py)."""
+        flight's logged prediction, replay.py); battery_given: None (battery_V, or the
+        rough simulator's sag), or ``battery_given(t)`` -> [N] each robot's supply
+        voltage (V; a real flight's logged one, replay.py; read every step, the
+        settling reads t = 0)."""
         if learned not in (None, "float", "fixed"):
             raise ValueError(f"learned must be None, 'float' or 'fixed', got {learned!r}")
         self.cfg = cfg
@@ -99,6 +102,7 @@ class CLoopSwarm:
         self.aero = (calibrated(self.vehicles, vehicle(cfg, cfg.robot_types[0]),
                                 **(rough.wake_scales() if rough is not None else {})) if aero else None)
         self.battery_V = battery_V
+        self.battery_given = battery_given
         self.sensing = sensing or Sensing()
         self.rng = np.random.default_rng(seed)
         self.ffi, self.lib = load_fly(gen_dir)
@@ -112,7 +116,8 @@ class CLoopSwarm:
         thrust = rough.thrust_factors(seed, n) if rough is not None else np.ones(n)
         self.turbulence = Turbulence(rough, n, 1.0 / ATT_HZ, seed) if rough is not None else None
         self.moment_gain = rough.moment_gain if rough is not None and rough.on("moment") else 0.0
-        self.moment_turbulence = (MomentTurbulence(rough, [v.arm for v in self.vehicles], 1.0 / ATT_HZ, seed)
+        self.arms = np.array([v.arm for v in self.vehicles])
+        self.moment_turbulence = (MomentTurbulence(rough, self.arms, 1.0 / ATT_HZ, seed)
                                   if rough is not None else None)
         for i, veh in enumerate(self.vehicles):
             it = ffi.new("ns2_fly_init_t *")
@@ -211,15 +216,19 @@ class CLoopSwarm:
                 f_a = np.zeros((n, 3))
             elif self.moment_gain:
                 f_a, tau = self.aero.forces_moments(st.p, st.v, st.q, st.u.sum(axis=1))
-                tau = np.ascontiguousarray(self.moment_gain * tau)
+                tau = np.ascontiguousarray(steady_moment(tau, f_a, self.arms, self.moment_gain))
             else:
                 f_a = self.aero(st.p, st.v, st.u.sum(axis=1))
             if self.moment_turbulence is not None and self.moment_turbulence.on:
                 tau = self.moment_turbulence.moment(f_a) + (tau if tau is not None else 0.0)
             if self.turbulence is not None:
                 f_a = f_a + self.turbulence.force(f_a)
-            battery_V = (self.battery_V if self.rough is None
-                         else self.rough.battery_V((self._ms // STEP_TICKS + k) / ATT_HZ, self.battery_V))
+            if self.battery_given is not None:
+                battery_V = np.asarray(self.battery_given(max(t, 0.0)), float).reshape(n)
+            else:
+                battery_V = np.full(n, self.battery_V if self.rough is None
+                                    else self.rough.battery_V((self._ms // STEP_TICKS + k) / ATT_HZ, self.battery_V))
+            battery_f32 = battery_V.astype(np.float32)   # what the C reads (kept alive while it does)
             if k >= settle and ms % every_log == 0:
                 est = np.array([self._estimate(i) for i in range(n)])
                 log.t.append(t)
@@ -228,7 +237,7 @@ class CLoopSwarm:
                 log.q.append(est[:, 6:10])
                 log.w.append(est[:, 10:13])
                 log.pwm.append(np.array([list(self.robots[i].pwm) for i in range(n)]))
-                log.battery_V.append(np.full(n, battery_V))
+                log.battery_V.append(battery_V.copy())
                 log.truth_p.append(st.p.copy())
                 log.truth_v.append(st.v.copy())
                 log.truth_fa.append(f_a.copy())
@@ -240,7 +249,8 @@ class CLoopSwarm:
             fa = np.ascontiguousarray(f_a, float)
             n_tr += lib.ns2_fly_run(self.robots, n, ptr("double *", x), ptr("double *", fa),
                                     ptr("double *", tau) if tau is not None else ffi.NULL, ms, STEP_TICKS,
-                                    ptr("float *", noise), ptr("ns2_setpoint_t *", self.sps), fr, battery_V,
+                                    ptr("float *", noise), ptr("ns2_setpoint_t *", self.sps), fr,
+                                    ptr("float *", battery_f32),
                                     tr + n_tr if tr != ffi.NULL else ffi.NULL, trace_robot or 0, tr_max - n_tr)
         self.state = SwarmState.unpack(x.copy())
         self._ms += steps * STEP_TICKS

@@ -3,7 +3,8 @@
 from the logged start, every robot as a Crazyflie (cloop.py) with a learned f_a in
 the loop (the collection of 16 June 2020 flew the authors' network: import it with
 ``ns2 real import-authors`` and export it; or fly the prediction the real robots
-logged, learned="logged").  The simulated flight comes back as a
+logged, learned="logged"), each robot on the supply voltage its real robot logged.
+The simulated flight comes back as a
 ``Flight`` with the same time base and setpoints, so host/sim/flightstats.py measures
 both the same way (the sim-to-real table, docs/simulator.md).
 
@@ -74,25 +75,38 @@ def logged_setpoints(pieces: list[Flight]):
     return sp, p[0], float(grid[0]), float(grid[-1] - grid[0])
 
 
+def _logged(pieces: list[Flight], field: str, what: str):
+    """``at(tau)`` -> [N]: a logged per-robot ``field`` ([T, N]) of all the pieces on the
+    time base of logged_setpoints (tau = 0 at the first logged sample), linear across
+    cut gaps and missing samples."""
+    if any(getattr(p, field) is None for p in pieces):
+        raise ValueError(f"flight {pieces[0].name!r}: no {what} logged")
+    if not np.concatenate([np.isfinite(getattr(p, field)) for p in pieces]).any(axis=0).all():
+        raise ValueError(f"flight {pieces[0].name!r}: a robot's {what} is never logged")
+    grid, x = _on_grid(pieces, field)
+
+    def at(tau):
+        return x[_at(grid, tau)]
+
+    return at
+
+
 def logged_prediction(pieces: list[Flight]):
-    """``fa(tau)`` -> [N] g: the on-board prediction each robot flew (ctrlFa.Faz), on
-    the time base of logged_setpoints (tau = 0 at the first logged sample), linear
-    across cut gaps and missing samples."""
-    if any(p.fa_onboard_g is None for p in pieces):
-        raise ValueError(f"flight {pieces[0].name!r}: no on-board prediction logged")
-    if not np.concatenate([np.isfinite(p.fa_onboard_g) for p in pieces]).any(axis=0).all():
-        raise ValueError(f"flight {pieces[0].name!r}: a robot's on-board prediction is never logged")
-    grid, f = _on_grid(pieces, "fa_onboard_g")
+    """``fa(tau)`` -> [N] g: the on-board prediction each robot flew (ctrlFa.Faz)."""
+    return _logged(pieces, "fa_onboard_g", "on-board prediction")
 
-    def fa_at(tau):
-        return f[_at(grid, tau)]
 
-    return fa_at
+def logged_battery(pieces: list[Flight]):
+    """``battery(tau)`` -> [N] V: each robot's logged supply voltage (pm.vbat)."""
+    return _logged(pieces, "battery_V", "battery voltage")
+
+
+BATTERIES = ("logged", "model")
 
 
 def replay(cfg: Config, pieces: list[Flight], gen_dir, learned: str | None = "float",
            rough: Roughness | None = None, seed: int = 0, controller: str = "ns2",
-           law: dict | None = None) -> Flight:
+           law: dict | None = None, battery: str = "logged") -> Flight:
     """Fly one real flight's setpoints with its team in the simulator; the drones'
     log as a Flight (time as the real flight's, estimated states, setpoints).
     controller: "ns2" (the project's) or "authors" (the one that flew it, each robot
@@ -100,7 +114,12 @@ def replay(cfg: Config, pieces: list[Flight], gen_dir, learned: str | None = "fl
     "logged": the "authors" robots fly the prediction the real robots flew
     (logged_prediction), not a network of ``gen_dir``; law: with controller "authors",
     every robot flies the z law read off the real logs (vehicle.read_law_gains; READ_LAW's
-    form) instead of its stored gains."""
+    form) instead of its stored gains; battery: "logged", every robot flies on the supply
+    voltage its real robot logged (flights of one collection ran from 3.2 to 3.9 V: the
+    thrust of a PWM, and so the headroom, follows it), or "model": the simulator's own
+    (``rough``'s sag, or the clean simulator's constant)."""
+    if battery not in BATTERIES:
+        raise ValueError(f"battery must be one of {BATTERIES}, got {battery!r}")
     if controller not in ("ns2", "authors"):
         raise ValueError(f"controller must be 'ns2' or 'authors', got {controller!r}")
     if learned == "logged" and controller != "authors":
@@ -118,7 +137,8 @@ def replay(cfg: Config, pieces: list[Flight], gen_dir, learned: str | None = "fl
         authors = [authors_gains(t, r) for t, r in zip(types, robots)]
     given = logged_prediction(pieces) if learned == "logged" else None
     sw = CLoopSwarm(cfg, types, gen_dir, start, aero=True, learned=None if given is not None else learned, seed=seed,
-                    rough=rough, controllers=[controller] * len(types), authors=authors, fa_given=given)
+                    rough=rough, controllers=[controller] * len(types), authors=authors, fa_given=given,
+                    battery_given=logged_battery(pieces) if battery == "logged" else None)
     log = sw.run(duration, sp)
     return Flight(types, log["t"] + t0, log["p"], log["v"], log["q"], log["pwm"], log["battery_V"],
                   name=pieces[0].name, p_d=log["p_d"], fa_onboard_g=log["fa_hat"][:, :, 2] * 1e3 / G,

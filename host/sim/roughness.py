@@ -33,14 +33,16 @@ moment       the wakes' moment on a robot (OFF by default: not in DEFAULT_EFFECT
              rotor responds to the downwash at its own disc (aero.py
              AeroModel.forces_moments: the truth's wake profile at the rotor, the same
              rotor response), the four rotors' forces make a moment about the centre of
-             mass, scaled by ``moment_gain``.  Source: the bottom robot's motor commands
-             in the real swaps (flightstats.swap_attitude: its attitude loop's largest
-             departure from the four motors' mean, 0.40-0.67 of full PWM in the real
-             swaps, 0.02-0.2 in the simulator without it; its 0.2 s average, 0.18-0.32
-             real, 0.01-0.03 without it), matched by replays (experiments/calibrate.py
-             fit_moment: gain 2.5 on the slow part).  At that gain the pair swaps tilt
-             1.1-1.7x as far as the real ones, and robots under two others lose control
-             (docs/simulator.md): kept switchable, off.
+             mass, scaled by ``moment_gain`` and bounded by physics: about a
+             horizontal axis at most |f_a,z| x arm / sqrt 2, the wake's whole force on
+             one side of the robot (steady_moment).  Source: the bottom robot's motor
+             commands in the real swaps (flightstats.swap_attitude: its attitude loop's
+             largest departure from the four motors' mean, 0.40-0.67 of full PWM in the
+             real swaps, 0.02-0.2 in the simulator without it; its 0.2 s average,
+             0.18-0.32 real, 0.01-0.03 without it), matched by replays
+             (experiments/calibrate.py fit_moment, on the slow part).  Unbounded, the
+             fitted gain turned robots under two others over (docs/simulator.md).
+             Kept switchable, off (docs/simulator.md says what it does to the replays).
 moment_turbulence
              the wakes' turbulent moment (OFF by default): a torque about the body x
              and y axes, each a first-order Gauss-Markov process of the turbulence's
@@ -173,6 +175,19 @@ class Turbulence:
         if self.gm.on:
             out[:, 2] = self.ratio * np.abs(f_a[:, 2]) * self.gm.step()
         return out
+
+
+def steady_moment(tau: np.ndarray, f_a: np.ndarray, arm_m, gain: float) -> np.ndarray:
+    """The "moment" effect [N, 3] (N m, body): ``gain`` x aero.py's per-rotor moment tau
+    [N, 3], its part about the horizontal axes at most |f_a,z| x arm / sqrt 2 for the
+    truth f_a [N, 3] (N) of this step: the moment of the wake's whole force on one side
+    of the robot (two rotors at arm / sqrt 2 from the axis), which no wake exceeds."""
+    out = gain * np.asarray(tau, float)
+    cap = np.abs(f_a[:, 2]) * np.asarray(arm_m, float) / math.sqrt(2.0)
+    norm = np.hypot(out[:, 0], out[:, 1])
+    over = norm > cap
+    out[over, :2] *= (cap[over] / norm[over])[:, None]
+    return out
 
 
 class MomentTurbulence:
