@@ -226,6 +226,8 @@ def fit_moment(cfg: Config, gen_dir, flights: list[Flight], base: Roughness,
             flown[probe] = fly(probe)
             x = round(quadrature_fit(real, flown[0.0], flown[probe], probe, key), 3)
             steps.append({"probe": probe, "fit": x})
+            if x == 0.0:   # as rough as the real flights without it
+                break
             probe = x
         return x, steps
 
