@@ -40,9 +40,11 @@ moment       the wakes' moment on a robot (OFF by default: not in DEFAULT_EFFECT
              largest departure from the four motors' mean, 0.40-0.67 of full PWM in the
              real swaps, 0.02-0.2 in the simulator without it; its 0.2 s average,
              0.18-0.32 real, 0.01-0.03 without it), matched by replays
-             (experiments/calibrate.py fit_moment, on the slow part).  Unbounded, the
-             fitted gain turned robots under two others over (docs/simulator.md).
-             Kept switchable, off (docs/simulator.md says what it does to the replays).
+             (experiments/calibrate.py fit_moment, on the slow part: gain 7.2 under
+             the bound).  Unbounded, the fitted gain (2.5) turned robots under two
+             others over; bounded, the fitted gain tilts the pair swaps' robots 1.3-2.8x
+             as far as the real ones and turns robots under two others over again
+             (docs/simulator.md): kept switchable, off.
 moment_turbulence
              the wakes' turbulent moment (OFF by default): a torque about the body x
              and y axes, each a first-order Gauss-Markov process of the turbulence's
@@ -53,8 +55,9 @@ moment_turbulence
              attitude responds parts the motors without turning the robot; fitted on
              the raw departure with the steady moment fitted on the slow part
              (experiments/calibrate.py fit_moment).  It parts them, but neither tilts
-             the robots nor moves their z error (docs/simulator.md): kept
-             switchable, off.
+             the robots nor moves their z error (docs/simulator.md); with the bounded
+             steady moment at its fitted gain the replays part the motors as far as
+             the real ones without it: fitted 0, kept switchable, off.
 """
 from __future__ import annotations
 
@@ -86,9 +89,9 @@ class Roughness:
     wake_sigma0_scale: float = 0.848
     wake_spread_scale: float = 0.474
     # the wakes' moment (a factor on aero.py's per-rotor moment; the effect is off by default)
-    moment_gain: float = 2.472
+    moment_gain: float = 7.163
     # the wakes' turbulent moment (torque sd per unit |f_a,z| x arm; off by default)
-    moment_turbulence_ratio: float = 0.177
+    moment_turbulence_ratio: float = 0.0
     # not an effect: the motor-command noise of the real robots in free air (flightstats),
     # the bound of BL-tuned's gain search in the rough simulator (experiments/swarm.py)
     hover_motor_noise: dict = field(default_factory=lambda: {"small": 0.0274, "large": 0.04613})
