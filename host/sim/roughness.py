@@ -78,7 +78,7 @@ class Roughness:
     vibration_acc_g: dict = field(default_factory=lambda: {"small": 0.0585, "large": 0.0675})
     vibration_gyro_dps: dict = field(default_factory=lambda: {"small": 0.565, "large": 0.908})
     # rotor-wake turbulence
-    turbulence_ratio: float = 0.03
+    turbulence_ratio: float = 0.031
     turbulence_tau_s: float = 0.002
     # per-robot thrust scatter (relative standard deviation of psi_1)
     thrust_sd: float = 0.0158
