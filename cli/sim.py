@@ -87,17 +87,17 @@ def sim_swaps(gen_dir, out_dir, swaps, learned, simulator, quiet, as_json):
 
 
 @_sim_experiment("rings")
-@click.option("--duration", type=click.FloatRange(min=4.0), default=16.0, show_default=True,
-              help="simulated seconds per flight")
+@click.option("--duration", type=click.FloatRange(min=4.0), default=None,
+              help="simulated seconds per flight  [default: 13: 2 s of hover, the authors' 10 s of rings, 1 s]")
 def sim_rings(gen_dir, out_dir, duration, learned, simulator, quiet, as_json):
     """5-robot intertwined rings and the 16-robot three rings, the controllers of `sim swaps`
     (the gain search of OUT/gain_search.json, run if missing); rings.json, rings.md in OUT."""
-    from ns2exp.swarm import CONTROLLERS, RING_CASES, ring_experiments
+    from ns2exp.swarm import CONTROLLERS, RING_CASES, RING_DURATION_S, ring_experiments
 
     cfg = _export_config(gen_dir)
     with _progress(quiet, len(RING_CASES) * len(CONTROLLERS), "flight", "sim rings") as update:
-        res = ring_experiments(cfg, gen_dir, out_dir, duration=duration, learned=learned, progress=update,
-                               rough=_rough(simulator))
+        res = ring_experiments(cfg, gen_dir, out_dir, duration=duration or RING_DURATION_S, learned=learned,
+                               progress=update, rough=_rough(simulator))
     _emit(as_json, res, (Path(out_dir) / "rings.md").read_text())
 
 

@@ -29,7 +29,7 @@ from ns2codegen.config import Config
 from ns2host.sim.cloop import CLoopSwarm
 from ns2host.sim.flightstats import NOISE_WINDOW, motor_noise
 from ns2host.sim.roughness import Roughness
-from ns2host.sim.scenarios import intertwined_rings, swap
+from ns2host.sim.scenarios import RING_SECONDS, intertwined_rings, swap
 from ns2host.sim.vehicle import G, base_type
 
 # case -> (robots from the bottom up); the bottom robot is the one measured
@@ -305,12 +305,16 @@ def swap_table(res: dict) -> str:
 # rings of S* robots linked with a horizontal ring; the paper reports the "small*"
 # robots' maximum z error (5 robots: 10 -> 5 cm, 16 robots: 15 -> 10 cm)
 RING_CASES = {"5-robot rings": 5, "16-robot three rings": 16}
+RING_SETTLE_S = 2.0   # s of hover at the start positions before the rings start (not measured)
+RING_DURATION_S = RING_SETTLE_S + RING_SECONDS + 1.0   # the authors log until 1 s after the rings stop
 
 
-def ring_experiments(cfg: Config, gen_dir, out_dir, duration: float = 16.0, controllers=CONTROLLERS,
+def ring_experiments(cfg: Config, gen_dir, out_dir, duration: float = RING_DURATION_S, controllers=CONTROLLERS,
                      learned: str = "fixed", progress=None, rough: Roughness | None = None,
                      tune_swaps: int = 6) -> dict:
-    """Worst z error of every robot after 2 s, per robot type and controller (Mellinger
+    """Worst z error of every robot once the rings start (after RING_SETTLE_S of hover at
+    the start positions; the default duration ends 1 s after the rings stop, as the
+    authors' logs do), per robot type and controller (Mellinger
     flies the small robots, BL the large); out_dir/rings.json (a row per case, robot
     type and controller) and rings.md (``progress(1)`` after every flight);
     ``tune_swaps``: swaps per candidate of BL-tuned's gain search (load_or_tune)."""
@@ -319,14 +323,18 @@ def ring_experiments(cfg: Config, gen_dir, out_dir, duration: float = 16.0, cont
     tuning = load_or_tune(cfg, gen_dir, out, tune_swaps, rough)
     rows = []
     for name, robots in RING_CASES.items():
-        team, sp, start, _ = intertwined_rings(robots)
+        team, rings, start, _ = intertwined_rings(robots)
         small = [i for i, t in enumerate(team) if base_type(t) == "small"]
+
+        def sp(t, state=None, rings=rings):
+            return rings(t - RING_SETTLE_S, state)
+
         for ctrl in controllers:
             log = _fly(cfg, team, gen_dir, start, sp, duration, ctrl, tuning, measured=small, learned=learned,
                        rough=rough)
             if progress is not None:
                 progress(1)
-            late = log["t"] > 2.0
+            late = log["t"] > RING_SETTLE_S
             z_err = np.abs(log["truth_p"][late, :, 2] - log["p_d"][late, :, 2])
             worst = z_err.max(axis=0)
             for kind in sorted(set(team)):

@@ -145,26 +145,43 @@ def test_hover_holds(cfg, exported):
 
 @pytest.mark.parametrize("robots", [5, 16])
 def test_paper_ring_geometry(robots):
-    """Vertical rings of S* robots linked with a horizontal ring (paper, Fig. plot5 and
-    fig1): the horizontal robots pass under and over the S* robots, 0.25 m apart."""
-    from ns2host.sim.scenarios import intertwined_rings
+    """The rings as the authors flew them (their 16-robot trajectory files): a horizontal
+    ellipse 0.5 x 0.3 m and vertical circles of 0.3 m in the xz plane centred on its x
+    vertices, all at 0.7 m; one lap per 5 s from rest to rest over 10 s (696 deg); the
+    horizontal robots pass 0.25-0.3 m over and under the vertical rings' robots."""
+    from ns2host.sim.scenarios import intertwined_rings, ring_angle
 
     types, sp, start, vertical = intertwined_rings(robots)
-    assert len(types) == robots and {types[k] for k in vertical} == {"small*"}
-    assert types.count("large") == 2 and len(vertical) == (3 if robots == 5 else 10)
-    ts = np.arange(0.0, 8.0, 0.02)
+    counts = {t: types.count(t) for t in set(types)}
+    assert counts == ({"large": 2, "small*": 3} if robots == 5 else {"large": 2, "small*": 9, "small": 5})
+    assert len(vertical) == (3 if robots == 5 else 10) and "large" not in {types[k] for k in vertical}
+    assert np.degrees(ring_angle(10.0)[0]) == pytest.approx(696.0, abs=1.0)
+    for t in (0.0, 10.0, 11.0):                                  # from rest to rest
+        assert np.abs(sp(t).v).max() < 1e-12 and np.abs(sp(t).a).max() < 1e-9
+    ts = np.arange(0.0, 10.0, 0.01)
     P = np.stack([sp(t).p for t in ts])                          # [T, N, 3]
     assert np.allclose(P[0], start)
+    cruise = (ts > 1.0) & (ts < 4.0)                             # one lap per 5 s
+    assert np.allclose(P[cruise], np.stack([sp(t + 5.0).p for t in ts[cruise]]), atol=1e-9)
     horizontal = [k for k in range(robots) if k not in vertical]
-    assert np.ptp(P[:, horizontal, 2]) < 1e-9                    # one horizontal plane
-    assert all(np.ptp(P[:, k, 2]) > 0.45 for k in vertical)       # vertical circles
+    H = P[:, horizontal]
+    a, b = (0.5, 0.5) if robots == 5 else (0.5, 0.3)
+    assert np.allclose(H[..., 2], 0.7) and np.allclose((H[..., 0] / a) ** 2 + (H[..., 1] / b) ** 2, 1.0)
+    V = P[:, vertical]
+    assert np.allclose(V[..., 1], 0.0)
+    assert np.allclose(np.hypot(np.abs(V[..., 0]) - 0.5, V[..., 2] - 0.7), 0.3)
+    # the numerical derivatives are the setpoints' velocity and acceleration
+    k = 300
+    assert np.allclose((P[k + 1] - P[k - 1]) / 0.02, sp(ts[k]).v, atol=1e-3)
+    assert np.allclose((P[k + 1] - 2 * P[k] + P[k - 1]) / 1e-4, sp(ts[k]).a, atol=1e-2)
     d = np.linalg.norm(P[:, :, None] - P[:, None], axis=3) + 9 * np.eye(robots)
-    assert d.min() > 0.24
-    # a large robot right above an S* (within 5 cm sideways, 0.2-0.3 m above) at some time
+    assert d.min() > 0.25
+    # a large robot passes right above an S* (within 10 cm sideways, 0.25-0.3 m above)
     L = [k for k in range(robots) if types[k] == "large"]
-    PL, PV = P[:, L][:, :, None], P[:, vertical][:, None]
+    S = [k for k in vertical if types[k] == "small*"]
+    PL, PV = P[:, L][:, :, None], P[:, S][:, None]
     dxy = np.linalg.norm(PL[..., :2] - PV[..., :2], axis=3)
     dz = PL[..., 2] - PV[..., 2]
-    assert ((dxy < 0.05) & (dz > 0.2) & (dz < 0.3)).any()
+    assert ((dxy < 0.1) & (dz > 0.25) & (dz < 0.3)).any()
     with pytest.raises(ValueError, match="5 or 16"):
         intertwined_rings(7)

@@ -81,16 +81,52 @@ def random_walk(n: int, cube=((-1.0, 1.0), (-1.0, 1.0), (0.05, 1.2)), goal_perio
     return sp, start
 
 
-RING_RADIUS_V = 0.25   # m: vertical rings; a robot at its top or bottom is 0.25 m from the
-                       # horizontal ring's robot in its centre (paper: minimum vertical distance 24 cm)
-RING_Z = 1.0           # m, height of the horizontal ring
-RING_PERIOD = 8.0      # s per lap, every ring
+# The rings as the authors flew them: their 16-robot trajectory files
+# (aerorobotics/neural-swarm, hardware/neural-swarm-ros-pkg/scripts/three_rings.py and
+# three_rings16_pps/, read for these facts, evaluated in a one-off): a horizontal ellipse
+# and two vertical circles in the xz plane centred on its two x vertices, all at 0.7 m;
+# one lap per 5 s on every ring (angular speed 1.13-1.45 rad/s along the polynomials),
+# every robot counter-clockwise from the first in-plane axis to the second, evenly spaced
+# in phase from 11.6 deg; one flight of 10 s from rest to rest covering 696 deg.
+RING_Z = 0.7                 # m, height of the horizontal ring and of the vertical rings' centres
+RING_AXES_H = (0.5, 0.3)     # m, semi-axes of the horizontal ellipse (x, y)
+RING_RADIUS_V = 0.3          # m, vertical circles
+RING_CENTER_X = 0.5          # m, the vertical circles' centres at x = -0.5 and +0.5
+RING_PERIOD = 5.0            # s per lap
+RING_PHASE0 = np.radians(11.6)
+RING_SECONDS = 10.0          # s of ring motion, from rest to rest
+RING_RAMP = 0.33             # s, cosine ramp of the angular speed at each end: 2 pi / 5 s x
+                             # (10 - 0.33) s = 696 deg, the authors' flight's
 
 
-def _ring(center, e1, e2, a, b, n, phase0=0.0):
+def _ring(center, e1, e2, a, b, n, phase0=RING_PHASE0):
     """(center, in-plane axes, semi-axes, n robots evenly spaced in phase)."""
     return (np.asarray(center, float), np.asarray(e1, float), np.asarray(e2, float), a, b,
             phase0 + 2 * np.pi * np.arange(n) / n)
+
+
+def ring_angle(t: float):
+    """Angle travelled on every ring by time t, its rate and its acceleration: one lap
+    per RING_PERIOD, ramped up from rest over RING_RAMP at the start and down to rest
+    at RING_SECONDS (cosine profile of the rate)."""
+    w0, tr, T = 2 * np.pi / RING_PERIOD, RING_RAMP, RING_SECONDS
+    k = np.pi / tr
+
+    def up(s):          # angle, rate, acceleration s after a start from rest
+        return (w0 * (s / 2 - np.sin(k * s) / (2 * k)), w0 * (1 - np.cos(k * s)) / 2,
+                w0 * k * np.sin(k * s) / 2)
+
+    total = w0 * (T - tr)
+    if t <= 0.0:
+        return 0.0, 0.0, 0.0
+    if t < tr:
+        return up(t)
+    if t <= T - tr:
+        return w0 * (t - tr / 2), w0, 0.0
+    if t < T:
+        ang, rate, acc = up(T - t)
+        return total - ang, rate, -acc
+    return total, 0.0, 0.0
 
 
 def intertwined_rings(robots: int):
@@ -101,25 +137,29 @@ def intertwined_rings(robots: int):
     over their robots.  The vertical rings carry the small robots with stronger motors
     ("S*", the robots whose z error the paper reports).
 
-    * 5 robots: two large on a circle (radius 0.5 m) in the horizontal plane, three
-      S* on a circle in the vertical xz plane centred on it.
-    * 16 robots: two large and four small on an ellipse (0.8 x 0.5 m) in the
-      horizontal plane, five S* on each of two circles in the vertical xz and yz
-      planes, centred on the ellipse's vertices.
+    * 16 robots: the authors' flight (the constants above): two large and four small
+      on the horizontal ellipse (in phase order S, S, L, S, S, L: cf5, cf7, cf102,
+      cf51, cf10, cf101), five on each vertical circle (x = -0.5: cf9, cf52, cf11,
+      cf17, cf21; x = +0.5: cf1, cf4, cf8, cf200, cf6). cf51 and cf52 are the
+      collection's 34 g small robots; the others of the paper's S* robots are not
+      named, so every other small robot of a vertical ring is S* and the horizontal
+      ring's are small.
+    * 5 robots: no trajectory files are published; the same rings with one vertical
+      circle (x = +0.5, three S*) and a horizontal circle of radius 0.5 m (the paper:
+      a circle) carrying the two large robots opposite each other, timed so that each
+      large robot passes right over an S* at the bottom of the vertical circle and
+      right under one at its top.
 
-    Radii and speeds are not given in the paper: vertical rings of RING_RADIUS_V,
-    one lap per RING_PERIOD on every ring (timed so that a horizontal robot is at a
-    vertical ring's centre when one of that ring's robots is at its top).  Returns
-    (robot types, setpoints, start positions, vertical-ring robot indices)."""
+    Returns (robot types, setpoints, start positions, vertical-ring robot indices)."""
     ex, ey, ez = np.eye(3)
-    r, z = RING_RADIUS_V, RING_Z
+    r, z, xc = RING_RADIUS_V, RING_Z, RING_CENTER_X
     if robots == 5:
-        rings = [(("large", "large"), _ring([0, 0, z], ex, ey, 0.5, 0.5, 2)),
-                 (("small*",) * 3, _ring([0.5, 0, z], ex, ez, r, r, 3, np.pi / 2))]
+        rings = [(("large", "large"), _ring([0, 0, z], ex, ey, xc, xc, 2)),
+                 (("small*",) * 3, _ring([xc, 0, z], ex, ez, r, r, 3, RING_PHASE0 - np.pi / 2))]
     elif robots == 16:
-        rings = [(("large", "small", "small", "large", "small", "small"), _ring([0, 0, z], ex, ey, 0.8, 0.5, 6)),
-                 (("small*",) * 5, _ring([0.8, 0, z], ex, ez, r, r, 5, np.pi / 2)),
-                 (("small*",) * 5, _ring([0, 0.5, z], ey, ez, r, r, 5, np.pi / 2))]
+        rings = [(("small", "small", "large", "small", "small", "large"), _ring([0, 0, z], ex, ey, *RING_AXES_H, 6)),
+                 (("small*", "small", "small*", "small*", "small*"), _ring([-xc, 0, z], ex, ez, r, r, 5)),
+                 (("small*",) * 5, _ring([xc, 0, z], ex, ez, r, r, 5))]
     else:
         raise ValueError(f"intertwined_rings: the paper flies 5 or 16 robots, not {robots}")
     types = [t for ts, _ in rings for t in ts]
@@ -130,15 +170,16 @@ def intertwined_rings(robots: int):
     b = np.concatenate([np.full(len(g[5]), g[4]) for _, g in rings])[:, None]
     phase = np.concatenate([g[5] for _, g in rings])[:, None]
     vertical = [k for k, (ts, g) in enumerate((ts, g) for ts, g in rings for _ in ts) if g[2][2] == 1.0]
-    w = 2 * np.pi / RING_PERIOD
     n = len(types)
 
     def sp(t, state=None):
-        ang = phase + w * t
+        ang0, rate, acc0 = ring_angle(t)
+        ang = phase + ang0
         cs, sn = np.cos(ang), np.sin(ang)
+        tangent = -a * sn * e1 + b * cs * e2
         p = c + a * cs * e1 + b * sn * e2
-        v = w * (-a * sn * e1 + b * cs * e2)
-        acc = -w * w * (a * cs * e1 + b * sn * e2)
+        v = rate * tangent
+        acc = -rate * rate * (a * cs * e1 + b * sn * e2) + acc0 * tangent
         return Setpoints(p, v, acc, np.zeros(n))
 
     return types, sp, sp(0.0).p, vertical
