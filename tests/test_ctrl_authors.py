@@ -192,7 +192,7 @@ def test_the_authors_attitude_gains_reach_the_controller_and_it_hovers(cfg, expo
     sw = CLoopSwarm(cfg, ["small", "large"], exported.gen_dir, p0, controllers=["authors", "ns2"], seed=2)
     att = AUTHORS_GAINS["CF21SingleMarker"]["att"]
     g0, g1 = sw.robots[0].pilot.ctrl.g, sw.robots[1].pilot.ctrl.g
-    for k in ("Lq", "Kw", "Gw"):
+    for k in ("Lq", "Kw", "Gw", "Kwd"):
         assert list(getattr(g0, k)) == pytest.approx(att[k], rel=1e-6)
         assert list(getattr(g1, k)) == pytest.approx(default_gains(vehicle(cfg, "large"))[k], rel=1e-6)
     assert g0.int_w_max == pytest.approx(att["int_w_max"])

@@ -13,25 +13,25 @@ __all__ = ["AUTHORS_GAINS", "AUTHORS_PWM_EXACT", "G", "READ_LAW", "read_law_gain
 # version of that file (commit 0103346d); which one flew on 16 June 2020 is not recorded.
 #
 # "att": its attitude gains as the project's attitude law's (ns2_ctrl_attitude, the same
-# law on a quaternion error: tau = J w_r_dot - (J w) x w_r - Kw (w - w_r) - Gw int(w - w_r),
-# w_r = -Lq q~v, q~v about half the angle error): Lq = 2 Katt_P (controller_sjc's
-# lambda on the Euler angle error), Kw = Katt_D (its K), Gw = Katt_I, int_w_max =
-# Katt_I_limit.  Its Jtune (16e-6) is about J already; its fork's Katt_Dw (not in the
-# public controller_sjc.c, its meaning unknown) is not flown: the project's Kwd
-# (motor-delay compensation) stays.
+# law on a quaternion error: tau = J w_r_dot - (J w) x w_r - Kw (w - w_r) - Gw int(w - w_r)
+# - Kwd d(w - w_r)/dt, w_r = -Lq q~v, q~v about half the angle error): Lq = 2 Katt_P
+# (controller_sjc's lambda on the Euler angle error), Kw = Katt_D (its K), Gw = Katt_I,
+# int_w_max = Katt_I_limit, Kwd = Katt_Dw (its D on the angular velocity error's
+# derivative, "to deal with motor delays", in the stored controller_sjc.c with the same
+# sign).  Its Jtune (16e-6) is about J already.
 AUTHORS_GAINS = {
     "CF21SingleMarker": {"mass_kg": 0.034, "kp": [20.0, 20.0, 10.0], "kd": [10.0, 10.0, 5.0],
                          "ki": [3.0, 3.0, 3.0], "i_max": 2.0,
                          "att": {"Lq": [20.0, 20.0, 8.0], "Kw": [0.002, 0.002, 0.001], "Gw": [0.002, 0.002, 0.004],
-                                 "int_w_max": 2.0}},
+                                 "Kwd": [8e-5, 8e-5, 2e-5], "int_w_max": 2.0}},
     "parrotFrameCF21SingleMarker": {"mass_kg": 0.067, "kp": [20.0, 20.0, 10.0], "kd": [10.0, 10.0, 5.0],
                                     "ki": [3.0, 3.0, 3.0], "i_max": 2.0,
                                     "att": {"Lq": [20.0, 20.0, 8.0], "Kw": [0.009, 0.009, 0.004],
-                                            "Gw": [0.005, 0.005, 0.005], "int_w_max": 2.0}},
+                                            "Gw": [0.005, 0.005, 0.005], "Kwd": [2e-4, 2e-4, 0.0], "int_w_max": 2.0}},
     "parrotFrameSingleMarker": {"mass_kg": 0.067, "kp": [40.0, 40.0, 30.0], "kd": [20.0, 20.0, 15.0],
                                 "ki": [3.0, 3.0, 3.0], "i_max": 2.0,
                                 "att": {"Lq": [12.0, 12.0, 8.0], "Kw": [0.006, 0.006, 0.004],
-                                        "Gw": [0.005, 0.005, 0.005], "int_w_max": 2.0}},
+                                        "Gw": [0.005, 0.005, 0.005], "Kwd": [1e-4, 1e-4, 0.0], "int_w_max": 2.0}},
 }
 AUTHORS_TYPE = {"small": "CF21SingleMarker", "large": "parrotFrameCF21SingleMarker"}
 # The motor map of the firmware that flew the real flights: the motor forces its controller
