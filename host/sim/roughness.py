@@ -89,7 +89,7 @@ class Roughness:
     wake_sigma0_scale: float = 0.848
     wake_spread_scale: float = 0.474
     # the wakes' moment (a factor on aero.py's per-rotor moment; the effect is off by default)
-    moment_gain: float = 7.163
+    moment_gain: float = 7.589
     # the wakes' turbulent moment (torque sd per unit |f_a,z| x arm; off by default)
     moment_turbulence_ratio: float = 0.0
     # not an effect: the motor-command noise of the real robots in free air (flightstats),

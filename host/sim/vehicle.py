@@ -66,7 +66,7 @@ def authors_gains(robot_type: str, robot: str | None = None) -> dict:
 # robots taking off about a third of their prediction).  The values make calibrate
 # fitted (docs/simulator.md).
 READ_LAW = {"small": {"kp": 8.9463, "kd": 2.8232, "ki": 0.4536, "k_fa": 0.3802, "mass_kg": 0.033164},
-            "large": {"kp": 8.3561, "kd": 2.4793, "ki": 0.4174, "k_fa": 0.8476, "mass_kg": 0.063921}}
+            "large": {"kp": 8.3531, "kd": 2.4793, "ki": 0.4165, "k_fa": 0.8476, "mass_kg": 0.063924}}
 
 
 def read_law_gains(robot_type: str, law: dict | None = None) -> dict:
