@@ -146,9 +146,9 @@ def intertwined_rings(robots: int):
       ring's are small.
     * 5 robots: no trajectory files are published; the same rings with one vertical
       circle (x = +0.5, three S*) and a horizontal circle of radius 0.5 m (the paper:
-      a circle) carrying the two large robots opposite each other, timed so that each
-      large robot passes right over an S* at the bottom of the vertical circle and
-      right under one at its top.
+      a circle) carrying the two large robots opposite each other, timed so that the
+      large robots pass right over an S* at the bottom of the vertical circle (once in
+      the flight) and right under it at its top (twice).
 
     Returns (robot types, setpoints, start positions, vertical-ring robot indices)."""
     ex, ey, ez = np.eye(3)
