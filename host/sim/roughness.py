@@ -38,13 +38,14 @@ moment       the wakes' moment on a robot (OFF by default: not in DEFAULT_EFFECT
              one side of the robot (steady_moment).  Source: the bottom robot's motor
              commands in the real swaps (flightstats.swap_attitude: its attitude loop's
              largest departure from the four motors' mean, 0.40-0.67 of full PWM in the
-             real swaps, 0.02-0.2 in the simulator without it; its 0.2 s average,
+             real swaps, 0.05-0.2 in the simulator without it; its 0.2 s average,
              0.18-0.32 real, 0.01-0.03 without it), matched by replays
-             (experiments/calibrate.py fit_moment, on the slow part: gain 7.2 under
+             (experiments/calibrate.py fit_moment, on the slow part: gain 7.6 under
              the bound).  Unbounded, the fitted gain (2.5) turned robots under two
-             others over; bounded, the fitted gain tilts the pair swaps' robots 1.3-2.8x
-             as far as the real ones and turns robots under two others over again
-             (docs/simulator.md): kept switchable, off.
+             others over; bounded, the fitted gain tilts the pair swaps' robots 1.2-1.8x
+             as far as the real ones and turns robots under two others over again.
+             The real robots part their motors 0.13-0.49 in free air too, so most of
+             that departure is not the wake's (docs/simulator.md): kept switchable, off.
 moment_turbulence
              the wakes' turbulent moment (OFF by default): a torque about the body x
              and y axes, each a first-order Gauss-Markov process of the turbulence's
