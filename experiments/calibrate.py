@@ -3,9 +3,10 @@
 1. measure the real roughness (host/sim/flightstats.py on the collection's logs);
 2. fit host/sim/roughness.py's parameters to it, each from its own statistic:
    battery (the logged voltage), thrust scatter (the robots' hover thrust within a
-   type), IMU vibration (one free-air probe flight per type and parameter: the fast
-   part of the residual rises with the accelerometer's noise, the motor-command
-   noise with the gyro's, each in quadrature), the wake's profile (fit_wake: the
+   type), IMU vibration (replays of the pair random walks as they flew, the authors'
+   controller flying the logged prediction, against the same real flights' free air:
+   the fast part of the residual rises with the accelerometer's noise, the
+   motor-command noise with the gyro's, each in quadrature), the wake's profile (fit_wake: the
    truth at the logged states of robots under a neighbour against their labels, no
    replay), wake turbulence (replays of the pair swaps with the other effects on:
    the real scatter under a neighbour beyond the simulator's, per unit of the
@@ -40,12 +41,12 @@ from ns2host.sim.cloop import CLoopSwarm
 from ns2host.sim.replay import pieces_by_flight, replay
 from ns2host.sim.roughness import EFFECTS, Roughness, hp_share
 from ns2host.sim.scenarios import random_walk
-from ns2host.sim.vehicle import AUTHORS_GAINS, AUTHORS_TYPE, G, READ_LAW, read_law_gains
+from ns2host.sim.vehicle import AUTHORS_GAINS, AUTHORS_TYPE, G, READ_LAW
 
 # neural-swarm2.tex, flight tests: "in the L2S case [...] the median z-error is reduced
 # from 17 cm to 7 cm" (real flights, BL -> NN, the authors' controller on every robot)
 PAPER_L2S_M = {"BL-authors": 0.17, "NN-authors": 0.07}
-PROBE = {"seconds": 30.0, "acc_g": 0.05, "gyro_dps": 1.0, "cube": ((-1.0, 1.0), (-1.0, 1.0), (0.6, 1.4)), "seed": 1}
+PROBE = {"seconds": 30.0, "cube": ((-1.0, 1.0), (-1.0, 1.0), (0.6, 1.4)), "seed": 1}
 PAIR_SWAPS = ("swap_ss", "swap_sl", "swap_ll")
 FIT_FLIGHTS_PER_PAIR = 3      # pair swap flights replayed for the turbulence fit (the first ones by name)
 READ_LAW_FLIGHTS_PER_FOLDER = 2   # swap flights per folder replayed for the fit of the z law read off the logs
@@ -65,21 +66,27 @@ def real_statistics(cfg: Config, flights: list[Flight]) -> dict:
             "wake_scatter": fs.wake_scatter(cfg, sw), "swaps": fs.swap_errors(sw)}
 
 
-def probe_flight(cfg: Config, gen_dir, robot_type: str, rough: Roughness | None, controller: str = "ns2",
-                 law: dict | None = None) -> Flight:
-    """One robot's random walk (PROBE) in the simulator, as the drone logs it
-    (controller: cloop.CONTROLLERS; law: "authors" flies the z law read off the logs,
-    vehicle.read_law_gains)."""
+def probe_flight(cfg: Config, gen_dir, robot_type: str, rough: Roughness | None) -> Flight:
+    """One robot's random walk (PROBE) in the simulator on its own battery, as the drone
+    logs it."""
     sp, start = random_walk(1, cube=PROBE["cube"], seed=PROBE["seed"])
-    sw = CLoopSwarm(cfg, [robot_type], gen_dir, start, aero=True, rough=rough, seed=PROBE["seed"],
-                    controllers=[controller], authors=None if law is None else [read_law_gains(robot_type, law)])
+    sw = CLoopSwarm(cfg, [robot_type], gen_dir, start, aero=True, rough=rough, seed=PROBE["seed"])
     log = sw.run(PROBE["seconds"], sp)
     return Flight([robot_type], *(log[k] for k in ("t", "p", "v", "q", "pwm", "battery_V")), p_d=log["p_d"])
 
 
-def probe(cfg: Config, gen_dir, robot_type: str, rough: Roughness | None) -> dict:
-    """free_air statistics of the probe flight."""
-    return fs.free_air(cfg, [probe_flight(cfg, gen_dir, robot_type, rough)])[robot_type]
+FREE_AIR_WALKS = ("randomwalk_ss", "randomwalk_sl", "randomwalk_ll")   # the pair random walks: free-air stretches
+FREE_AIR_FLIGHTS_PER_PAIR = 2   # of each, the first ones by name, replayed for the vibration fit and the free-air rows
+VIBRATION_PROBE = {"acc_g": 0.1, "gyro_dps": 2.0}
+
+
+def free_air_pieces(flights: list[Flight]) -> dict:
+    """The real flights whose free-air stretches the vibration fit and the calibration
+    table's free-air rows replay: FREE_AIR_FLIGHTS_PER_PAIR of each pair random walk
+    (the robots apart and above 0.4 m for most of a minute; the collection's one-robot
+    walks fly in ground effect, below 0.4 m)."""
+    by = pieces_by_flight(flights)
+    return {n: by[n] for n in first_per_folder(by, FREE_AIR_FLIGHTS_PER_PAIR, FREE_AIR_WALKS)}
 
 
 def _quadrature(real: float, base: float, probed: float, probe_value: float) -> float:
@@ -91,26 +98,43 @@ def _quadrature(real: float, base: float, probed: float, probe_value: float) -> 
     return math.sqrt(max(real ** 2 - base ** 2, 0.0) / gain)
 
 
-def fit_vibration(cfg: Config, gen_dir, real_free: dict, base: Roughness) -> tuple[dict, dict, dict]:
-    """Accelerometer and gyro vibration per robot type from free-air probes."""
-    acc, gyro, rows = {}, {}, {}
+def fit_vibration(cfg: Config, gen_dir, flights: list[Flight], base: Roughness,
+                  workers: int = 1) -> tuple[dict, dict, dict]:
+    """Accelerometer and gyro vibration per robot type: replays of the pair random walks
+    (free_air_pieces) flown as the real ones were (the authors' controller with its
+    stored gains, the prediction the real robots logged, their logged battery), the
+    free-air statistics (flightstats.free_air) of the same flights real and replayed,
+    each in quadrature: the fast part of the residual on the accelerometer's noise
+    (without vibration, then a probe), then the motor-command noise on the gyro's
+    (without gyro vibration, a probe, then again with the first answer as the probe:
+    the motors clip)."""
+    pieces = free_air_pieces(flights)
+    real = fs.free_air(cfg, [p for ps in pieces.values() for p in ps])
     for ty in cfg.robot_types:
-        if ty not in real_free or real_free[ty]["fast_std_g"] is None:
-            raise ValueError(f"no free-air stretch of a {ty} robot in the real flights")
-        off = base.without("vibration")
-        b = probe(cfg, gen_dir, ty, off)
-        a = probe(cfg, gen_dir, ty, _vib(base, ty, PROBE["acc_g"], 0.0))
-        acc[ty] = _quadrature(real_free[ty]["fast_std_g"], b["fast_std_g"], a["fast_std_g"], PROBE["acc_g"])
-        b2 = probe(cfg, gen_dir, ty, _vib(base, ty, acc[ty], 0.0))
-        g = probe(cfg, gen_dir, ty, _vib(base, ty, acc[ty], PROBE["gyro_dps"]))
-        gyro[ty] = _quadrature(real_free[ty]["motor_noise"], b2["motor_noise"], g["motor_noise"], PROBE["gyro_dps"])
-        rows[ty] = {"without": b, "acc_probe": a, "acc_fitted": b2, "gyro_probe": g}
-    return acc, gyro, rows
+        if ty not in real or real[ty]["fast_std_g"] is None:
+            raise ValueError(f"no free-air stretch of a {ty} robot in the pair random walks")
+    steps = []
 
+    def fly(acc: dict, gyro: dict) -> dict:
+        rough = replace(base, vibration_acc_g={**base.vibration_acc_g, **acc},
+                        vibration_gyro_dps={**base.vibration_gyro_dps, **gyro})
+        sim = fs.free_air(cfg, replay_all(cfg, gen_dir, pieces, rough, workers, controller="authors", learned="logged"))
+        steps.append({"acc_g": acc, "gyro_dps": gyro, "free_air": sim})
+        return sim
 
-def _vib(base: Roughness, ty: str, acc: float, gyro: float) -> Roughness:
-    return replace(base, vibration_acc_g={**base.vibration_acc_g, ty: acc},
-                   vibration_gyro_dps={**base.vibration_gyro_dps, ty: gyro})
+    zero = {ty: 0.0 for ty in cfg.robot_types}
+    calm = fly(zero, zero)
+    pa = {ty: VIBRATION_PROBE["acc_g"] for ty in cfg.robot_types}
+    shaken = fly(pa, zero)
+    acc = {ty: round(_quadrature(real[ty]["fast_std_g"], calm[ty]["fast_std_g"], shaken[ty]["fast_std_g"], pa[ty]), 4)
+           for ty in cfg.robot_types}
+    calm = fly(acc, zero)
+    gyro = {ty: VIBRATION_PROBE["gyro_dps"] for ty in cfg.robot_types}
+    for _ in range(2):
+        probed = fly(acc, gyro)
+        gyro = {ty: round(_quadrature(real[ty]["motor_noise"], calm[ty]["motor_noise"], probed[ty]["motor_noise"],
+                                      gyro[ty]), 3) if gyro[ty] > 0 else 0.0 for ty in cfg.robot_types}
+    return acc, gyro, {"flights": sorted(pieces), "real": real, "steps": steps, "acc_g": acc, "gyro_dps": gyro}
 
 
 def replay_all(cfg: Config, gen_dir, pieces: dict, rough: Roughness | None, workers: int = 1,
@@ -469,16 +493,15 @@ def fit(cfg: Config, gen_dir, flights: list[Flight], hover_by_robot: dict, robot
     base = Roughness(battery_start_V=round(start, 3), battery_sag_V_per_min=round(sag, 4),
                      thrust_sd=round(thrust_sd(hover_by_robot, robot_type_of), 4),
                      wake_sigma0_scale=s0, wake_spread_scale=sp)
-    acc, gyro, vib_rows = fit_vibration(cfg, gen_dir, real["free_air"], base)
-    base = replace(base, vibration_acc_g={k: round(v, 4) for k, v in acc.items()},
-                   vibration_gyro_dps={k: round(v, 3) for k, v in gyro.items()})
+    acc, gyro, vib_rows = fit_vibration(cfg, gen_dir, flights, base, workers)
+    base = replace(base, vibration_acc_g=acc, vibration_gyro_dps=gyro)
     ratio, tau, turb_rows = fit_turbulence(cfg, gen_dir, flights, base, workers)
     base = replace(base, turbulence_ratio=round(ratio, 3), turbulence_tau_s=round(tau, 4))
     gain, m_ratio, moment = fit_moment(cfg, gen_dir, flights, base, workers)
     # the moments' effects stay as base has them (off by default)
     rough = replace(base, moment_gain=gain, moment_turbulence_ratio=m_ratio,
                     hover_motor_noise={ty: real["free_air"][ty]["motor_noise"] for ty in cfg.robot_types})
-    return rough, {"real": real, "wake": wake, "vibration_probes": vib_rows, "moment": moment, "turbulence": turb_rows}
+    return rough, {"real": real, "wake": wake, "vibration": vib_rows, "moment": moment, "turbulence": turb_rows}
 
 
 # label -> (rough, controller, learned, the z law read off the logs, the wakes' moments on)
@@ -501,37 +524,42 @@ def compare(cfg: Config, gen_dir, flights: list[Flight], rough: Roughness, names
     loop, the same controller flying the prediction the real robots logged instead of
     a network, and that with the z law read off the logs (``law``, READ_LAW by
     default; fit_read_law), the last two also with the wakes' moments on: free air
-    from the probes (no neighbour, no learned force: the stored law's variants share
-    theirs), the rest over the replayed swap flights (``names``: a subset; the real
-    side is the same subset).  The replays fly each robot's logged battery, so the
-    battery rows are the probes' (the simulator's own sag).  real_all: the free-air
-    and battery statistics of every real flight if already measured (fit's)."""
+    (flightstats.free_air and z_loop) over replays of the pair random walks
+    (free_air_pieces; the real side the same flights; the moments' variants share
+    theirs: no wake there), the rest over the replayed swap flights (``names``: a
+    subset; the real side is the same subset).  The replays fly each robot's logged
+    battery, so the battery rows are one probe flight's per type (probe_flight: the
+    simulator's own sag) against every real flight.  real_all: fit's statistics of
+    every real flight if already measured (its battery is taken)."""
     law = READ_LAW if law is None else law
     by = pieces_by_flight(swap_flights(flights))
     if names is not None:
         by = {n: by[n] for n in names}
     real_sw = [p for ps in by.values() for p in ps]
-    zl = fs.z_loop(cfg, flights)
-    if real_all is None:
-        real_all = {"free_air": fs.free_air(cfg, flights), "battery": fs.battery(flights)}
-    out = {"flights": sorted(by), "real": {"free_air": real_all["free_air"], "battery": real_all["battery"],
-                                          "z_loop": zl, "z_law": fs.z_law(cfg, real_sw),
-                                          "wake_scatter": fs.wake_scatter(cfg, real_sw),
-                                          "wake_lateral": fs.wake_lateral(cfg, real_sw),
-                                          "swaps": fs.swap_errors(real_sw), "attitude": fs.swap_attitude(real_sw),
-                                          "unpredicted": fs.unpredicted(cfg, real_sw),
-                                          "lateral_k_xy": lateral_k_xy(cfg, real_sw)}}
+    free = free_air_pieces(flights)
+    real_free = [p for ps in free.values() for p in ps]
+    battery = fs.battery(flights) if real_all is None else real_all["battery"]
+    out = {"flights": sorted(by), "free_air_flights": sorted(free),
+           "real": {"free_air": fs.free_air(cfg, real_free), "battery": battery, "z_loop": fs.z_loop(cfg, real_free),
+                    "z_law": fs.z_law(cfg, real_sw), "wake_scatter": fs.wake_scatter(cfg, real_sw),
+                    "wake_lateral": fs.wake_lateral(cfg, real_sw),
+                    "swaps": fs.swap_errors(real_sw), "attitude": fs.swap_attitude(real_sw),
+                    "unpredicted": fs.unpredicted(cfg, real_sw), "lateral_k_xy": lateral_k_xy(cfg, real_sw)}}
+    walks: dict = {}
     probed: dict = {}
     for label, (is_rough, ctrl, learned, read, moments) in VARIANTS.items():
         r, zl = (rough if is_rough else None), (law if read else None)
         if moments:
             r = r.plus("moment", "moment_turbulence")
-        if (is_rough, ctrl, read) not in probed:   # free air: the moments need a wake
-            probed[is_rough, ctrl, read] = [probe_flight(cfg, gen_dir, ty, r, ctrl, zl) for ty in cfg.robot_types]
-        probes = probed[is_rough, ctrl, read]
+        if (is_rough, ctrl, learned, read) not in walks:   # free air: the moments need a wake
+            walks[is_rough, ctrl, learned, read] = replay_all(cfg, gen_dir, free, r, workers, controller=ctrl,
+                                                              learned=learned, law=zl)
+        if is_rough not in probed:   # the simulator's own battery (the replays fly the logged one)
+            probed[is_rough] = [probe_flight(cfg, gen_dir, ty, r) for ty in cfg.robot_types]
+        w = walks[is_rough, ctrl, learned, read]
         sims = replay_all(cfg, gen_dir, by, r, workers, controller=ctrl, learned=learned, law=zl)
-        out[label] = {"free_air": {ty: fs.free_air(cfg, [p])[ty] for ty, p in zip(cfg.robot_types, probes)},
-                      "z_loop": fs.z_loop(cfg, probes), "z_law": fs.z_law(cfg, sims), "battery": fs.battery(probes),
+        out[label] = {"free_air": fs.free_air(cfg, w), "z_loop": fs.z_loop(cfg, w), "z_law": fs.z_law(cfg, sims),
+                      "battery": fs.battery(probed[is_rough]),
                       "wake_scatter": fs.wake_scatter(cfg, sims), "wake_lateral": fs.wake_lateral(cfg, sims),
                       "swaps": fs.swap_errors(sims),
                       "attitude": fs.swap_attitude(sims), "lateral_k_xy": lateral_k_xy(cfg, sims),
@@ -572,9 +600,6 @@ def calibrate(cfg: Config, gen_dir, flights: list[Flight], hover_by_robot: dict,
               rough: Roughness | None = None) -> dict:
     """Fit (unless ``rough`` is given), compare, write out_dir/calibration.json and
     calibration.md; returns the JSON."""
-    from ns2host.sim.calibration import (moment_table, paper_l2s_table, read_law_table, roughness_table,
-                                         sim_to_real_table, wake_profile_table)
-
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     fit_report, law = None, READ_LAW
@@ -586,12 +611,23 @@ def calibrate(cfg: Config, gen_dir, flights: list[Flight], hover_by_robot: dict,
     res = {"roughness": roughness_dict(rough), "read_law": law, "effects": list(EFFECTS), "fit": fit_report,
            "compare": cmp, "paper_l2s": l2s}
     atomic_write_bytes(out_dir / "calibration.json", json.dumps(res, indent=1, sort_keys=True).encode())
-    md = ("# The simulator against the real flights\n\n" + roughness_table(cmp) + "\n\n## Replayed swaps\n\n"
-          + sim_to_real_table(cmp) + "\n\n## The paper's L2S swap, the authors' controller, rough simulator\n\n"
-          + paper_l2s_table(l2s) + "\n\n## The z law read off the logs\n\n"
-          + read_law_table(law, fit_report["read_law"] if fit_report else None)
-          + ("\n\n## The wake at the real states\n\n" + wake_profile_table(fit_report["wake"]) if fit_report else "")
-          + ("\n\n## The wakes' moment\n\n" + moment_table(fit_report["moment"]) if fit_report else "")
-          + "\n")
+    md = markdown(res)
     atomic_write_bytes(out_dir / "calibration.md", md.encode())
     return res
+
+
+def markdown(res: dict) -> str:
+    """calibration.md of calibrate's JSON (as written: its simulators in VARIANTS' order)."""
+    from ns2host.sim.calibration import (moment_table, paper_l2s_table, read_law_table, roughness_table,
+                                         sim_to_real_table, wake_profile_table)
+
+    fit_report = res["fit"]
+    cmp = {k: v for k, v in res["compare"].items() if k not in VARIANTS}
+    cmp.update((k, res["compare"][k]) for k in VARIANTS if k in res["compare"])
+    return ("# The simulator against the real flights\n\n" + roughness_table(cmp) + "\n\n## Replayed swaps\n\n"
+            + sim_to_real_table(cmp) + "\n\n## The paper's L2S swap, the authors' controller, rough simulator\n\n"
+            + paper_l2s_table(res["paper_l2s"]) + "\n\n## The z law read off the logs\n\n"
+            + read_law_table(res["read_law"], fit_report["read_law"] if fit_report else None)
+            + ("\n\n## The wake at the real states\n\n" + wake_profile_table(fit_report["wake"]) if fit_report else "")
+            + ("\n\n## The wakes' moment\n\n" + moment_table(fit_report["moment"]) if fit_report else "")
+            + "\n")

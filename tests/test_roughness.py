@@ -531,6 +531,21 @@ def test_first_per_folder():
     assert first_per_folder(names, 5) == sorted(names)
 
 
+def test_the_vibration_fit_replays_the_pair_random_walks():
+    """fit_vibration and the free-air rows replay the pair random walks (the one-robot
+    walks fly in ground effect), the first two of each, every piece of a flight."""
+    from types import SimpleNamespace
+
+    from ns2exp.calibrate import free_air_pieces
+
+    names = ["randomwalk_s/00", "randomwalk_l/01", "randomwalk_ss/02", "randomwalk_ss/00", "randomwalk_ss/01",
+             "randomwalk_ll/03", "randomwalk_sl/00", "randomwalk_sss/00", "swap_ss/00", "randomwalk_ss/00"]
+    flights = [SimpleNamespace(name=n) for n in names]
+    got = free_air_pieces(flights)
+    assert list(got) == ["randomwalk_ss/00", "randomwalk_ss/01", "randomwalk_sl/00", "randomwalk_ll/03"]
+    assert [len(got[n]) for n in got] == [2, 1, 1, 1]
+
+
 def test_the_wake_read_off_labels_at_logged_states(cfg):
     """fit_wake's pieces: the truth of many snapshots at once is each snapshot's own to
     within rounding; labels made by a wake 0.8 x as wide at the rotor and spreading

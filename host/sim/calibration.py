@@ -164,7 +164,7 @@ def _within(sim: float, real: float) -> bool:
 
 
 def _variants(cmp: dict) -> list[str]:
-    return [k for k in cmp if k not in ("flights", "real")]
+    return [k for k in cmp if k not in ("flights", "free_air_flights", "real")]
 
 
 def roughness_table(cmp: dict, judged: str = "rough") -> str:

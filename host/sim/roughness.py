@@ -76,10 +76,10 @@ DEFAULT_EFFECTS = ("vibration", "turbulence", "thrust", "battery", "wake")   # t
 @dataclass(frozen=True)
 class Roughness:
     # propeller vibration (per 1 kHz sample), by robot type
-    vibration_acc_g: dict = field(default_factory=lambda: {"small": 0.0585, "large": 0.0675})
-    vibration_gyro_dps: dict = field(default_factory=lambda: {"small": 0.565, "large": 0.908})
+    vibration_acc_g: dict = field(default_factory=lambda: {"small": 0.0607, "large": 0.0891})
+    vibration_gyro_dps: dict = field(default_factory=lambda: {"small": 2.275, "large": 6.606})
     # rotor-wake turbulence
-    turbulence_ratio: float = 0.031
+    turbulence_ratio: float = 0.019
     turbulence_tau_s: float = 0.002
     # per-robot thrust scatter (relative standard deviation of psi_1)
     thrust_sd: float = 0.0158
@@ -90,7 +90,7 @@ class Roughness:
     wake_sigma0_scale: float = 0.848
     wake_spread_scale: float = 0.474
     # the wakes' moment (a factor on aero.py's per-rotor moment; the effect is off by default)
-    moment_gain: float = 7.589
+    moment_gain: float = 6.425
     # the wakes' turbulent moment (torque sd per unit |f_a,z| x arm; off by default)
     moment_turbulence_ratio: float = 0.0
     # not an effect: the motor-command noise of the real robots in free air (flightstats),

@@ -65,8 +65,8 @@ def authors_gains(robot_type: str, robot: str | None = None) -> dict:
 # logs say flew (softer than crazyflieTypes.yaml, no integral to speak of, the small
 # robots taking off about a third of their prediction).  The values make calibrate
 # fitted (docs/simulator.md).
-READ_LAW = {"small": {"kp": 8.9463, "kd": 2.8232, "ki": 0.4536, "k_fa": 0.3802, "mass_kg": 0.033164},
-            "large": {"kp": 8.3531, "kd": 2.4793, "ki": 0.4165, "k_fa": 0.8476, "mass_kg": 0.063924}}
+READ_LAW = {"small": {"kp": 8.9538, "kd": 2.8225, "ki": 0.4526, "k_fa": 0.3803, "mass_kg": 0.033178},
+            "large": {"kp": 8.4121, "kd": 2.4542, "ki": 0.4112, "k_fa": 0.8494, "mass_kg": 0.063904}}
 
 
 def read_law_gains(robot_type: str, law: dict | None = None) -> dict:
