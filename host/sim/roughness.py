@@ -10,7 +10,9 @@ vibration    propeller vibration seen by the IMU: white noise per 1 kHz sample a
              (in quadrature) to the BMI088 datasheet noise of sensing.py, per robot
              type, accelerometer (g) and gyro (deg/s).  Source: the fast part (above
              about 5 Hz) of the free-air residual force and the motor-command noise,
-             which the datasheet noise leaves 2-4x too small.
+             which the datasheet noise leaves 2-4x too small, matched by replays of
+             the real pair random walks flown by the controller that flew them
+             (experiments/calibrate.py fit_vibration).
 turbulence   rotor-wake turbulence: a force along z on every robot, a first-order
              Gauss-Markov process of correlation time tau_s whose standard deviation
              is ``ratio`` x |f_a,z| of the ground truth at that robot (the wakes and
@@ -38,11 +40,11 @@ moment       the wakes' moment on a robot (OFF by default: not in DEFAULT_EFFECT
              one side of the robot (steady_moment).  Source: the bottom robot's motor
              commands in the real swaps (flightstats.swap_attitude: its attitude loop's
              largest departure from the four motors' mean, 0.40-0.67 of full PWM in the
-             real swaps, 0.05-0.2 in the simulator without it; its 0.2 s average,
-             0.18-0.32 real, 0.01-0.03 without it), matched by replays
-             (experiments/calibrate.py fit_moment, on the slow part: gain 7.6 under
+             real swaps, 0.10-0.32 in the simulator without it; its 0.2 s average,
+             0.18-0.32 real, 0.02-0.03 without it), matched by replays
+             (experiments/calibrate.py fit_moment, on the slow part: gain 6.4 under
              the bound).  Unbounded, the fitted gain (2.5) turned robots under two
-             others over; bounded, the fitted gain tilts the pair swaps' robots 1.2-1.8x
+             others over; bounded, the fitted gain tilts the pair swaps' robots 1.1-1.7x
              as far as the real ones and turns robots under two others over again.
              The real robots part their motors 0.13-0.49 in free air too, so most of
              that departure is not the wake's (docs/simulator.md): kept switchable, off.
