@@ -79,7 +79,7 @@ DEFAULT_EFFECTS = ("vibration", "turbulence", "thrust", "battery", "wake")   # t
 class Roughness:
     # propeller vibration (per 1 kHz sample), by robot type
     vibration_acc_g: dict = field(default_factory=lambda: {"small": 0.0607, "large": 0.0891})
-    vibration_gyro_dps: dict = field(default_factory=lambda: {"small": 2.275, "large": 6.606})
+    vibration_gyro_dps: dict = field(default_factory=lambda: {"small": 2.274, "large": 6.606})
     # rotor-wake turbulence
     turbulence_ratio: float = 0.019
     turbulence_tau_s: float = 0.002
@@ -92,7 +92,7 @@ class Roughness:
     wake_sigma0_scale: float = 0.848
     wake_spread_scale: float = 0.474
     # the wakes' moment (a factor on aero.py's per-rotor moment; the effect is off by default)
-    moment_gain: float = 6.425
+    moment_gain: float = 6.429
     # the wakes' turbulent moment (torque sd per unit |f_a,z| x arm; off by default)
     moment_turbulence_ratio: float = 0.0
     # not an effect: the motor-command noise of the real robots in free air (flightstats),
