@@ -583,3 +583,31 @@ def test_the_wake_read_off_labels_at_logged_states(cfg):
     t = wake_profile_table({"sigma0_scale": s0, "spread_scale": sp, "samples": K, "rms_paper_g": 1.0,
                             "rms_fitted_g": 0.0, "profile": prof}).splitlines()
     assert t[0].startswith("The wake's initial width x 0.8") and t[4].startswith("| small under large | 0-5 | ")
+
+
+def test_the_vibration_fit_flies_without_turbulence(monkeypatch):
+    """fit_vibration replays with the turbulence off whatever its base has (it is fitted
+    after, on the vibration): the fit does not depend on the turbulence default."""
+    from types import SimpleNamespace
+
+    from ns2exp import calibrate as cal
+    from ns2host.sim import flightstats as fs
+    from ns2host.sim.roughness import Roughness
+
+    flown = []
+    monkeypatch.setattr(cal, "replay_all", lambda cfg, gen, pieces, rough, *a, **k: flown.append(rough) or [rough])
+
+    def free_air(cfg, fls):                    # the real flights' statistics, or grows with the vibration flown
+        r = fls[0]
+        if not isinstance(r, Roughness):
+            return {"small": {"fast_std_g": 0.4, "motor_noise": 0.02}}
+        return {"small": {"fast_std_g": 0.1 + r.vibration_acc_g["small"], "motor_noise": 0.01 + r.vibration_gyro_dps["small"] / 100}}
+
+    monkeypatch.setattr(fs, "free_air", free_air)
+    cfg = SimpleNamespace(robot_types=["small"])
+    base = Roughness(turbulence_ratio=0.5)
+    assert base.on("turbulence")
+    acc, gyro, _ = cal.fit_vibration(cfg, None, [SimpleNamespace(name="randomwalk_ss/00")], base)
+    assert acc["small"] > 0 and gyro["small"] > 0
+    assert len(flown) == 5 and not any(r.on("turbulence") for r in flown)
+    assert all(r.turbulence_ratio == 0.5 and r.on("vibration") for r in flown)
