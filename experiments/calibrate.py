@@ -108,8 +108,7 @@ def fit_vibration(cfg: Config, gen_dir, flights: list[Flight], base: Roughness,
     (without vibration, then a probe), then the motor-command noise on the gyro's
     (without gyro vibration, a probe, then again with the first answer as the probe:
     the motors clip).  The turbulence is off: it is fitted after the vibration, on it,
-    so flying its former default here made the fit depend on the defaults it started
-    from (0.001 deg/s of gyro when the turbulence default moved)."""
+    so the fit does not depend on the turbulence default it starts from."""
     base = base.without("turbulence")
     pieces = free_air_pieces(flights)
     real = fs.free_air(cfg, [p for ps in pieces.values() for p in ps])
