@@ -125,7 +125,7 @@ sim: $(SIM)/gen2/ns2_model_config.h
 # the H/L ablation (about half an hour on 2 cores; JSON in build/paper_data.json)
 paper-data: deps
 	@mkdir -p build
-	$(PYTHON) benchmarks/paper_data.py > build/paper_data.json.tmp && mv build/paper_data.json.tmp build/paper_data.json
+	$(PYTHON) benchmarks/paper_data.py --sim $(SIMULATOR) --workers 2 > build/paper_data.json.tmp && mv build/paper_data.json.tmp build/paper_data.json
 	@cat build/paper_data.json
 
 # The paper's ablations (benchmarks/ablation.py: H, L, without relative velocity,
@@ -136,11 +136,11 @@ paper-data: deps
 ABLATION_DEVICE ?= cpu
 build/paper_data.npz: | deps
 	@mkdir -p build
-	$(PYTHON) benchmarks/paper_data.py --data-only --out $@
+	$(PYTHON) benchmarks/paper_data.py --sim $(SIMULATOR) --workers 2 --data-only --out $@
 # the larger-team test set: teams of 4 and 5 robots, never seen in training
 build/larger_teams.npz: | deps
 	@mkdir -p build
-	$(PYTHON) benchmarks/paper_data.py --data-only --team-sizes 4,5 --samples 200000 --seed 8 --out $@
+	$(PYTHON) benchmarks/paper_data.py --sim $(SIMULATOR) --workers 2 --data-only --team-sizes 4,5 --samples 200000 --seed 8 --out $@
 ablation: build/paper_data.npz build/larger_teams.npz
 	$(PYTHON) benchmarks/ablation.py --data build/paper_data.npz --test-data build/larger_teams.npz \
 		--seeds 3 --lr-drops 2 --device $(ABLATION_DEVICE) \

@@ -7,7 +7,10 @@ ablation over H in {10, 20, 40}, L in {3, 4, 5} (Table "ablation") and the
 intermediate widths (benchmarks/ablation.py) on the same set with --ablation-epochs each.
 
     python benchmarks/paper_data.py [--samples 1400000] [--epochs 20] [--ablation-epochs 5]
-        [--team-sizes 1,2,3] [--seed 7] [--data-only --out FILE.npz]
+        [--team-sizes 1,2,3] [--seed 7] [--sim rough|clean] [--workers 2] [--data-only --out FILE.npz]
+
+--sim: the rough simulator (default, as `make sim`: a real Crazyflie's effects fitted to
+the real flights, host/sim/roughness.py) or the clean one.
 
 Long (about half an hour on 2 cores); not part of `make bench`: `make paper-data`.
 """
@@ -28,6 +31,7 @@ from ns2codegen.export import export
 from ns2codegen.train import train
 from ns2host.sim.cloop import LOG_HZ
 from ns2host.sim.collect import collect, teams
+from ns2host.sim.roughness import Roughness
 
 
 def main() -> None:
@@ -41,6 +45,9 @@ def main() -> None:
                     help="comma list of team sizes to fly (default: the paper's 12 scenarios, teams of 1-3; "
                          "4,5 gives the larger-team test set of the ablation)")
     ap.add_argument("--seed", type=int, default=7)
+    ap.add_argument("--sim", dest="simulator", choices=("rough", "clean"), default="rough",
+                    help="the rough simulator (a real Crazyflie's effects, fitted to the real flights) or the clean one")
+    ap.add_argument("--workers", type=int, default=1, help="flights flown at once (the same data set)")
     args = ap.parse_args()
     cfg = Config.load()
     sizes = sorted({int(n) for n in args.team_sizes.split(",")})
@@ -55,18 +62,19 @@ def main() -> None:
         save_checkpoint(Path(tmp) / "m.pt", m0, cfg, {"seed": 0, "data_hash": ds0.content_hash(), "report": r0})
         export(Path(tmp) / "m.pt", Path(tmp) / "gen")
         t0 = time.perf_counter()
-        ds = collect(cfg, Path(tmp) / "gen", seconds, seed=args.seed, team_list=team_list)
+        ds = collect(cfg, Path(tmp) / "gen", seconds, seed=args.seed, team_list=team_list, workers=args.workers,
+                     rough=Roughness() if args.simulator == "rough" else None)
         gen_s = time.perf_counter() - t0
     print(f"  {len(ds):,} samples in {gen_s:.0f} s", file=sys.stderr)
     if args.out:
         ds.save(args.out)
     if args.data_only:
-        print(json.dumps({"samples": len(ds), "teams": ["+".join(t) for t in team_list],
+        print(json.dumps({"simulator": args.simulator, "samples": len(ds), "teams": ["+".join(t) for t in team_list],
                           "generation_s": round(gen_s, 1)}))
         return
     _, rep = train(cfg, ds, epochs=args.epochs, seed=0)
     val = rep["validation"]
-    out = {"data": {"samples": len(ds), "teams": len(team_list), "flight_seconds_per_team": round(seconds, 1),
+    out = {"data": {"simulator": args.simulator, "samples": len(ds), "teams": len(team_list), "flight_seconds_per_team": round(seconds, 1),
                     "scenarios": len(set(ds.scenario.tolist())), "generation_s": round(gen_s, 1),
                     "samples_per_second": round(len(ds) / gen_s)},
            "training": {"epochs": args.epochs, "train_samples": rep["train_samples"],

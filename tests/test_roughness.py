@@ -18,7 +18,8 @@ from ns2host.sim import flightstats as fs
 from ns2host.sim.aero import K_XY
 from ns2host.sim.cloop import CLoopSwarm, hover_setpoints
 from ns2host.sim.replay import logged_battery, logged_prediction, logged_setpoints, pieces_by_flight, replay
-from ns2host.sim.roughness import MomentTurbulence, Roughness, Turbulence, hp_share
+from ns2host.sim import collect as collect_mod
+from ns2host.sim.roughness import LOW_BATTERY_V, MomentTurbulence, Roughness, Turbulence, hp_share
 from ns2host.sim.scenarios import swap
 
 SWAPS = "neural-swarm-2020-06-16-swaps.tar.xz"
@@ -40,6 +41,34 @@ def test_every_effect_off_is_the_clean_simulator_bit_for_bit(cfg, exported):
     assert not np.array_equal(clean["pwm"], rough["pwm"])
     with pytest.raises(ValueError, match="unknown roughness"):
         Roughness().without("wind")
+
+
+def test_a_flight_lasts_one_battery_charge(cfg, monkeypatch):
+    """On the rough simulator a collection flight ends before the sag reaches the
+    firmware's low-battery voltage: longer ones are flown as several on full batteries
+    (a robot flown 10 min on the fitted sag falls); the clean simulator's are not split."""
+    r = Roughness()
+    limit = r.flight_limit_s()
+    assert r.battery_V(limit, 3.9) == pytest.approx(LOW_BATTERY_V)
+    assert 64.0 < limit < 600.0                  # above the real flights' longest
+    assert math.isinf(r.without("battery").flight_limit_s())
+    flown = []
+    monkeypatch.setattr(collect_mod, "fly_many", lambda fn, args, *a, **k: flown.append(args) or [])
+    monkeypatch.setattr(collect_mod, "flights_to_dataset", lambda cfg, flights: None)
+    teams = [("small",), ("small", "large")]
+    for rough in (r, None, r.without("battery")):
+        collect_mod.collect(cfg, "gen", 700.0, seed=7, team_list=teams, rough=rough)
+    rough_jobs, clean_jobs, no_sag_jobs = ([(a[1], a[3], a[4], a[5]) for a in args] for args in flown)
+    assert [(t, k, d) for t, k, d, _ in clean_jobs] == [(("small",), "random", 700.0),
+                                                         (("small", "large"), "random", 350.0),
+                                                         (("small", "large"), "swap", 350.0)]
+    assert no_sag_jobs == clean_jobs
+    assert [d for *_, d, _ in rough_jobs] == [175.0] * 4 + [175.0] * 2 + [175.0] * 2
+    assert all(d <= limit for *_, d, _ in rough_jobs)
+    seeds = [s for *_, s in rough_jobs]
+    assert len(set(seeds)) == len(seeds)
+    # the first flight of each keeps the clean simulator's seed
+    assert [seeds[0], seeds[4], seeds[6]] == [s for *_, s in clean_jobs]
 
 
 def test_each_effect_does_its_part(cfg, exported):

@@ -109,7 +109,8 @@ def collect(cfg: Config, gen_dir, seconds_per_team: float, seed: int = 0, learne
     flights.toml, the input of ``ns2 logs-to-data``.  ``progress(1)`` after every flight.
     ``workers`` > 1 flies that many flights at once in forked processes (same flights,
     same seeds, same data set); ``rough``: the rough simulator (host/sim/roughness.py;
-    None: the clean one)."""
+    None: the clean one), where a flight longer than one battery charge
+    (``Roughness.flight_limit_s``) is flown as several equal flights."""
     jobs = []
     for k, team in enumerate(team_list or teams(cfg)):
         kinds = ["random"] if len(team) == 1 else ["random", "swap"]
@@ -118,7 +119,8 @@ def collect(cfg: Config, gen_dir, seconds_per_team: float, seed: int = 0, learne
             plan += [(kind, sec) for kind, sec in (("near", near_field_seconds), ("who", who_moves_seconds)) if sec > 0]
         elif len(team) == 3 and who_moves_seconds > 0:
             plan.append(("who", who_moves_seconds))
-        jobs += [(team, kind, seconds, seed * 1000 + 10 * k + j) for j, (kind, seconds) in enumerate(plan)]
+        jobs += [(team, kind, sec, s) for j, (kind, seconds) in enumerate(plan)
+                 for sec, s in _charges(seconds, seed * 1000 + 10 * k + j, rough)]
     flights = fly_many(fly, [(cfg, team, gen_dir, kind, sec, s, learned, near_gap_max, rough)
                              for team, kind, sec, s in jobs], gen_dir, workers, progress)
     if usd_dir is not None:
@@ -126,6 +128,14 @@ def collect(cfg: Config, gen_dir, seconds_per_team: float, seed: int = 0, learne
                                 fl.__dict__, seed=s) for (team, kind, _, s), fl in zip(jobs, flights)]
         write_manifest(Path(usd_dir), entries)
     return flights_to_dataset(cfg, flights)
+
+
+def _charges(seconds: float, seed: int, rough: Roughness | None) -> list[tuple[float, int]]:
+    """(duration, seed) of the flights that fly ``seconds`` on full batteries: one flight
+    (this seed) if it fits in a charge, else n equal ones, the first with this seed."""
+    limit = rough.flight_limit_s() if rough is not None else np.inf
+    n = max(1, int(np.ceil(seconds / limit))) if seconds > 0 else 1
+    return [(seconds / n, seed + 1_000_000 * c) for c in range(n)]
 
 
 def fly_many(fn, args: list, gen_dir, workers: int = 1, progress=None) -> list:

@@ -73,6 +73,9 @@ from .vehicle import base_type
 
 EFFECTS = ("vibration", "turbulence", "thrust", "battery", "wake", "moment", "moment_turbulence")
 DEFAULT_EFFECTS = ("vibration", "turbulence", "thrust", "battery", "wake")   # the calibrated simulator's
+# the Crazyflie 2.x firmware's low-battery voltage (crazyflie-firmware 2a18fc29,
+# platform_defaults_cf2.h DEFAULT_BAT_LOW_VOLTAGE): a flight ends before it
+LOW_BATTERY_V = 3.2
 
 
 @dataclass(frozen=True)
@@ -141,6 +144,14 @@ class Roughness:
         if not self.on("battery"):
             return nominal_V
         return self.battery_start_V - self.battery_sag_V_per_min * max(t_s, 0.0) / 60.0
+
+    def flight_limit_s(self) -> float:
+        """The longest flight on one battery charge: until the sag reaches the firmware's
+        low-battery voltage (199 s at the fitted sag; the real flights of 16 June last at
+        most 64 s); unlimited without the effect."""
+        if not self.on("battery") or self.battery_sag_V_per_min <= 0.0:
+            return math.inf
+        return max(self.battery_start_V - LOW_BATTERY_V, 0.0) / self.battery_sag_V_per_min * 60.0
 
 
 def _known(names) -> None:
