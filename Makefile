@@ -122,7 +122,7 @@ sim: $(SIM)/gen2/ns2_model_config.h
 
 
 # The paper-sized simulated data set (1.4 M samples), the 5 networks trained on it,
-# the H/L ablation (about half an hour on 2 cores; JSON in build/paper_data.json)
+# the H/L ablation (about 20 min on 2 cores; JSON in build/paper_data.json)
 paper-data: deps
 	@mkdir -p build
 	$(PYTHON) benchmarks/paper_data.py --sim $(SIMULATOR) --workers 2 > build/paper_data.json.tmp && mv build/paper_data.json.tmp build/paper_data.json
@@ -130,19 +130,19 @@ paper-data: deps
 
 # The paper's ablations (benchmarks/ablation.py: H, L, without relative velocity,
 # sum of pairwise models, type-agnostic deep set; 3 seeds, trained to convergence)
-# on the paper-sized simulated data set, plus a test set of larger teams: about 2 h on
-# the 2-core machine, one torch thread per training (docs/ground-truth.md);
-# ABLATION_DEVICE=cuda trains on a GPU.
+# on the paper-sized simulated data set, plus a test set of larger teams: about 80 min
+# on the 2-core machine, one torch thread per training (docs/ground-truth.md);
+# ABLATION_DEVICE=cuda trains on a GPU. The data sets are kept per simulator.
 ABLATION_DEVICE ?= cpu
-build/paper_data.npz: | deps
+build/paper_data-%.npz: | deps
 	@mkdir -p build
-	$(PYTHON) benchmarks/paper_data.py --sim $(SIMULATOR) --workers 2 --data-only --out $@
+	$(PYTHON) benchmarks/paper_data.py --sim $* --workers 2 --data-only --out $@
 # the larger-team test set: teams of 4 and 5 robots, never seen in training
-build/larger_teams.npz: | deps
+build/larger_teams-%.npz: | deps
 	@mkdir -p build
-	$(PYTHON) benchmarks/paper_data.py --sim $(SIMULATOR) --workers 2 --data-only --team-sizes 4,5 --samples 200000 --seed 8 --out $@
-ablation: build/paper_data.npz build/larger_teams.npz
-	$(PYTHON) benchmarks/ablation.py --data build/paper_data.npz --test-data build/larger_teams.npz \
+	$(PYTHON) benchmarks/paper_data.py --sim $* --workers 2 --data-only --team-sizes 4,5 --samples 200000 --seed 8 --out $@
+ablation: build/paper_data-$(SIMULATOR).npz build/larger_teams-$(SIMULATOR).npz
+	$(PYTHON) benchmarks/ablation.py --data build/paper_data-$(SIMULATOR).npz --test-data build/larger_teams-$(SIMULATOR).npz \
 		--seeds 3 --lr-drops 2 --device $(ABLATION_DEVICE) \
 		> build/ablation.json.tmp && mv build/ablation.json.tmp build/ablation.json
 	@cat build/ablation.json
