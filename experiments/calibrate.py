@@ -532,7 +532,8 @@ def compare(cfg: Config, gen_dir, flights: list[Flight], rough: Roughness, names
     subset; the real side is the same subset).  The replays fly each robot's logged
     battery, so the battery rows are one probe flight's per type (probe_flight: the
     simulator's own sag) against every real flight.  real_all: fit's statistics of
-    every real flight if already measured (its battery is taken)."""
+    every real flight if already measured (its battery is taken).
+    Returns {"flights", "free_air_flights", "real", "simulators": {label: ...}}."""
     law = READ_LAW if law is None else law
     by = pieces_by_flight(swap_flights(flights))
     if names is not None:
@@ -541,7 +542,7 @@ def compare(cfg: Config, gen_dir, flights: list[Flight], rough: Roughness, names
     free = free_air_pieces(flights)
     real_free = [p for ps in free.values() for p in ps]
     battery = fs.battery(flights) if real_all is None else real_all["battery"]
-    out = {"flights": sorted(by), "free_air_flights": sorted(free),
+    out = {"flights": sorted(by), "free_air_flights": sorted(free), "simulators": {},
            "real": {"free_air": fs.free_air(cfg, real_free), "battery": battery, "z_loop": fs.z_loop(cfg, real_free),
                     "z_law": fs.z_law(cfg, real_sw), "wake_scatter": fs.wake_scatter(cfg, real_sw),
                     "wake_lateral": fs.wake_lateral(cfg, real_sw),
@@ -560,12 +561,13 @@ def compare(cfg: Config, gen_dir, flights: list[Flight], rough: Roughness, names
             probed[is_rough] = [probe_flight(cfg, gen_dir, ty, r) for ty in cfg.robot_types]
         w = walks[is_rough, ctrl, learned, read]
         sims = replay_all(cfg, gen_dir, by, r, workers, controller=ctrl, learned=learned, law=zl)
-        out[label] = {"free_air": fs.free_air(cfg, w), "z_loop": fs.z_loop(cfg, w), "z_law": fs.z_law(cfg, sims),
-                      "battery": fs.battery(probed[is_rough]),
-                      "wake_scatter": fs.wake_scatter(cfg, sims), "wake_lateral": fs.wake_lateral(cfg, sims),
-                      "swaps": fs.swap_errors(sims),
-                      "attitude": fs.swap_attitude(sims), "lateral_k_xy": lateral_k_xy(cfg, sims),
-                      "unpredicted": fs.unpredicted(cfg, sims)}
+        out["simulators"][label] = {
+            "free_air": fs.free_air(cfg, w), "z_loop": fs.z_loop(cfg, w), "z_law": fs.z_law(cfg, sims),
+            "battery": fs.battery(probed[is_rough]),
+            "wake_scatter": fs.wake_scatter(cfg, sims), "wake_lateral": fs.wake_lateral(cfg, sims),
+            "swaps": fs.swap_errors(sims),
+            "attitude": fs.swap_attitude(sims), "lateral_k_xy": lateral_k_xy(cfg, sims),
+            "unpredicted": fs.unpredicted(cfg, sims)}
     return out
 
 
@@ -624,8 +626,8 @@ def markdown(res: dict) -> str:
                                          sim_to_real_table, wake_profile_table)
 
     fit_report = res["fit"]
-    cmp = {k: v for k, v in res["compare"].items() if k not in VARIANTS}
-    cmp.update((k, res["compare"][k]) for k in VARIANTS if k in res["compare"])
+    sims = res["compare"]["simulators"]     # the JSON's keys are sorted
+    cmp = {**res["compare"], "simulators": {k: sims[k] for k in VARIANTS if k in sims}}
     return ("# The simulator against the real flights\n\n" + roughness_table(cmp) + "\n\n## Replayed swaps\n\n"
             + sim_to_real_table(cmp) + "\n\n## The paper's L2S swap, the authors' controller, rough simulator\n\n"
             + paper_l2s_table(res["paper_l2s"]) + "\n\n## The z law read off the logs\n\n"

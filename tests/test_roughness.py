@@ -471,13 +471,35 @@ def test_sim_to_real_and_paper_tables():
     sw = lambda x: {"L2S": {"median_worst_z_error_m": x, "swaps": 5}}   # noqa: E731
     cmp = {"flights": [], "real": {"swaps": {"L2S": {"median_worst_z_error_m": 0.059, "swaps": 5},
                                              "S2L": {"median_worst_z_error_m": 0.038, "swaps": 2}}},
-           "clean": {"swaps": sw(0.015)}, "rough": {"swaps": {**sw(0.070), "S2L": {"median_worst_z_error_m": 0.02}}}}
+           "simulators": {"clean": {"swaps": sw(0.015)},
+                          "rough": {"swaps": {**sw(0.070), "S2L": {"median_worst_z_error_m": 0.02}}}}}
     t = sim_to_real_table(cmp).splitlines()
     assert t[2] == "| L2S | 5 | 5.9 | 1.5 (0.25) | 7.0 (1.19*) |"
     assert t[3] == "| S2L | 2 | 3.8 | - | 2.0 (0.53) |"
     assert t[4] == "| within 30 % (*) | | | 0 of 2 | 1 of 2 |"
     p = paper_l2s_table({"BL-authors": {"median_worst_z_error_m": 0.084, "worst_z_error_m": [0.08] * 6, "paper_m": 0.17}})
     assert p.splitlines()[2] == "| BL-authors | 6 | 8.4 | 17 | 0.49 | no |"
+
+
+def test_calibration_markdown_keeps_the_simulators_in_their_order():
+    """calibration.json is written with sorted keys; calibration.md reads it back with
+    its simulators in VARIANTS' order, and metadata never becomes a simulator column."""
+    import json
+
+    from ns2exp.calibrate import READ_LAW, VARIANTS, markdown
+
+    sw = lambda x: {"swaps": {"L2S": {"median_worst_z_error_m": x, "swaps": 5}}, "free_air": {},   # noqa: E731
+                    "wake_scatter": {}, "battery": {}}
+    cmp = {"flights": ["swap_ls_1"], "free_air_flights": ["randomwalk_ss_1"],
+           "real": sw(0.06), "simulators": {v: sw(0.01 * (k + 1)) for k, v in enumerate(VARIANTS)}}
+    res = json.loads(json.dumps({"fit": None, "compare": cmp, "read_law": READ_LAW, "paper_l2s": {}},
+                                sort_keys=True))
+    assert list(res["compare"]["simulators"]) != list(VARIANTS)    # what sorting does
+    rows = markdown(res).splitlines()
+    head = next(r for r in rows if r.startswith("| statistic | real |"))
+    assert head == "| statistic | real | " + " | ".join(VARIANTS) + " | rough / real |"
+    l2s = next(r for r in rows if r.startswith("| L2S | 5 |"))
+    assert l2s == "| L2S | 5 | 6.0 | 1.0 (0.17) | 2.0 (0.33) | 3.0 (0.50) | 4.0 (0.67) | 5.0 (0.83*) | 6.0 (1.00*) | 7.0 (1.17*) |"
 
 
 def test_roughness_table_rows_of_the_wake_and_the_swaps():
@@ -496,7 +518,7 @@ def test_roughness_table_rows_of_the_wake_and_the_swaps():
                                "z_error_mean_m": 0.0077}}
     rough["z_law"] = {"small": {"kp_per_s2": 10.47, "kd_per_s": 7.17, "ki_per_s3": 3.38, "r2": 0.77,
                                 "z_error_mean_m": 0.001}}
-    t = roughness_table({"flights": [], "real": real, "clean": clean, "rough": rough})
+    t = roughness_table({"flights": [], "real": real, "simulators": {"clean": clean, "rough": rough}})
     rows = t.splitlines()
     assert "| large under small, beside the wake's axis: push_out_g | -0.500 | 0.800 | 0.700 | -1.40 |" in rows
     assert "| swap flights, z law read off every robot, small: kd_per_s | 2.000 | - | 7.170 | 3.58 |" in rows

@@ -163,14 +163,11 @@ def _within(sim: float, real: float) -> bool:
     return abs(sim / real - 1.0) <= SIM_TO_REAL_TOL
 
 
-def _variants(cmp: dict) -> list[str]:
-    return [k for k in cmp if k not in ("flights", "free_air_flights", "real")]
-
-
 def roughness_table(cmp: dict, judged: str = "rough") -> str:
     """Every statistic of host/sim/flightstats.py: real against each simulator of
-    ``cmp`` (experiments/calibrate.py compare), with ``judged`` / real."""
-    sims = _variants(cmp)
+    ``cmp`` (experiments/calibrate.py compare: ``real`` and ``simulators``, in order),
+    with ``judged`` / real."""
+    sims = list(cmp["simulators"])
     lines = ["| statistic | real | " + " | ".join(sims) + f" | {judged} / real |",
              "|---|---|" + "---|" * (len(sims) + 1)]
     real = cmp["real"]
@@ -184,9 +181,9 @@ def roughness_table(cmp: dict, judged: str = "rough") -> str:
 
     def row(label: str, path: tuple, nd: int = 3):
         r = get(real, path)
-        cells = [get(cmp[v], path) for v in sims]
+        cells = [get(cmp["simulators"][v], path) for v in sims]
         lines.append(f"| {label} | {_cell(r, nd)} | " + " | ".join(_cell(c, nd) for c in cells)
-                     + f" | {_ratio(get(cmp[judged], path), r)} |")
+                     + f" | {_ratio(get(cmp['simulators'][judged], path), r)} |")
 
     for ty in sorted(real["free_air"]):
         for st in ("mean_g", "std_g", "fast_std_g", "band_fraction", "motor_noise"):
@@ -234,7 +231,7 @@ def sim_to_real_table(cmp: dict) -> str:
     """Per swap scenario of the replayed flights: median worst z error of the bottom
     robot (cm), real against each simulator with its ratio to the real, "*" where
     within SIM_TO_REAL_TOL; the last row counts the scenarios within it."""
-    sims = _variants(cmp)
+    sims = list(cmp["simulators"])
     lines = ["| scenario | swaps | real (cm) | " + " | ".join(f"{v}: cm (/ real)" for v in sims) + " |",
              "|---|---|---|" + "---|" * len(sims)]
     within = dict.fromkeys(sims, 0)
@@ -243,7 +240,7 @@ def sim_to_real_table(cmp: dict) -> str:
         rv = r["median_worst_z_error_m"]
         cells = []
         for v in sims:
-            x = cmp[v]["swaps"].get(case, {}).get("median_worst_z_error_m")
+            x = cmp["simulators"][v]["swaps"].get(case, {}).get("median_worst_z_error_m")
             if x is None:
                 cells.append("-")
                 continue
