@@ -130,10 +130,12 @@ paper-data: deps
 
 # The paper's ablations (benchmarks/ablation.py: H, L, without relative velocity,
 # sum of pairwise models, type-agnostic deep set; 3 seeds, trained to convergence)
-# on the paper-sized simulated data set, plus a test set of larger teams: about 80 min
-# on the 2-core machine, one torch thread per training (docs/ground-truth.md);
-# ABLATION_DEVICE=cuda trains on a GPU. The data sets are kept per simulator.
+# on the paper-sized simulated data set, plus a test set of larger teams; one torch
+# thread per training, ABLATION_WORKERS trainings at once (the same results; one at a
+# time took 76 min on the 2 cores, docs/ground-truth.md); ABLATION_DEVICE=cuda trains
+# on a GPU (one at a time). The data sets are kept per simulator.
 ABLATION_DEVICE ?= cpu
+ABLATION_WORKERS ?= $(if $(filter cpu,$(ABLATION_DEVICE)),2,1)
 build/paper_data-%.npz: | deps
 	@mkdir -p build
 	$(PYTHON) benchmarks/paper_data.py --sim $* --workers 2 --data-only --out $@
@@ -143,7 +145,7 @@ build/larger_teams-%.npz: | deps
 	$(PYTHON) benchmarks/paper_data.py --sim $* --workers 2 --data-only --team-sizes 4,5 --samples 200000 --seed 8 --out $@
 ablation: build/paper_data-$(SIMULATOR).npz build/larger_teams-$(SIMULATOR).npz
 	$(PYTHON) benchmarks/ablation.py --data build/paper_data-$(SIMULATOR).npz --test-data build/larger_teams-$(SIMULATOR).npz \
-		--seeds 3 --lr-drops 2 --device $(ABLATION_DEVICE) \
+		--seeds 3 --lr-drops 2 --device $(ABLATION_DEVICE) --workers $(ABLATION_WORKERS) \
 		> build/ablation.json.tmp && mv build/ablation.json.tmp build/ablation.json
 	@cat build/ablation.json
 

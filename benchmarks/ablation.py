@@ -19,7 +19,7 @@ the ground): the generalization the paper's deep set is for (Fig. vis (g)).
 
     python benchmarks/ablation.py --data A.npz [--data B.npz] [--axes H,L,V,P,T] [--seeds 3]
         [--max-epochs 60] [--patience 3] [--min-delta 0.01] [--lr-drops 0] [--device cpu]
-        [--test-data C.npz]
+        [--test-data C.npz] [--workers 1]
 """
 from __future__ import annotations
 
@@ -71,6 +71,45 @@ def table(results: dict, axes: str) -> dict:
     return out
 
 
+# the data and options of this run, set before the workers fork (they inherit it, nothing is pickled)
+_DATA: dict = {}
+
+
+def train_one(run: tuple, seed: int) -> tuple:
+    """One training of the ablation: (validation MSE, epochs, wall s, test MSE or None)."""
+    ds, test, cfg, args = _DATA["ds"], _DATA["test"], _DATA["cfg"], _DATA["args"]
+    axis, value, over, variant, drop_v = run
+    data = without_velocity(ds) if drop_v else ds
+    test_run = without_velocity(test) if drop_v and test is not None else test
+    t0 = time.perf_counter()
+    model, rep = train(cfg.with_overrides(**over), data, epochs=args.max_epochs, seed=seed,
+                       batch_size=args.batch_size, lr=args.lr,
+                       device=args.device, variant=variant, patience=args.patience,
+                       min_delta=args.min_delta, lr_drops=args.lr_drops)
+    wall = time.perf_counter() - t0
+    tested = evaluate(model, test_run)["mse"] if test_run is not None else None  # the model is on the CPU
+    if args.save_dir and variant == "hetero":
+        save_checkpoint(Path(args.save_dir) / f"{axis}-{value}-seed{seed}.pt".replace("/", "_"), model,
+                        cfg.with_overrides(**over), {"seed": seed, "data_hash": data.content_hash(),
+                                                     "report": rep, "relative_velocity": not drop_v})
+    print(f"  {axis}={value} seed {seed}: {rep['validation']['mse']:.3f} g^2 after {rep['epochs']} epochs "
+          f"({wall:.0f} s)" + (f", {args.test_label} {tested:.3f} g^2" if tested is not None else ""),
+          file=sys.stderr, flush=True)
+    return rep["validation"]["mse"], rep["epochs"], wall, tested
+
+
+def _run_all(jobs: list, workers: int) -> list:
+    """[train_one(*j) for j in jobs], ``workers`` at once in forked processes (each
+    training is seeded: the same results in the same order)."""
+    if workers > 1 and len(jobs) > 1:
+        import multiprocessing
+        from concurrent.futures import ProcessPoolExecutor
+
+        with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("fork")) as ex:
+            return [f.result() for f in [ex.submit(train_one, *j) for j in jobs]]
+    return [train_one(*j) for j in jobs]
+
+
 def without_velocity(ds: Dataset) -> Dataset:
     """The data set with the relative velocities (and the environment's -v_i) zeroed."""
     state = ds.nbr_state.copy()
@@ -98,7 +137,12 @@ def main() -> None:
                     help="skip the paper's network (H = 20, L = 4: trained and reported by another run)")
     ap.add_argument("--batch-size", type=int, default=None, help="[default: the config's train.batch_size]")
     ap.add_argument("--lr", type=float, default=None, help="[default: the config's train.lr]")
+    ap.add_argument("--workers", type=int, default=1,
+                    help="trainings at once, in forked processes (the same results; one torch thread each "
+                         "with OMP_NUM_THREADS=1)")
     args = ap.parse_args()
+    if args.workers > 1 and args.device != "cpu":
+        raise SystemExit(f"--workers {args.workers}: trainings side by side only on the CPU (--device {args.device})")
     paths = args.data or sorted(glob.glob("build/sim/round*.npz"))
     if not paths:
         raise SystemExit("no data: run `make paper-data` or pass --data")
@@ -111,34 +155,19 @@ def main() -> None:
     selected = runs(args.axes)
     if args.no_reference:
         selected = [r for r in selected if r[:2] != ("H", 20)]
-    for axis, value, over, variant, drop_v in selected:
-        data = without_velocity(ds) if drop_v else ds
-        test_run = without_velocity(test) if drop_v and test is not None else test
-        mses, epochs, wall, tests = [], [], [], []
-        for seed in range(args.seeds):
-            t0 = time.perf_counter()
-            model, rep = train(cfg.with_overrides(**over), data, epochs=args.max_epochs, seed=seed,
-                               batch_size=args.batch_size, lr=args.lr,
-                               device=args.device, variant=variant, patience=args.patience,
-                               min_delta=args.min_delta, lr_drops=args.lr_drops)
-            mses.append(rep["validation"]["mse"])
-            epochs.append(rep["epochs"])
-            wall.append(time.perf_counter() - t0)
-            if test_run is not None:  # train returns the model on the CPU
-                tests.append(evaluate(model, test_run)["mse"])
-            if args.save_dir and variant == "hetero":
-                save_checkpoint(Path(args.save_dir) / f"{axis}-{value}-seed{seed}.pt".replace("/", "_"), model,
-                                cfg.with_overrides(**over), {"seed": seed, "data_hash": data.content_hash(),
-                                                             "report": rep, "relative_velocity": not drop_v})
-            print(f"  {axis}={value} seed {seed}: {mses[-1]:.3f} g^2 after {epochs[-1]} epochs "
-                  f"({wall[-1]:.0f} s)" + (f", {args.test_label} {tests[-1]:.3f} g^2" if tests else ""),
-                  file=sys.stderr, flush=True)
+    jobs = [(run, seed) for run in selected for seed in range(args.seeds)]
+    _DATA.update(ds=ds, test=test, cfg=cfg, args=args)
+    done = _run_all(jobs, args.workers)
+    for k, run in enumerate(selected):
+        axis, value = run[:2]
+        mine = done[k * args.seeds:(k + 1) * args.seeds]
+        mses, epochs, wall, tests = ([j[i] for j in mine] for i in range(4))
         results[(axis, value)] = {"mean": float(np.mean(mses)), "std": float(np.std(mses)), "runs": mses,
                                   "epochs": epochs, "wall_s": [round(w, 1) for w in wall]}
-        if tests:
+        if test is not None:
             results[(axis, value)][args.test_label] = {"mean": float(np.mean(tests)), "std": float(np.std(tests)),
                                                       "runs": tests}
-    out = {"data": paths, "samples": len(ds), "device": args.device, "seeds": args.seeds,
+    out = {"data": paths, "samples": len(ds), "device": args.device, "seeds": args.seeds, "workers": args.workers,
            "stopping_rule": {"max_epochs": args.max_epochs, "patience": args.patience, "min_delta": args.min_delta,
                              "lr_drops": args.lr_drops},
            "label_variance_g2": float(np.var(ds.label_g)),

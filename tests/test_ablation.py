@@ -56,3 +56,35 @@ def test_cli_train_refuses_an_unusable_device(tmp_path, cfg):
     res = CliRunner().invoke(main, ["train", "--data", str(tmp_path / "d.npz"), "--out", str(tmp_path / "m.pt"),
                                     "--device", "nonsense-device", "--epochs", "1", "--quiet"])
     assert res.exit_code != 0 and "--device" in res.output and not (tmp_path / "m.pt").exists()
+
+
+def test_ablation_trainings_side_by_side_give_the_same_results(tmp_path, cfg):
+    """benchmarks/ablation.py --workers 2 (make ablation) trains in forked processes: the
+    same MSEs, epochs and test scores, bit for bit, in the same order as one at a time."""
+    import json
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    downwash_dataset(cfg, 300, seed=0).save(tmp_path / "d.npz")
+    script = Path(__file__).resolve().parents[1] / "benchmarks" / "ablation.py"
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+
+    def run(workers: int) -> dict:
+        out = subprocess.run([sys.executable, str(script), "--data", str(tmp_path / "d.npz"), "--test-data",
+                              str(tmp_path / "d.npz"), "--axes", "H,V", "--seeds", "2", "--max-epochs", "2",
+                              "--workers", str(workers)], env=env, capture_output=True, text=True, check=True)
+        d = json.loads(out.stdout)
+        assert d.pop("workers") == workers
+        d.pop("wall_s")
+        for axis in ("H", "V"):
+            for r in d[axis].values():
+                assert len(r.pop("wall_s")) == 2
+        return d
+
+    one, two = run(1), run(2)
+    assert one == two and set(one["H"]) == {"10", "20", "40"} and one["V"]["without"]["runs"] != one["H"]["20"]["runs"]
+    bad = subprocess.run([sys.executable, str(script), "--data", str(tmp_path / "d.npz"), "--workers", "2",
+                          "--device", "cuda"], env=env, capture_output=True, text=True)
+    assert bad.returncode != 0 and "--workers 2" in bad.stderr and len(bad.stderr.strip().splitlines()) == 1
