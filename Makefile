@@ -133,7 +133,8 @@ paper-data: deps
 # on the paper-sized simulated data set, plus a test set of larger teams; one torch
 # thread per training, ABLATION_WORKERS trainings at once (the same results): on the
 # 2 cores about 8 min for the data sets and 34 min for the trainings two at once (76 min
-# in all one at a time; docs/ground-truth.md); ABLATION_DEVICE=cuda trains on a GPU (one at a time). The data sets are kept per simulator.
+# in all one at a time; docs/ground-truth.md); ABLATION_DEVICE=cuda trains on a GPU
+# (one at a time). The data sets are kept per simulator.
 ABLATION_DEVICE ?= cpu
 ABLATION_WORKERS ?= $(if $(filter cpu,$(ABLATION_DEVICE)),2,1)
 build/paper_data-%.npz: | deps
