@@ -35,6 +35,7 @@ import numpy as np
 from ns2codegen.checkpoint import save_checkpoint
 from ns2codegen.config import ONBOARD_WIDTHS, Config
 from ns2codegen.data.dataset import Dataset
+from ns2codegen.parallel import forked_map
 from ns2codegen.train import evaluate, train
 
 PAPER = {"hidden": 20, "layers": 4}
@@ -71,16 +72,16 @@ def table(results: dict, axes: str) -> dict:
     return out
 
 
-# the data and options of this run, set before the workers fork (they inherit it, nothing is pickled)
+# the data (by whether the relative velocity is dropped) and options of this run, set before
+# the workers fork (they inherit it, nothing is pickled)
 _DATA: dict = {}
 
 
 def train_one(run: tuple, seed: int) -> tuple:
     """One training of the ablation: (validation MSE, epochs, wall s, test MSE or None)."""
-    ds, test, cfg, args = _DATA["ds"], _DATA["test"], _DATA["cfg"], _DATA["args"]
+    cfg, args = _DATA["cfg"], _DATA["args"]
     axis, value, over, variant, drop_v = run
-    data = without_velocity(ds) if drop_v else ds
-    test_run = without_velocity(test) if drop_v and test is not None else test
+    data, test_run = _DATA["data"][drop_v], _DATA["test"][drop_v]
     t0 = time.perf_counter()
     model, rep = train(cfg.with_overrides(**over), data, epochs=args.max_epochs, seed=seed,
                        batch_size=args.batch_size, lr=args.lr,
@@ -96,18 +97,6 @@ def train_one(run: tuple, seed: int) -> tuple:
           f"({wall:.0f} s)" + (f", {args.test_label} {tested:.3f} g^2" if tested is not None else ""),
           file=sys.stderr, flush=True)
     return rep["validation"]["mse"], rep["epochs"], wall, tested
-
-
-def _run_all(jobs: list, workers: int) -> list:
-    """[train_one(*j) for j in jobs], ``workers`` at once in forked processes (each
-    training is seeded: the same results in the same order)."""
-    if workers > 1 and len(jobs) > 1:
-        import multiprocessing
-        from concurrent.futures import ProcessPoolExecutor
-
-        with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("fork")) as ex:
-            return [f.result() for f in [ex.submit(train_one, *j) for j in jobs]]
-    return [train_one(*j) for j in jobs]
 
 
 def without_velocity(ds: Dataset) -> Dataset:
@@ -156,8 +145,10 @@ def main() -> None:
     if args.no_reference:
         selected = [r for r in selected if r[:2] != ("H", 20)]
     jobs = [(run, seed) for run in selected for seed in range(args.seeds)]
-    _DATA.update(ds=ds, test=test, cfg=cfg, args=args)
-    done = _run_all(jobs, args.workers)
+    drops = {run[4] for run in selected}    # the sets with the relative velocities zeroed, once
+    _DATA.update(cfg=cfg, args=args, data={d: without_velocity(ds) if d else ds for d in drops},
+                 test={d: without_velocity(test) if d and test is not None else test for d in drops})
+    done = forked_map(train_one, jobs, args.workers)   # each training seeded: the same results
     for k, run in enumerate(selected):
         axis, value = run[:2]
         mine = done[k * args.seeds:(k + 1) * args.seeds]

@@ -35,6 +35,7 @@ import numpy as np
 from ns2codegen.config import Config
 from ns2codegen.data.from_logs import Flight
 from ns2codegen.fileio import atomic_write_bytes
+from ns2codegen.parallel import forked_map
 
 from ns2host.sim import flightstats as fs
 from ns2host.sim.cloop import CLoopSwarm
@@ -145,19 +146,13 @@ def replay_all(cfg: Config, gen_dir, pieces: dict, rough: Roughness | None, work
     ``controller``, ``learned``, ``law``: replay.replay's."""
     names = sorted(pieces)
     if workers > 1 and len(names) > 1:
-        import multiprocessing
-        from concurrent.futures import ProcessPoolExecutor
-
         from ns2host.cfhost import load_fly
-        load_fly(gen_dir)
-        with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("fork")) as ex:
-            return list(ex.map(_replay_one, [(cfg, pieces[n], gen_dir, rough, seed, controller, learned, law)
-                                             for n in names]))
-    return [_replay_one((cfg, pieces[n], gen_dir, rough, seed, controller, learned, law)) for n in names]
+        load_fly(gen_dir)                             # build once, before the workers load it
+    return forked_map(_replay_one, [(cfg, pieces[n], gen_dir, rough, seed, controller, learned, law) for n in names],
+                      workers)
 
 
-def _replay_one(args) -> Flight:
-    cfg, pcs, gen_dir, rough, seed, controller, learned, law = args
+def _replay_one(cfg, pcs, gen_dir, rough, seed, controller, learned, law) -> Flight:
     return replay(cfg, pcs, gen_dir, learned=learned, rough=rough, seed=seed, controller=controller, law=law)
 
 

@@ -19,6 +19,7 @@ import numpy as np
 from ns2codegen.config import Config
 from ns2codegen.data.dataset import Dataset
 from ns2codegen.data.from_logs import Flight, flights_to_dataset
+from ns2codegen.parallel import forked_map
 
 from .cloop import CLoopSwarm
 from .roughness import Roughness
@@ -142,18 +143,6 @@ def fly_many(fn, args: list, gen_dir, workers: int = 1, progress=None) -> list:
     """[fn(*a) for a in args] (flights: fly or flight_log), ``workers`` at once in forked
     processes (the same results in the same order); ``progress(1)`` after each."""
     if workers > 1 and len(args) > 1:
-        import multiprocessing
-        from concurrent.futures import ProcessPoolExecutor
-
         from ..cfhost import load_fly
         load_fly(gen_dir)                             # build once, before the workers load it
-        with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("fork")) as ex:
-            futures = [ex.submit(fn, *a) for a in args]
-            return [_done(f.result(), progress) for f in futures]
-    return [_done(fn(*a), progress) for a in args]
-
-
-def _done(result, progress):
-    if progress is not None:
-        progress(1)
-    return result
+    return forked_map(fn, args, workers, progress)
