@@ -8,7 +8,9 @@
    the fast part of the residual rises with the accelerometer's noise, the
    motor-command noise with the gyro's, each in quadrature), the wake's profile (fit_wake: the
    truth at the logged states of robots under a neighbour against their labels, no
-   replay), wake turbulence (replays of the pair swaps with the other effects on:
+   replay), the wake's lateral push per receiving type (fit_lateral: replays of the
+   pair swaps as they flew, the labels' reading of the push, lateral_k_xy, matched to
+   the real one), wake turbulence (replays of the pair swaps with the other effects on:
    the real scatter under a neighbour beyond the simulator's, per unit of the
    wake's force; tau from its fast share), the wakes' moments (fit_moment: replays
    of the pair swaps, the bottom robot's largest motor departure from the motors'
@@ -298,6 +300,43 @@ def lateral_k_xy(cfg: Config, flights: list[Flight]) -> dict:
                                    for key, a in sorted(num.items())}}
 
 
+LATERAL_PROBE = -0.15   # the lateral effect's second constant flown (the truth's 0.15 the first)
+
+
+def fit_lateral(cfg: Config, gen_dir, flights: list[Flight], base: Roughness,
+                workers: int = 1) -> tuple[dict, dict]:
+    """The wake's lateral push per receiving type (roughness "lateral"): the real pair
+    swaps' reading of it (lateral_k_xy, fit_pieces) matched by replays of the same
+    flights as they flew (the authors' controller, the prediction the real robots
+    logged; the turbulence off).  The reading is linear in the constant flown (the
+    labels see the push only in part): replays at the truth's K_XY and at
+    LATERAL_PROBE give each type's line, solved for the real reading; a replay at the
+    answer is reported as the check."""
+    from ns2host.sim.aero import K_XY
+
+    pieces = fit_pieces(flights)
+    real = lateral_k_xy(cfg, [p for ps in pieces.values() for p in ps])
+    b = base.without("turbulence").plus("lateral")
+
+    def read(k: dict) -> dict:
+        return lateral_k_xy(cfg, replay_all(cfg, gen_dir, pieces, replace(b, lateral_k_xy=k), workers,
+                                            controller="authors", learned="logged"))
+
+    flown = {K_XY: read({ty: K_XY for ty in cfg.robot_types}),
+             LATERAL_PROBE: read({ty: LATERAL_PROBE for ty in cfg.robot_types})}
+    fit = {}
+    for ty in cfg.robot_types:
+        if real.get(ty, {}).get("k_xy") is None:
+            raise ValueError(f"no {ty} robot beside a wake in the pair swaps {sorted(pieces)}")
+        r0, r1 = flown[K_XY][ty]["k_xy"], flown[LATERAL_PROBE][ty]["k_xy"]
+        if r0 is None or r1 is None or r0 == r1:
+            raise ValueError(f"the {ty} robots' reading of the lateral push does not move with it")
+        fit[ty] = round(K_XY + (real[ty]["k_xy"] - r0) * (LATERAL_PROBE - K_XY) / (r1 - r0), 3)
+    check = read(fit)
+    return fit, {"flights": sorted(pieces), "real": real, "flown": {str(k): v for k, v in flown.items()},
+                 "k_xy": fit, "check": check}
+
+
 WAKE_FIT_EVERY = 8            # every 8th labelled step of the swap flights for the wake's fit
 WAKE_FIT_MIN_Z_M = 0.3        # m: above the ground effect (a calibration of its own)
 WAKE_PROFILE_R_M = (0.0, 0.05, 0.10, 0.15, 0.22, 0.30)   # offset bins of the wake profile table (m)
@@ -492,13 +531,16 @@ def fit(cfg: Config, gen_dir, flights: list[Flight], hover_by_robot: dict, robot
                      wake_sigma0_scale=s0, wake_spread_scale=sp)
     acc, gyro, vib_rows = fit_vibration(cfg, gen_dir, flights, base, workers)
     base = replace(base, vibration_acc_g=acc, vibration_gyro_dps=gyro)
+    lateral, lateral_rows = fit_lateral(cfg, gen_dir, flights, base, workers)
+    base = replace(base, lateral_k_xy=lateral)
     ratio, tau, turb_rows = fit_turbulence(cfg, gen_dir, flights, base, workers)
     base = replace(base, turbulence_ratio=round(ratio, 3), turbulence_tau_s=round(tau, 4))
     gain, m_ratio, moment = fit_moment(cfg, gen_dir, flights, base, workers)
     # the moments' effects stay as base has them (off by default)
     rough = replace(base, moment_gain=gain, moment_turbulence_ratio=m_ratio,
                     hover_motor_noise={ty: real["free_air"][ty]["motor_noise"] for ty in cfg.robot_types})
-    return rough, {"real": real, "wake": wake, "vibration": vib_rows, "moment": moment, "turbulence": turb_rows}
+    return rough, {"real": real, "wake": wake, "vibration": vib_rows, "moment": moment, "turbulence": turb_rows,
+                   "lateral": lateral_rows}
 
 
 # label -> (rough, controller, learned, the z law read off the logs, the wakes' moments on)
@@ -617,8 +659,8 @@ def calibrate(cfg: Config, gen_dir, flights: list[Flight], hover_by_robot: dict,
 
 def markdown(res: dict) -> str:
     """calibration.md of calibrate's JSON (as written: its simulators in VARIANTS' order)."""
-    from ns2host.sim.calibration import (moment_table, paper_l2s_table, read_law_table, roughness_table,
-                                         sim_to_real_table, wake_profile_table)
+    from ns2host.sim.calibration import (lateral_table, moment_table, paper_l2s_table, read_law_table,
+                                         roughness_table, sim_to_real_table, wake_profile_table)
 
     fit_report = res["fit"]
     sims = res["compare"]["simulators"]     # the JSON's keys are sorted
@@ -628,5 +670,6 @@ def markdown(res: dict) -> str:
             + paper_l2s_table(res["paper_l2s"]) + "\n\n## The z law read off the logs\n\n"
             + read_law_table(res["read_law"], fit_report["read_law"] if fit_report else None)
             + ("\n\n## The wake at the real states\n\n" + wake_profile_table(fit_report["wake"]) if fit_report else "")
+            + ("\n\n## The wake's lateral push\n\n" + lateral_table(fit_report["lateral"]) if fit_report else "")
             + ("\n\n## The wakes' moment\n\n" + moment_table(fit_report["moment"]) if fit_report else "")
             + "\n")

@@ -3,7 +3,7 @@ and the physics that makes a deep set necessary: no superposition, velocity matt
 import numpy as np
 import pytest
 
-from ns2host.sim.aero import calibrated, rotor_response
+from ns2host.sim.aero import C_DRAG, K_XY, calibrated, rotor_response
 from ns2host.sim.calibration import calibration_table
 from ns2host.sim.vehicle import G, vehicle
 
@@ -144,3 +144,22 @@ def test_interaction_volumes_follow_the_policy(cfg):
             assert cfg.volume(r, n)[1][2] >= FLIGHT_SPACE_Z and edge["top"] >= THRESHOLD_G
             # and not needlessly wide: half a step inside a side the truth still reaches the threshold
             assert edge_check(cfg, r, n, margin=-0.2)["side"] >= THRESHOLD_G
+
+
+def test_lateral_push_per_receiver(S, L):
+    """k_xy one per receiving robot (roughness "lateral"): each robot's horizontal force
+    is the one of a model with its own constant for all, bit for bit; the vertical
+    force does not move; a negative constant draws the robot into the wake."""
+    p = np.array([[0.0, 0.0, 1.0], [0.08, 0.0, 1.3], [0.05, 0.1, 0.7]])
+    v = np.array([[0.1, 0.0, 0.0], [0.0, 0.2, 0.0], [0.0, 0.0, 0.0]])
+    k = np.array([-0.17, 0.15, -0.05])
+    per = calibrated([S, L, S], S, k_xy=k).forces(p, v)
+    for i, ki in enumerate(k):
+        one = calibrated([S, L, S], S, k_xy=float(ki)).forces(p, v)
+        assert np.array_equal(per[i], one[i])
+    assert np.array_equal(calibrated([S, L, S], S).forces(p, v), calibrated([S, L, S], S, k_xy=K_XY).forces(p, v))
+    out = calibrated([S, L], S, k_xy=[K_XY, K_XY]).forces(p[:2], v[:2])
+    into = calibrated([S, L], S, k_xy=[-0.1, K_XY]).forces(p[:2], v[:2])
+    drag = -C_DRAG * S.mass * v[0, 0]
+    assert out[0, 0] - drag < -1e-4 < 1e-4 < into[0, 0] - drag      # neighbour on +x: pushed to -x, drawn to +x
+    assert into[0, 2] == out[0, 2] and np.array_equal(into[1], out[1])

@@ -90,7 +90,11 @@ def test_each_effect_does_its_part(cfg, exported):
     sw, _ = _fly(cfg, exported, replace(r, wake_sigma0_scale=0.8, wake_spread_scale=0.5).only("wake"), seconds=0.1)
     paper, _ = _fly(cfg, exported, r.only(), seconds=0.1)
     assert np.allclose(sw.aero.sigma0, 0.8 * paper.aero.sigma0, rtol=1e-12) and sw.aero.spread == 0.5 * paper.aero.spread
-    assert r.without("wake").wake_scales() == {}
+    assert r.without("wake", "lateral").aero_kwargs(["small"]) == {}
+    lat = replace(r, lateral_k_xy={"small": -0.05, "large": -0.17}).only("lateral")
+    sw, _ = _fly(cfg, exported, lat, seconds=0.1)
+    assert list(sw.aero.k_xy) == [{"small": -0.05, "large": -0.17}[t] for t in sw.types]
+    assert np.all(paper.aero.k_xy == K_XY) and "k_xy" not in r.without("lateral").aero_kwargs(["small"])
     _, clean = _fly(cfg, exported, None)
     _, turb = _fly(cfg, exported, replace(r, turbulence_ratio=0.3).only("turbulence"))
     d = turb["truth_fa"][0, :, 2] - clean["truth_fa"][0, :, 2]     # first log row: same state, own step
@@ -404,15 +408,19 @@ def test_a_real_swap_measured_and_replayed(cfg, exported):
     assert list(sa) == ["S2L"] and abs(sa["S2L"]["swaps"] - r["swaps"]) <= 1
     assert 0 < sa["S2L"]["median_worst_z_error_m"] < 0.5
     assert sa["S2L"]["median_worst_z_error_m"] != s["S2L"]["median_worst_z_error_m"]
-    # beside the wake's axis: the truth (K_XY > 0) pushes the replayed robot out; the least
-    # squares of experiments/calibrate.py reads a push out off the replay's labels, in part
-    # only (the EKF takes some of a steady lateral force for tilt)
-    lat = fs.wake_lateral(cfg, [sim])
-    assert list(lat) == ["large under small"] and lat["large under small"]["push_out_g"] > 0
-    assert list(fs.wake_lateral(cfg, pieces)) == ["large under small"]
-    k = lateral_k_xy(cfg, [sim])
+    # beside the wake's axis: the truth (K_XY > 0) pushes a replayed robot out; the rough
+    # simulator's "lateral" (fitted on the real flights, the authors' controller) draws a large
+    # robot in, as the real one is drawn in; the least squares of experiments/calibrate.py
+    # reads the push off the labels, in part only (the EKF takes some of it for tilt)
+    out = replay(cfg, pieces, exported.gen_dir, learned="float", rough=Roughness().without("moment", "lateral"))
+    lat, real_lat = fs.wake_lateral(cfg, [out]), fs.wake_lateral(cfg, pieces)
+    assert list(lat) == list(real_lat) == ["large under small"]
+    assert lat["large under small"]["push_out_g"] > 0 > real_lat["large under small"]["push_out_g"]
+    assert fs.wake_lateral(cfg, [sim])["large under small"]["push_out_g"] < lat["large under small"]["push_out_g"]
+    k, k_in, real_k = lateral_k_xy(cfg, [out]), lateral_k_xy(cfg, [sim]), lateral_k_xy(cfg, pieces)
     assert k["truth_k_xy"] == K_XY and k["all"]["samples"] > 100
-    assert 0.0 < k["all"]["k_xy"] < K_XY
+    assert 0.0 < k["all"]["k_xy"] < K_XY and real_k["large"]["k_xy"] < 0
+    assert k_in["large"]["k_xy"] < k["large"]["k_xy"] - 0.02
     # the same controller flying the prediction the real robots logged: what the replay flew is it
     flown = logged_prediction(pieces)
     lg = replay(cfg, pieces, exported.gen_dir, learned="logged", rough=Roughness(), controller="authors")
@@ -662,3 +670,45 @@ def test_the_vibration_fit_flies_without_turbulence(monkeypatch):
     assert acc["small"] > 0 and gyro["small"] > 0
     assert len(flown) == 5 and not any(r.on("turbulence") for r in flown)
     assert all(r.turbulence_ratio == 0.5 and r.on("vibration") for r in flown)
+
+
+def test_the_lateral_fit_solves_the_line_of_two_replays(monkeypatch):
+    """fit_lateral: the labels' reading of the lateral push is linear in the constant
+    flown; two replays (the truth's K_XY and the probe) give each type's line, solved
+    for the real reading; the replays fly the lateral effect, the authors' controller
+    and the logged prediction, the turbulence off."""
+    from types import SimpleNamespace
+
+    from ns2exp import calibrate as cal
+
+    flown = []
+    monkeypatch.setattr(cal, "fit_pieces", lambda flights: {"swap_sl/00": ["real"]})
+
+    def replay_all(cfg, gen, pieces, rough, workers, **kw):
+        flown.append((rough, kw))
+        return [rough]
+    monkeypatch.setattr(cal, "replay_all", replay_all)
+    line = {"small": (0.01, 0.4), "large": (0.006, 0.42)}
+
+    def read(cfg, fls):
+        if fls == ["real"]:
+            return {"small": {"k_xy": -0.02}, "large": {"k_xy": -0.07}}
+        k = fls[0].lateral_k_xy
+        return {t: {"k_xy": a + b * k[t]} for t, (a, b) in line.items()}
+    monkeypatch.setattr(cal, "lateral_k_xy", read)
+    cfg = SimpleNamespace(robot_types=["small", "large"])
+    fit, rows = cal.fit_lateral(cfg, None, [], Roughness(turbulence_ratio=0.5))
+    assert fit == {"small": round((-0.02 - 0.01) / 0.4, 3), "large": round((-0.07 - 0.006) / 0.42, 3)}
+    assert [r.lateral_k_xy for r, _ in flown] == [{"small": K_XY, "large": K_XY},
+                                                  {"small": cal.LATERAL_PROBE, "large": cal.LATERAL_PROBE}, fit]
+    assert all(r.on("lateral") and not r.on("turbulence") and r.on("wake") for r, _ in flown)
+    assert all(kw == {"controller": "authors", "learned": "logged"} for _, kw in flown)
+    assert rows["check"] == {t: {"k_xy": pytest.approx(-0.02 if t == "small" else -0.07, abs=2e-3)} for t in line}
+    from ns2host.sim.calibration import lateral_table
+    t = lateral_table(rows).splitlines()
+    assert t[0] == "| reading (K_XY of the labels) | large | small |" and t[2] == "| real | -0.070 | -0.020 |"
+    assert t[3].startswith("| replay, K_XY 0.15 | 0.069 | 0.070 |") and t[5].startswith("| replay at the fit |")
+    assert "Fitted: large -0.181, small -0.075" in t[-1]
+    monkeypatch.setattr(cal, "lateral_k_xy", lambda cfg, fls: {"small": {"k_xy": 0.0}, "large": {"k_xy": 0.0}})
+    with pytest.raises(ValueError, match="does not move"):
+        cal.fit_lateral(cfg, None, [], Roughness())

@@ -91,8 +91,9 @@ class AeroModel:
     def __init__(self, vehicles: list[Vehicle], spread: float = 0.1, r_e_ratio: float = 1.0, k_xy: float = K_XY,
                  sigma0_scale: float = 1.0):
         """spread: the wake's spreading rate S; r_e_ratio: ground-effect radius / rotor
-        radius; k_xy: the lateral push per unit r / sigma (K_XY); sigma0_scale: the
-        jet's initial width sigma_0 relative to sqrt(2) r_rot (1: the momentum jet)."""
+        radius; k_xy: the lateral push per unit r / sigma (K_XY), one for all or one per
+        receiving robot; sigma0_scale: the jet's initial width sigma_0 relative to
+        sqrt(2) r_rot (1: the momentum jet)."""
         self.vehicles = vehicles
         self.mass = np.array([v.mass for v in vehicles])
         self.r_rot = np.array([rotor_radius(v) for v in vehicles])
@@ -104,7 +105,7 @@ class AeroModel:
         self.kappa = SIGMA_A * TIP_SPEED / (8.0 * v_h)            # sigma a / (8 lambda_h) at hover
         self.spread = spread
         self.r_e = r_e_ratio * self.r_rot
-        self.k_xy = k_xy
+        self.k_xy = np.broadcast_to(np.asarray(k_xy, float), (len(vehicles),))
 
     # -- the pieces -------------------------------------------------------------
     def _wakes(self, p, v, v_i, w_in, ground: bool):
@@ -177,7 +178,7 @@ class AeroModel:
             r = np.linalg.norm(o, axis=2)
             with np.errstate(invalid="ignore", divide="ignore"):
                 e = np.where(r[..., None] > 1e-9, -o / r[..., None], 0.0)
-            push = self.k_xy * (c0 * thrust / v_h)[:, None] * w * (r / sig)
+            push = (self.k_xy * (c0 * thrust / v_h))[:, None] * w * (r / sig)
             f[:, :2] = (push[..., None] * e).sum(1)
         f[:, :2] -= C_DRAG * self.mass[:, None] * v[:, :2]
         return f
@@ -273,12 +274,13 @@ def _fit(small: Vehicle) -> tuple[float, float]:
     return spread, ratio
 
 
-def calibrated(vehicles: list[Vehicle], small: Vehicle, k_xy: float = K_XY, sigma0_scale: float = 1.0,
+def calibrated(vehicles: list[Vehicle], small: Vehicle, k_xy=K_XY, sigma0_scale: float = 1.0,
                spread_scale: float = 1.0) -> AeroModel:
     """The model for ``vehicles`` with its two constants fitted on small-robot points:
     the wake's spreading rate on the 9 g at 0.3 m, the ground-effect radius on the
     +5 g at z = 0.05 m.  sigma0_scale, spread_scale: the wake's initial width and
     spreading rate relative to those (the rough simulator's wake read off the real
-    flights, roughness.py "wake"; 1 and 1: the paper's)."""
+    flights, roughness.py "wake"; 1 and 1: the paper's); k_xy: the lateral push, one
+    for all or one per robot (roughness.py "lateral")."""
     spread, ratio = _constants(small)
     return AeroModel(vehicles, spread=spread * spread_scale, r_e_ratio=ratio, k_xy=k_xy, sigma0_scale=sigma0_scale)

@@ -316,6 +316,22 @@ def moment_table(moment: dict) -> str:
             "turbulence off.\n")
 
 
+def lateral_table(lateral: dict) -> str:
+    """experiments/calibrate.py fit_lateral: the lateral push per unit r / sigma read off
+    the labels (lateral_k_xy) of the real pair swaps and of their replays at each
+    constant flown, per robot type, and the fit."""
+    flown = {**{f"replay, K_XY {k}": v for k, v in lateral["flown"].items()},
+             "replay at the fit": lateral["check"]}
+    types = sorted(lateral["k_xy"])
+    lines = ["| reading (K_XY of the labels) | " + " | ".join(types) + " |", "|---|" + "---|" * len(types)]
+    for label, r in {"real": lateral["real"], **flown}.items():
+        lines.append(f"| {label} | " + " | ".join(_cell(r.get(t, {}).get("k_xy")) for t in types) + " |")
+    return ("\n".join(lines) + "\n\nFitted: " + ", ".join(f"{t} {lateral['k_xy'][t]}" for t in types)
+            + " (the line through the two replays, solved for the real reading); replays of "
+            + ", ".join(lateral["flights"]) + ", the authors' controller flying the logged prediction, the "
+            "turbulence off.\n")
+
+
 def paper_l2s_table(l2s: dict) -> str:
     """experiments/calibrate.py paper_l2s: simulated against the paper's median worst z error."""
     lines = ["| controller | swaps | simulated (cm) | paper (cm) | simulated / paper | within 30 % |",

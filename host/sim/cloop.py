@@ -100,7 +100,7 @@ class CLoopSwarm:
         self.state = SwarmState.hover(positions, self.vehicles)
         self.learned = learned
         self.aero = (calibrated(self.vehicles, vehicle(cfg, cfg.robot_types[0]),
-                                **(rough.wake_scales() if rough is not None else {})) if aero else None)
+                                **(rough.aero_kwargs(types) if rough is not None else {})) if aero else None)
         self.battery_V = battery_V
         self.battery_given = battery_given
         self.sensing = sensing or Sensing()

@@ -31,6 +31,16 @@ wake         the wake's profile read off the real flights: the ground truth's in
              every robot under a neighbour, against the truth evaluated at the same
              logged states (least squares of the difference; no controller, no
              replay): the paper-calibrated wake is too wide beside its axis.
+lateral      the wake's lateral force on a robot beside its axis: the truth's constant
+             K_XY (aero.py, 0.15: pushed out by the profile's gradient) replaced per
+             receiving robot's type by ``lateral_k_xy``.  Source: the horizontal
+             residual of the real robots beside a wake (experiments/calibrate.py
+             lateral_k_xy: least squares on the truth's push): the real large robots
+             are drawn in (read -0.07), the small ones feel about none, where replays
+             with the truth's constant read +0.07 and +0.04; matched by replays of the
+             real pair swaps (experiments/calibrate.py fit_lateral: the reading is
+             linear in the constant flown).  With it the replayed large robots stay
+             under a neighbour's axis about as long as the real ones (docs/simulator.md).
 moment       the wakes' moment on a robot (OFF by default: not in DEFAULT_EFFECTS): each
              rotor responds to the downwash at its own disc (aero.py
              AeroModel.forces_moments: the truth's wake profile at the rotor, the same
@@ -71,8 +81,8 @@ import numpy as np
 
 from .vehicle import base_type
 
-EFFECTS = ("vibration", "turbulence", "thrust", "battery", "wake", "moment", "moment_turbulence")
-DEFAULT_EFFECTS = ("vibration", "turbulence", "thrust", "battery", "wake")   # the calibrated simulator's
+EFFECTS = ("vibration", "turbulence", "thrust", "battery", "wake", "lateral", "moment", "moment_turbulence")
+DEFAULT_EFFECTS = ("vibration", "turbulence", "thrust", "battery", "wake", "lateral")   # the calibrated simulator's
 # the Crazyflie 2.x firmware's low-battery voltage (crazyflie-firmware 2a18fc29,
 # platform_defaults_cf2.h DEFAULT_BAT_LOW_VOLTAGE): a flight ends before it
 LOW_BATTERY_V = 3.2
@@ -94,6 +104,8 @@ class Roughness:
     # the wake's profile (aero.calibrated's scales)
     wake_sigma0_scale: float = 0.848
     wake_spread_scale: float = 0.474
+    # the wake's lateral push per unit r / sigma on a robot of each type (aero.py K_XY)
+    lateral_k_xy: dict = field(default_factory=lambda: {"small": -0.053, "large": -0.176})
     # the wakes' moment (a factor on aero.py's per-rotor moment; the effect is off by default)
     moment_gain: float = 6.429
     # the wakes' turbulent moment (torque sd per unit |f_a,z| x arm; off by default)
@@ -134,11 +146,15 @@ class Roughness:
             return np.ones(n)
         return 1.0 + np.random.default_rng([seed, 0x54]).normal(0.0, self.thrust_sd, n)
 
-    def wake_scales(self) -> dict:
-        """aero.calibrated's keyword arguments of the wake's profile (none without the effect)."""
-        if not self.on("wake"):
-            return {}
-        return {"sigma0_scale": self.wake_sigma0_scale, "spread_scale": self.wake_spread_scale}
+    def aero_kwargs(self, robot_types) -> dict:
+        """aero.calibrated's keyword arguments for a team of these types: the wake's
+        profile and the lateral push per robot (none of either without its effect)."""
+        out = {}
+        if self.on("wake"):
+            out.update(sigma0_scale=self.wake_sigma0_scale, spread_scale=self.wake_spread_scale)
+        if self.on("lateral"):
+            out["k_xy"] = np.array([self.lateral_k_xy[base_type(t)] for t in robot_types])
+        return out
 
     def battery_V(self, t_s: float, nominal_V: float) -> float:
         if not self.on("battery"):
