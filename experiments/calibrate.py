@@ -51,7 +51,7 @@ from ns2host.sim.vehicle import AUTHORS_GAINS, AUTHORS_TYPE, G, READ_LAW
 PAPER_L2S_M = {"BL-authors": 0.17, "NN-authors": 0.07}
 PROBE = {"seconds": 30.0, "cube": ((-1.0, 1.0), (-1.0, 1.0), (0.6, 1.4)), "seed": 1}
 PAIR_SWAPS = ("swap_ss", "swap_sl", "swap_ll")
-FIT_FLIGHTS_PER_PAIR = 3      # pair swap flights replayed for the turbulence fit (the first ones by name)
+FIT_FLIGHTS_PER_PAIR = 3      # pair swap flights replayed for the lateral, turbulence and moment fits (the first by name)
 READ_LAW_FLIGHTS_PER_FOLDER = 2   # swap flights per folder replayed for the fit of the z law read off the logs
 READ_LAW_ITERATIONS = 4
 LAW_KEYS = (("kp", "kp_per_s2"), ("kd", "kd_per_s"), ("ki", "ki_per_s3"), ("k_fa", "k_fa"))
@@ -167,7 +167,8 @@ def first_per_folder(names, n: int, folders=None) -> list[str]:
 
 
 def fit_pieces(flights: list[Flight]) -> dict:
-    """The pair swap flights the turbulence fit replays: FIT_FLIGHTS_PER_PAIR per pair."""
+    """The pair swap flights the lateral, turbulence and moment fits replay:
+    FIT_FLIGHTS_PER_PAIR per pair."""
     by = pieces_by_flight(swap_flights(flights))
     return {n: by[n] for n in first_per_folder(by, FIT_FLIGHTS_PER_PAIR, PAIR_SWAPS)}
 

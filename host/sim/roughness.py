@@ -91,10 +91,10 @@ LOW_BATTERY_V = 3.2
 @dataclass(frozen=True)
 class Roughness:
     # propeller vibration (per 1 kHz sample), by robot type
-    vibration_acc_g: dict = field(default_factory=lambda: {"small": 0.0607, "large": 0.0891})
-    vibration_gyro_dps: dict = field(default_factory=lambda: {"small": 2.274, "large": 6.606})
+    vibration_acc_g: dict = field(default_factory=lambda: {"small": 0.0613, "large": 0.0882})
+    vibration_gyro_dps: dict = field(default_factory=lambda: {"small": 2.28, "large": 6.594})
     # rotor-wake turbulence
-    turbulence_ratio: float = 0.019
+    turbulence_ratio: float = 0.025
     turbulence_tau_s: float = 0.002
     # per-robot thrust scatter (relative standard deviation of psi_1)
     thrust_sd: float = 0.0158
@@ -107,7 +107,7 @@ class Roughness:
     # the wake's lateral push per unit r / sigma on a robot of each type (aero.py K_XY)
     lateral_k_xy: dict = field(default_factory=lambda: {"small": -0.053, "large": -0.176})
     # the wakes' moment (a factor on aero.py's per-rotor moment; the effect is off by default)
-    moment_gain: float = 6.429
+    moment_gain: float = 4.715
     # the wakes' turbulent moment (torque sd per unit |f_a,z| x arm; off by default)
     moment_turbulence_ratio: float = 0.0
     # not an effect: the motor-command noise of the real robots in free air (flightstats),

@@ -65,8 +65,8 @@ def authors_gains(robot_type: str, robot: str | None = None) -> dict:
 # logs say flew (softer than crazyflieTypes.yaml, no integral to speak of, the small
 # robots taking off about a third of their prediction).  The values make calibrate
 # fitted (docs/simulator.md).
-READ_LAW = {"small": {"kp": 8.9538, "kd": 2.8225, "ki": 0.4526, "k_fa": 0.3803, "mass_kg": 0.033178},
-            "large": {"kp": 8.4121, "kd": 2.4542, "ki": 0.4112, "k_fa": 0.8494, "mass_kg": 0.063904}}
+READ_LAW = {"small": {"kp": 8.9309, "kd": 2.8506, "ki": 0.4604, "k_fa": 0.3729, "mass_kg": 0.033207},
+            "large": {"kp": 7.9323, "kd": 2.5174, "ki": 0.5582, "k_fa": 0.8295, "mass_kg": 0.06533}}
 
 
 def read_law_gains(robot_type: str, law: dict | None = None) -> dict:
