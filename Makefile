@@ -175,6 +175,13 @@ $(REAL)/heldout.json: $(REAL)/all.npz
 # the ablations, one JSON per axis (they run side by side with make -j)
 $(REAL)/ablation-%.json: $(REAL)/all.npz
 	$(REAL_TRAIN) $(REAL_HELD) --axes $* --no-reference --seeds $(REAL_ABLATION_SEEDS) > $@.tmp && mv $@.tmp $@
+# leave one collection out: the paper's network trained on the other collections (blind.json scores it)
+REAL_COLLECTIONS := 2019-12-11 2019-12-20 2020-06-16
+$(REAL)/loco-%.json: $(REAL)/all.npz
+	$(REAL_TRAIN) --data $(REAL)/without-$*.npz --axes paper --seeds $(REAL_SEEDS) --save-dir $(REAL)/loco-$* > $@.tmp && mv $@.tmp $@
+# the blind scores: overall, in the wake, per scenario; plain and mass-neutral; both mass conventions
+$(REAL)/blind.json: $(foreach c,$(REAL_COLLECTIONS),$(REAL)/loco-$(c).json) $(REAL)/heldout.json $(REAL)/authors.pt
+	$(NS2) real blind --dir $(REAL) --authors $(REAL)/authors.pt --seeds $(REAL_SEEDS) --out $@
 # the authors' published networks (trained on all their collections, these flights included)
 $(REAL)/authors.pt: $(REAL)/all.npz
 	$(NS2) real import-authors build/neural-swarm-data/models/models/output --out $@
@@ -185,7 +192,7 @@ $(REAL)/gen/ns2_model_config.h: $(REAL)/heldout.json
 $(REAL)/c_check.json: $(REAL)/gen/ns2_model_config.h
 	$(NS2) real check-c --gen $(REAL)/gen --checkpoint $(REAL)/heldout/H-20-seed0.pt --data-dir $(REAL) --out $@
 real: $(REAL)/paper.json $(REAL)/heldout.json $(foreach a,$(REAL_AXES),$(REAL)/ablation-$(a).json) \
-		$(REAL)/authors.json $(REAL)/c_check.json
+		$(REAL)/authors.json $(REAL)/c_check.json $(REAL)/blind.json
 	$(NS2) real report --dir $(REAL) --checkpoint $(REAL)/heldout/H-20-seed0.pt
 
 # The simulator against the real flights (docs/simulator.md, "A simulator as rough as a

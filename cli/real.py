@@ -100,6 +100,27 @@ def real_score(checkpoint, data_dir, out, as_json):
     _emit(as_json, res, ", ".join(f"{k} {v:.3f} g^2" for k, v in res.items() if k.endswith("_mse")))
 
 
+@real.command("blind")
+@click.option("--dir", "out_dir", type=click.Path(file_okay=False), default="build/real", show_default=True,
+              help="output folder of `make real` (c-<collection>.npz, loco-<collection>/, heldout/)")
+@click.option("--authors", type=click.Path(dir_okay=False), default=None,
+              help="the authors' published network (`ns2 real import-authors`): scored beside ours (a training score)")
+@click.option("--seeds", type=int, default=3, show_default=True, help="networks per split scored (mean +- std)")
+@click.option("--out", type=click.Path(dir_okay=False), required=True, help="JSON (and a .md table beside it)")
+@_json_option
+def real_blind(out_dir, authors, seeds, out, as_json):
+    """Blind scores: each collection scored by the networks trained without it, the held-out
+    flights by those trained without them, beside the on-board prediction flown on 16 June
+    2020, the authors' network and zero; overall, in the wake, per scenario; plain and
+    mass-neutral; both mass conventions."""
+    from ns2exp.blind import blind, table, write
+
+    _parent_ok(out)
+    res = blind(out_dir, authors, seeds)
+    write(res, Path(out))
+    _emit(as_json, res, table(res))
+
+
 @real.command("import-authors")
 @click.argument("models_dir", type=click.Path(file_okay=False))
 @click.option("--out", required=True, type=click.Path(dir_okay=False), help="project checkpoint to write (.pt)")

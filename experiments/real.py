@@ -24,18 +24,17 @@ from pathlib import Path
 import numpy as np
 
 from ns2codegen.config import Config, dump_toml
-from ns2codegen.data.from_logs import Flight, flight_queries, flights_to_dataset, labelled_steps
+from ns2codegen.data.from_logs import Flight, flight_queries, flights_to_dataset, labelled_steps, sample_info
 from ns2codegen.data.labels import motor_forces
 from ns2codegen.errors import Ns2Error
 from ns2codegen.fileio import atomic_write_bytes
 from ns2codegen.logs.align import logs_to_flights
-from ns2codegen.logs.collection import COLLECTION, write_manifest
+from ns2codegen.logs.collection import COLLECTIONS, write_collection_manifest, write_manifest
 from ns2codegen.queries import Queries
 from ns2codegen.vehicle import G
 from ns2host.sim.flightstats import alone
 
-TARBALLS = ("neural-swarm-2020-06-16-swaps.tar.xz", "neural-swarm-2020-06-16-randomwalks-1.tar.xz",
-            "neural-swarm-2020-06-16-randomwalks-2.tar.xz")
+TARBALLS = tuple(dict.fromkeys(t for c in COLLECTIONS for t in c.tarballs))
 HOVER = {"min_z_m": 0.3, "max_speed_mps": 0.1, "min_horizontal_distance_m": 1.0}
 HELD_OUT_EVERY, HELD_OUT_PHASE = 5, 2   # flight k of a scenario (sorted) is held out when k % 5 == 2
 
@@ -45,8 +44,9 @@ class RealDataError(Ns2Error, ValueError):
 
 
 def unpack(shared: str | Path, dest: str | Path) -> Path:
-    """Unpack the tarballs into ``dest`` once (a stamp names their sizes) and write
-    the collection's flights.toml there; returns ``dest``."""
+    """Unpack the tarballs into ``dest`` once (a stamp names their sizes) and write the
+    manifests: ``dest/flights.toml`` (16 June 2020, the calibration's flights) and one
+    ``flights.toml`` in each collection's folder; returns ``dest``."""
     shared, dest = Path(shared), Path(dest)
     missing = [t for t in TARBALLS if not (shared / t).is_file()]
     if missing:
@@ -60,13 +60,41 @@ def unpack(shared: str | Path, dest: str | Path) -> Path:
                 tar.extractall(dest, filter="data")
         stamp.write_text(key)
     write_manifest(dest)
+    for c in COLLECTIONS:
+        write_collection_manifest(dest, c)
     return dest
 
 
+def read_collections(cfg: Config, root: str | Path, keys=None) -> tuple[list[Flight], list[dict]]:
+    """Every flight of the collections ``keys`` (default all) under ``root``, aligned and
+    cut; flight names ``<collection>/<scenario>/<nn>``, each report with its collection."""
+    flights, reports = [], []
+    for c in COLLECTIONS:
+        if keys is not None and c.key not in keys:
+            continue
+        fls, reps = logs_to_flights(cfg, Path(root) / c.folder)
+        for fl in fls:
+            fl.name = f"{c.key}/{fl.name}"
+        for r in reps:
+            r["name"], r["collection"] = f"{c.key}/{r['name']}", c.key
+        flights += fls
+        reports += reps
+    return flights, reports
+
+
+def collection_of(name: str) -> str:
+    return name.split("/")[0]
+
+
+def scenario_of(name: str) -> str:
+    """``2020-06-16/swap_sl/03`` -> ``2020-06-16/swap_sl``: the unit of the held-out split."""
+    return name.rsplit("/", 1)[0]
+
+
 def is_held_out(name: str, names: list[str]) -> bool:
-    """Whole flights held out: every fifth flight of each scenario (fixed, by number)."""
-    scenario = name.split("/")[0]
-    same = sorted(n for n in names if n.split("/")[0] == scenario)
+    """Whole flights held out: every fifth flight of each scenario of each collection
+    (fixed, by number)."""
+    same = sorted(n for n in names if scenario_of(n) == scenario_of(name))
     return same.index(name) % HELD_OUT_EVERY == HELD_OUT_PHASE
 
 
@@ -76,14 +104,21 @@ def _alone(fl: Flight, i: int) -> np.ndarray:
             & (np.linalg.norm(fl.v[:, i], axis=1) < HOVER["max_speed_mps"]))
 
 
+def _median(parts: list) -> dict:
+    return {"median_g": round(float(np.median(np.concatenate(parts))), 2), "samples": int(sum(len(a) for a in parts))}
+
+
 def hover_masses(cfg: Config, flights: list[Flight], ids: dict) -> dict:
-    """Median hover thrust (g) of each robot type under each type's vehicle block, and
-    per robot under its own type's block (``ids``: flight name -> robot ids)."""
-    out = {"criteria": HOVER, "by_type": {}, "by_robot": {}}
+    """Median hover thrust (g) of each robot type under each type's vehicle block (every
+    collection), per collection and type, and per collection and robot under its own
+    type's block (``ids``: flight name -> robot ids)."""
+    out = {"criteria": HOVER, "by_type": {}, "by_collection": {}, "by_robot": {}}
     per = {(ty, blk): [] for ty in cfg.robot_types for blk in cfg.robot_types}
+    per_coll: dict = {}
     per_robot: dict = {}
     for fl in flights:
         h = float(np.median(np.diff(fl.t)))
+        coll = collection_of(fl.name)
         for i, ty in enumerate(fl.types):
             if fl.labelled is not None and not fl.labelled[i]:
                 continue
@@ -95,13 +130,13 @@ def hover_masses(cfg: Config, flights: list[Flight], ids: dict) -> dict:
                 T = motor_forces(fl.pwm[:, i], fl.battery_V[:, i], veh["psi1"], veh["lambda"], h).sum(1) * 1e3 / G
                 per[(ty, blk)].append(T[m])
                 if blk == ty:
-                    per_robot.setdefault(ids[fl.name][i], []).append(T[m])
+                    per_coll.setdefault(coll, {}).setdefault(ty, []).append(T[m])
+                    per_robot.setdefault(coll, {}).setdefault(ids[fl.name][i], []).append(T[m])
     for ty in cfg.robot_types:
-        out["by_type"][ty] = {f"block of {blk}": {"median_g": round(float(np.median(np.concatenate(per[(ty, blk)]))), 2),
-                                                  "samples": int(sum(len(a) for a in per[(ty, blk)]))}
-                              for blk in cfg.robot_types if per[(ty, blk)]}
-    out["by_robot"] = {r: {"median_g": round(float(np.median(np.concatenate(a))), 2),
-                           "samples": int(sum(len(x) for x in a))} for r, a in sorted(per_robot.items())}
+        out["by_type"][ty] = {f"block of {blk}": _median(per[(ty, blk)]) for blk in cfg.robot_types if per[(ty, blk)]}
+    out["by_collection"] = {c: {ty: _median(a) for ty, a in sorted(d.items())} for c, d in sorted(per_coll.items())}
+    out["by_robot"] = {c: {r: _median(a) for r, a in sorted(d.items(), key=lambda x: int(x[0][2:]))}
+                       for c, d in sorted(per_robot.items())}
     return out
 
 
@@ -116,7 +151,8 @@ def _with_masses(cfg: Config, masses: dict) -> Config:
 
 
 def real_config(cfg: Config, hover: dict) -> Config:
-    """``cfg`` with each robot type's mass set to its measured hover thrust (0.1 g)."""
+    """``cfg`` with each robot type's mass set to its measured hover thrust (0.1 g) over
+    every collection."""
     masses = {}
     for t in cfg.robot_types:
         got = hover["by_type"].get(t, {}).get(f"block of {t}")
@@ -134,18 +170,18 @@ def label_report(cfg: Config, flights: list[Flight]) -> dict:
     for fl, i, steps, fa in labelled_steps(cfg, flights):
         ty = fl.types[i]
         sc = scenario_name(cfg.robot_types, ty, [fl.types[j] for j in range(len(fl.types)) if j != i])
-        for key in (("type", ty), ("scenario", sc)):
+        for key in (("type", ty), ("scenario", sc), ("collection", collection_of(fl.name))):
             a = acc.setdefault(key, {"label": [], "onboard": []})
             a["label"].append(fa[steps, 2] * 1e3 / G)
             a["onboard"].append(fl.fa_onboard_g[steps, i])
-    out: dict = {"type": {}, "scenario": {}}
+    out: dict = {"type": {}, "scenario": {}, "collection": {}}
     every = np.concatenate([np.concatenate(a["label"]) for (kind, _), a in acc.items() if kind == "type"])
     out["all"] = {"samples": int(every.size), "rms_g": round(float(np.sqrt(np.mean(every ** 2))), 3),
                   "sqrt_std_of_squares_g": round(float(np.sqrt(np.std(every ** 2))), 3),
                   "mean_g": round(float(every.mean()), 3), "variance_g2": round(float(every.var()), 3)}
     for (kind, name), a in sorted(acc.items()):
         lab, ob = np.concatenate(a["label"]), np.concatenate(a["onboard"])
-        both = np.isfinite(ob)
+        both = np.isfinite(ob) & (ob != 0.0)   # 0: no network flown (2019), or before it started
         d = lab[both] - ob[both]
         out[kind][name] = {"samples": int(lab.size), "mean_g": round(float(lab.mean()), 3),
                            "std_g": round(float(lab.std()), 3), "rms_g": round(float(np.sqrt(np.mean(lab ** 2))), 3),
@@ -157,14 +193,30 @@ def label_report(cfg: Config, flights: list[Flight]) -> dict:
     return out
 
 
+def _save_set(out_dir: Path, key: str, cfg: Config, flights: list[Flight], source: str) -> dict:
+    """``key.npz`` (the data set) and ``key_samples.npz`` (``sample_info``, for the scores)."""
+    import io
+
+    ds = flights_to_dataset(cfg, flights)
+    ds.extra = dict(ds.extra, generator="usd-logs", source=source, flights=sorted({f.name for f in flights}))
+    ds.save(out_dir / f"{key}.npz")
+    info = sample_info(cfg, flights)
+    buf = io.BytesIO()
+    np.savez_compressed(buf, **{k: (np.array(v) if isinstance(v, list) else v) for k, v in info.items()})
+    atomic_write_bytes(out_dir / f"{key}_samples.npz", buf.getvalue())
+    return {"samples": len(ds), "flights": len({f.name for f in flights})}
+
+
 def build(root: str | Path, out_dir: str | Path, cfg: Config | None = None) -> dict:
-    """Data sets and report from the unpacked collection under ``root`` (see the module
-    docstring): out_dir/{all,train,heldout}.npz, real.toml (the config with the
-    measured masses), data_report.json.  Returns the report."""
+    """Data sets and report from the unpacked collections under ``root`` (see the module
+    docstring): out_dir/{all,train,heldout}.npz, per collection ``c-<key>.npz`` and
+    ``without-<key>.npz`` (the leave-one-collection-out splits), each with its
+    ``_samples.npz``; real.toml (the config with the measured masses), data_report.json.
+    Returns the report."""
     cfg = cfg or Config.load(None)
     root, out_dir = Path(root), Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    flights, reports = logs_to_flights(cfg, root)
+    flights, reports = read_collections(cfg, root)
     names = [r["name"] for r in reports]
     ids = {r["name"]: r["robots"] for r in reports}
     hover = hover_masses(cfg, flights, ids)
@@ -174,24 +226,20 @@ def build(root: str | Path, out_dir: str | Path, cfg: Config | None = None) -> d
     held = {n for n in names if is_held_out(n, names)}
     sets = {"all": flights, "train": [f for f in flights if f.name not in held],
             "heldout": [f for f in flights if f.name in held]}
-    sizes = {}
+    for c in COLLECTIONS:
+        sets[f"c-{c.key}"] = [f for f in flights if collection_of(f.name) == c.key]
+        sets[f"without-{c.key}"] = [f for f in flights if collection_of(f.name) != c.key]
     save_queries(out_dir / "heldout_queries.npz", flight_queries(rcfg, sets["heldout"]))
     save_queries(out_dir / "all_queries.npz", flight_queries(rcfg, sets["all"]))
-    for key, fls in sets.items():
-        ds = flights_to_dataset(rcfg, fls)
-        ds.extra = dict(ds.extra, generator="usd-logs", source=f"{COLLECTION} ({key})",
-                        flights=sorted({f.name for f in fls}))
-        ds.save(out_dir / f"{key}.npz")
-        sizes[key] = {"samples": len(ds), "flights": len({f.name for f in fls})}
-    # the held-out flights labelled with the authors' masses too (their code: 32 g and 67 g),
-    # to score their published network against the labels it was trained for
-    acfg = _with_masses(cfg, AUTHORS_MASSES_G)
-    ds = flights_to_dataset(acfg, sets["heldout"])
-    ds.extra = dict(ds.extra, generator="usd-logs", source=f"{COLLECTION} (heldout, masses {AUTHORS_MASSES_G} g)")
-    ds.save(out_dir / "heldout_authors_masses.npz")
-    report = {"source": "aerorobotics/neural-swarm 48b18511, data/training/datacollection21_06_16_2020",
+    sizes = {key: _save_set(out_dir, key, rcfg, fls, f"aerorobotics/neural-swarm collections ({key})")
+             for key, fls in sets.items()}
+    report = {"source": "aerorobotics/neural-swarm 48b18511, data/training/ (" +
+              ", ".join(c.folder.split("/")[-1] for c in COLLECTIONS) + ")",
+              "collections": {c.key: {"folder": c.folder, "robots": c.robots, "not_labelled": c.not_labelled,
+                                      "folders": c.folders or "the 2020 naming"} for c in COLLECTIONS},
               "flights": reports, "hover": hover,
               "masses_g": {t: rcfg.vehicle(t)["mass_g"] for t in rcfg.robot_types},
+              "authors_masses_g": AUTHORS_MASSES_G,
               "labels": label_report(rcfg, flights), "held_out_flights": sorted(held), "data_sets": sizes,
               "alignment": alignment_summary(reports), "cuts": cut_summary(reports)}
     atomic_write_bytes(out_dir / "data_report.json", json.dumps(report, indent=1, sort_keys=True).encode())
@@ -385,8 +433,9 @@ def plots(out_dir: str | Path, checkpoint: str | Path, root: str | Path) -> list
     plt.close(fig)
     # one held-out swap: the bottom robot's label, the network flown on board and ours
     rcfg = Config.load(d / "real.toml")
-    flights, reports = logs_to_flights(rcfg, root)
-    name = next(n for n in json.loads((d / "data_report.json").read_text())["held_out_flights"] if n.startswith("swap_sl"))
+    flights, reports = read_collections(rcfg, root, keys=("2020-06-16",))
+    name = next(n for n in json.loads((d / "data_report.json").read_text())["held_out_flights"]
+                if n.startswith("2020-06-16/swap_sl/"))
     pieces = [f for f in flights if f.name == name]
     fig, ax = plt.subplots(figsize=(10, 4))
     for fl in pieces:

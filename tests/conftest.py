@@ -29,7 +29,8 @@ def _have(tool: str) -> bool:
             REAL_DATA: lambda: all((crazyflie.SHARED / "neural-swarm-data" / t).is_file() for t in REAL_TARBALLS)}[tool]()
 
 
-REAL_TARBALLS = ("neural-swarm-2020-06-16-swaps.tar.xz", "neural-swarm-2020-06-16-randomwalks-1.tar.xz",
+REAL_TARBALLS = ("neural-swarm-2019-12.tar.xz", "neural-swarm-2020-06-16-swaps.tar.xz",
+                 "neural-swarm-2020-06-16-randomwalks-1.tar.xz",
                  "neural-swarm-2020-06-16-randomwalks-2.tar.xz")
 
 

@@ -18,7 +18,7 @@ from ..config import Config
 from ..queries import Queries
 from .dataset import Dataset, scenario_name
 from ..selection import boxes_f32, clamp, env_state, membership, relative_state, volumes_f32
-from .labels import G, residual_force
+from .labels import G, five_point_derivative, residual_force
 
 
 @dataclass
@@ -90,6 +90,47 @@ def flight_queries(cfg: Config, flights: list[Flight]) -> Queries:
                              fl.p[steps, i].astype(np.float32), fl.v[steps, i].astype(np.float32),
                              np.full(len(steps), ntype.shape[1], np.int64), ntype.astype(np.uint8), rel))
     return Queries.concat(parts)
+
+
+WAKE_DZ_M = (0.1, 0.6)   # a neighbour this much higher is "above" (the swaps' passages)
+
+
+def sample_info(cfg: Config, flights: list[Flight], dz_m: tuple = WAKE_DZ_M) -> dict:
+    """Per sample of ``flights_to_dataset`` (same order), what a score needs beyond the
+    data set: ``flight`` (index into ``flight_names``), ``robot`` (index into
+    ``robot_ids``, one per flight name and robot), ``t_s`` (the flight's own clock),
+    ``onboard_g`` (the prediction flown, NaN where not logged), ``load_factor``
+    ((v_dot_z + g) / g: d label / d mass, to relabel with another mass exactly), and
+    ``above_xy_m`` (the horizontal distance to the nearest other robot ``dz_m`` higher,
+    inf when none is)."""
+    names: list[str] = []
+    robots: list[str] = []
+    cols: dict = {k: [] for k in ("flight", "robot", "t_s", "onboard_g", "load_factor", "above_xy_m")}
+    for fl, i, steps, _ in labelled_steps(cfg, flights):
+        if fl.name not in names:
+            names.append(fl.name)
+        rid = f"{fl.name}#{fl.robots[i] if fl.robots else i}"
+        if rid not in robots:
+            robots.append(rid)
+        h = float(np.median(np.diff(fl.t)))
+        vdot = five_point_derivative(fl.v[:, i, 2], h)
+        above = np.full(len(steps), np.inf)
+        for j in range(len(fl.types)):
+            if j == i:
+                continue
+            d = fl.p[steps, j] - fl.p[steps, i]
+            xy = np.hypot(d[:, 0], d[:, 1])
+            above = np.where((d[:, 2] >= dz_m[0]) & (d[:, 2] <= dz_m[1]), np.minimum(above, xy), above)
+        cols["flight"].append(np.full(len(steps), names.index(fl.name)))
+        cols["robot"].append(np.full(len(steps), robots.index(rid)))
+        cols["t_s"].append(fl.t[steps])
+        cols["onboard_g"].append(fl.fa_onboard_g[steps, i] if fl.fa_onboard_g is not None
+                                 else np.full(len(steps), np.nan))
+        cols["load_factor"].append((vdot[steps] + G) / G)
+        cols["above_xy_m"].append(above)
+    out = {k: np.concatenate(v) if v else np.zeros(0) for k, v in cols.items()}
+    out["flight"], out["robot"] = out["flight"].astype(np.int64), out["robot"].astype(np.int64)
+    return dict(out, flight_names=names, robot_ids=robots)
 
 
 def flights_to_dataset(cfg: Config, flights: list[Flight], scenario_names: list[str] | None = None) -> Dataset:

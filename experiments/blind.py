@@ -1,0 +1,177 @@
+"""Blind scores on the authors' real flights (issue 52; docs/real-flights.md, "Blind
+scores"): every model scored on flights it never trained on, by ``realscore``'s
+yardsticks (overall, in the wake, per scenario; plain and mass-neutral; both mass
+conventions).
+
+Two blind splits of ``ns2 real data``'s sets:
+
+* **leave one collection out**: for each collection, the project's network trained on
+  the other two (``loco-<key>/H-20-seed<k>.pt``, ``make real``) scored on it;
+* **whole held-out flights** (every fifth flight of each scenario): the networks trained
+  without them (``heldout/H-20-seed<k>.pt``).
+
+Beside them, on the same samples: **the on-board ``ctrlFa.Faz``** logged in flight (16 June
+2020 only: that network was trained before that day, so there it is a blind reference;
+in 2019 no network flew), **the authors' published network** (trained on every
+collection: on these flights its score is a training score, never blind), and **zero**
+(no model).  Where the on-board prediction is part of a table, every model is scored on
+the samples where it exists (``ctrlFa.Faz`` finite and not exactly 0: before the network
+starts it logs 0).
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from ns2codegen.logs.collection import COLLECTIONS
+
+from .real import AUTHORS_MASSES_G, RealDataError
+from .realscore import both_conventions, gain
+
+ONBOARD_COLLECTION = "2020-06-16"
+
+
+def load_samples(path: Path) -> dict:
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            return {k: (z[k].tolist() if k in ("flight_names", "robot_ids") else z[k]) for k in z.files}
+    except (OSError, KeyError, ValueError) as e:
+        raise RealDataError(f"{path}: not a sample table of `ns2 real data` ({e})") from None
+
+
+def predictions(checkpoint: Path, ds) -> np.ndarray:
+    from ns2codegen.checkpoint import load_checkpoint
+    from ns2codegen.train import Batched, predict
+
+    return predict(load_checkpoint(checkpoint).model(), Batched.of(ds)).numpy().astype(np.float64)
+
+
+def _summ(rows: list[dict]) -> dict:
+    """Mean and std over seeds of every number of ``both_conventions``'s output."""
+    def walk(xs):
+        if isinstance(xs[0], dict):
+            return {k: walk([x[k] for x in xs]) for k in xs[0]}
+        if xs[0] is None or isinstance(xs[0], str):
+            return xs[0]
+        a = np.array(xs, float)
+        return {"mean": round(float(a.mean()), 4), "std": round(float(a.std()), 4)} if len(a) > 1 else xs[0]
+    return walk(rows)
+
+
+def score_split(ds, info: dict, models: dict, masses: dict, type_names: list[str],
+                onboard: bool) -> dict:
+    """Every model (name -> [predictions per seed]) on the data set ``ds``; with
+    ``onboard``, the logged ``ctrlFa.Faz`` too and every model on its samples only."""
+    keep = np.ones(len(ds), bool)
+    if onboard:
+        ob = info["onboard_g"]
+        keep = np.isfinite(ob) & (ob != 0.0)
+        models = dict(models, onboard=[ob])
+    sub = {k: (v[keep] if isinstance(v, np.ndarray) and len(v) == len(ds) else v) for k, v in info.items()}
+    out = {"samples": int(len(ds)), "scored": int(keep.sum()), "models": {}}
+    for name, preds in models.items():
+        per_seed = [both_conventions(ds.label_g[keep], p[keep], sub, ds.robot_type[keep], type_names,
+                                     ds.scenario[keep], ds.scenario_names, masses, AUTHORS_MASSES_G) for p in preds]
+        out["models"][name] = dict(_summ(per_seed), seeds=len(preds))
+    return out
+
+
+def _mean(x):
+    return x["mean"] if isinstance(x, dict) else x
+
+
+def _flat(res: dict) -> dict:
+    """The headline numbers (mean over seeds) of one score."""
+    return {"plain": _mean(res["plain"]), "neutral": _mean(res["neutral"]),
+            "wake": {"plain": _mean(res["wake"]["plain"]), "neutral": _mean(res["wake"]["neutral"])}}
+
+
+def gains(split: dict, ours: str = "ours", refs=("onboard", "authors", "zero")) -> dict:
+    """1 - ours / ref for each reference in the split, under both conventions."""
+    out = {}
+    for ref in refs:
+        if ref in split["models"] and ours in split["models"]:
+            out[ref] = {conv: gain(_flat(split["models"][ours][conv]), _flat(split["models"][ref][conv]))
+                        for conv in ("labels", "other_masses")}
+    return out
+
+
+def blind(data_dir: str | Path, authors: str | Path | None = None, seeds: int = 3) -> dict:
+    """The blind splits of ``data_dir`` (``make real``'s folder) scored (module docstring)."""
+    from ns2codegen.config import Config
+    from ns2codegen.data.dataset import Dataset
+
+    d = Path(data_dir)
+    cfg = Config.load(d / "real.toml")
+    masses = {t: cfg.vehicle(t)["mass_g"] for t in cfg.robot_types}
+    out = {"masses_g": masses, "other_masses_g": AUTHORS_MASSES_G, "leave_one_collection_out": {}}
+
+    def models(ds, ckpts: list[Path]) -> dict:
+        m = {"ours": [predictions(c, ds) for c in ckpts]} if ckpts else {}
+        if authors:
+            m["authors"] = [predictions(Path(authors), ds)]
+        m["zero"] = [np.zeros(len(ds))]
+        return m
+
+    for c in COLLECTIONS:
+        ckpts = sorted((d / f"loco-{c.key}").glob("H-20-seed*.pt"))[:seeds]
+        if not ckpts:
+            raise RealDataError(f"{d / f'loco-{c.key}'}: no trained network (make real trains them)")
+        ds = Dataset.load(d / f"c-{c.key}.npz")
+        out["leave_one_collection_out"][c.key] = score_split(
+            ds, load_samples(d / f"c-{c.key}_samples.npz"), models(ds, ckpts), masses, cfg.robot_types,
+            onboard=c.key == ONBOARD_COLLECTION)
+        out["leave_one_collection_out"][c.key]["gains"] = gains(out["leave_one_collection_out"][c.key])
+    held = sorted((d / "heldout").glob("H-20-seed*.pt"))[:seeds]
+    if held:
+        ds = Dataset.load(d / "heldout.npz")
+        info = load_samples(d / "heldout_samples.npz")
+        out["held_out_flights"] = score_split(ds, info, models(ds, held), masses, cfg.robot_types, onboard=False)
+        june = np.array([n.startswith(ONBOARD_COLLECTION) for n in info["flight_names"]])[info["flight"]]
+        if june.any():
+            sub = ds.subset(june)
+            si = {k: (v[june] if isinstance(v, np.ndarray) and len(v) == len(ds) else v) for k, v in info.items()}
+            out["held_out_flights_2020"] = score_split(sub, si, models(sub, held), masses, cfg.robot_types,
+                                                       onboard=True)
+            out["held_out_flights_2020"]["gains"] = gains(out["held_out_flights_2020"])
+    return out
+
+
+def table(res: dict) -> str:
+    """Markdown: one row per split and model, the four headline MSEs under the labels'
+    masses and (in brackets) relabelled with the other convention."""
+    lines = ["| split: scored on | model | samples | overall plain | overall mass-neutral | wake plain | "
+             "wake mass-neutral | wake small / large, mass-neutral |", "|---|---|---|---|---|---|---|---|"]
+    splits = [(f"collection {k} left out", v) for k, v in res["leave_one_collection_out"].items()]
+    splits += [(name, res[key]) for key, name in (("held_out_flights", "whole held-out flights"),
+                                                  ("held_out_flights_2020", "held-out flights of 2020-06-16"))
+               if key in res]
+    label = {"ours": "ours (blind)", "onboard": "flown on board (blind)",
+             "authors": "authors' published (training score)", "zero": "zero"}
+
+    def cell(m, *path):
+        a, b = m["labels"], m["other_masses"]
+        for p in path:
+            a, b = a[p], b[p]
+        f = lambda x: "-" if x is None else (f"{x['mean']:.2f} +- {x['std']:.2f}" if isinstance(x, dict)  # noqa: E731
+                                             else f"{x:.2f}")
+        return f"{f(a)} ({f(b)})"
+
+    for name, s in splits:
+        for mname, m in s["models"].items():
+            wt = m["labels"]["wake_by_type"]
+            lines.append(f"| {name} | {label.get(mname, mname)} | {s['scored']} (wake {m['labels']['wake']['samples']}) | "
+                         f"{cell(m, 'plain')} | {cell(m, 'neutral')} | {cell(m, 'wake', 'plain')} | "
+                         f"{cell(m, 'wake', 'neutral')} | " + " / ".join(
+                             "-" if wt[t]["neutral"] is None else
+                             (f"{_mean(wt[t]['neutral']):.2f}") for t in wt) + " |")
+    return "\n".join(lines)
+
+
+def write(res: dict, out: Path) -> None:
+    from ns2codegen.fileio import atomic_write_bytes
+
+    atomic_write_bytes(out, json.dumps(res, indent=1, sort_keys=True).encode())
+    atomic_write_bytes(out.with_suffix(".md"), (table(res) + "\n").encode())
