@@ -164,8 +164,9 @@ REAL_AXES ?= H L V P T
 REAL_TRAIN = $(PYTHON) benchmarks/ablation.py --config $(REAL)/real.toml --max-epochs $(REAL_EPOCHS) \
 	--patience 3 --lr-drops 1 --batch-size 1024
 REAL_HELD = --data $(REAL)/train.npz --test-data $(REAL)/heldout.npz --test-label held_out_flights
+REAL_HISTORY ?=
 $(REAL)/all.npz: | deps
-	$(NS2) real data --out $(REAL) --quiet
+	$(NS2) real data --out $(REAL) $(if $(REAL_HISTORY),--history-ms $(REAL_HISTORY)) --quiet
 # the paper's protocol: all flights, the random 80/20 split of 50 pieces per scenario
 $(REAL)/paper.json: $(REAL)/all.npz
 	$(REAL_TRAIN) --data $(REAL)/all.npz --axes paper --seeds $(REAL_SEEDS) > $@.tmp && mv $@.tmp $@
@@ -182,6 +183,11 @@ $(REAL)/loco-%.json: $(REAL)/all.npz
 # the blind scores: overall, in the wake, per scenario; plain and mass-neutral; both mass conventions
 $(REAL)/blind.json: $(foreach c,$(REAL_COLLECTIONS),$(REAL)/loco-$(c).json) $(REAL)/heldout.json $(REAL)/authors.pt
 	$(NS2) real blind --dir $(REAL) --authors $(REAL)/authors.pt --seeds $(REAL_SEEDS) --out $@
+# the wake's memory (issue 52): the same blind splits with every neighbour's state also 50, 100
+# and 200 ms ago (model.history_ms), in a folder of their own
+$(REAL)-mem/blind.json: $(REAL)/authors.pt
+	$(MAKE) REAL=$(REAL)-mem REAL_HISTORY=50,100,200 $(foreach c,$(REAL_COLLECTIONS),$(REAL)-mem/loco-$(c).json) $(REAL)-mem/heldout.json
+	$(NS2) real blind --dir $(REAL)-mem --authors $(REAL)/authors.pt --seeds $(REAL_SEEDS) --out $@
 # the authors' published networks (trained on all their collections, these flights included)
 $(REAL)/authors.pt: $(REAL)/all.npz
 	$(NS2) real import-authors build/neural-swarm-data/models/models/output --out $@

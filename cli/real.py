@@ -22,16 +22,30 @@ def real():
               help="where the logs are unpacked (once) and flights.toml written")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False), default="build/real", show_default=True,
               help="data sets (all, train, heldout .npz), held-out queries, real.toml, data_report.json")
+@click.option("--history-ms", default="", show_default=True,
+              help="comma list of lags (ms): every neighbour row also holds its state that long ago "
+                   "(model.history_ms, the wake-memory experiment; no C export)")
 @_quiet_option
 @_json_option
-def real_data(shared, unpack_dir, out_dir, quiet, as_json):
-    """Unpack, align, label, cut and split the collection into data sets (with a report)."""
+def real_data(shared, unpack_dir, out_dir, history_ms, quiet, as_json):
+    """Unpack, align, label, cut and split the collections into data sets (with a report)."""
+    import copy
+
+    from ns2codegen.config import Config, ConfigError
     from ns2exp.real import build, unpack
     from ns2host.crazyflie import SHARED
 
+    cfg = Config.load(None)
+    if history_ms:
+        raw = copy.deepcopy(cfg.raw)
+        try:
+            raw["model"]["history_ms"] = [int(x) for x in history_ms.split(",")]
+        except ValueError:
+            raise ConfigError(f"--history-ms: a comma list of integers (ms), got {history_ms!r}") from None
+        cfg = Config.from_dict(raw)
     root = unpack(Path(shared) if shared else SHARED / "neural-swarm-data", unpack_dir)
     with _progress(quiet, None, "step", "real data (read, align, label)"):
-        rep = build(root, out_dir)
+        rep = build(root, out_dir, cfg)
     summary = {k: rep[k] for k in ("data_sets", "masses_g", "alignment", "cuts")}
     _emit(as_json, summary, f"wrote {out_dir}: " + ", ".join(f"{k} {v['samples']} samples / {v['flights']} flights"
                                                            for k, v in rep["data_sets"].items())

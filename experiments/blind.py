@@ -42,10 +42,18 @@ def load_samples(path: Path) -> dict:
 
 
 def predictions(checkpoint: Path, ds) -> np.ndarray:
+    """The checkpoint's f_a,z (g) of every sample; a network without the history inputs
+    of a data set built with ``model.history_ms`` reads the present state only (the
+    first 6 values of each row)."""
+    import torch
+
     from ns2codegen.checkpoint import load_checkpoint
     from ns2codegen.train import Batched, predict
 
-    return predict(load_checkpoint(checkpoint).model(), Batched.of(ds)).numpy().astype(np.float64)
+    ck = load_checkpoint(checkpoint)
+    b = Batched.of(ds)
+    b.nbr_state = torch.from_numpy(np.ascontiguousarray(ds.nbr_state[:, :ck.cfg.input_dim]))
+    return predict(ck.model(), b).numpy().astype(np.float64)
 
 
 def _summ(rows: list[dict]) -> dict:

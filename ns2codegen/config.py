@@ -95,10 +95,21 @@ class Config:
     def train(self) -> dict:
         return self.raw["train"]
 
+    @property
+    def history_ms(self) -> list[int]:
+        """``model.history_ms``: each neighbour's relative state also this long ago (ms;
+        the wake-memory experiment of issue 52, Python only: not exported to C)."""
+        return list(self.model.get("history_ms", []))
+
+    @property
+    def input_dim(self) -> int:
+        """phi's input: x_ij now and at each ``history_ms`` lag (6 each)."""
+        return 6 * (1 + len(self.history_ms))
+
     def phi_dims(self) -> list[int]:
         """6 -> phi_first -> width x (L-2) -> H  (paper: 6-25-40-40-H for L = 4)."""
         m = self.model
-        return [6, m["phi_first"]] + [m["width"]] * (m["layers"] - 2) + [m["hidden"]]
+        return [self.input_dim, m["phi_first"]] + [m["width"]] * (m["layers"] - 2) + [m["hidden"]]
 
     def rho_dims(self) -> list[int]:
         """H -> width x (L-1) -> 1  (paper: H-40-40-40-1 for L = 4)."""
@@ -248,6 +259,7 @@ VEHICLE_MAX = {"mass_g": 1e5, "max_thrust_g": 1e6, "diameter_m": 10.0, "lambda":
 MODEL_MAX = {"hidden": 1024, "layers": 16, "phi_first": 1024, "width": 1024, "max_neighbors": 255}
 
 
+HISTORY_MAX, HISTORY_MAX_MS = 8, 2000   # model.history_ms: lags of the neighbours' past states
 TRAIN_RANGES = {"epochs": (1, 10 ** 6), "batch_size": (1, 10 ** 7), "seed": (0, 2 ** 32 - 1),
                 "pieces_per_scenario": (1, 10 ** 6)}  # integers: [lo, hi]
 SECTIONS = ("model", "train", "robot_types", "environment", "neighbors", "interaction_volume")
@@ -366,10 +378,16 @@ def _validate(raw) -> None:
     of known keys with values of the right type and range, names C-safe and distinct
     as C identifiers, boxes and volumes consistent.  Errors name the field."""
     _keys(raw, "config", SECTIONS, SECTIONS)
-    m = _keys(raw["model"], "model", (*MODEL_MAX, "gamma"), (*MODEL_MAX, "gamma"))
+    m = _keys(raw["model"], "model", (*MODEL_MAX, "gamma", "history_ms"), (*MODEL_MAX, "gamma"))
     for key, most in MODEL_MAX.items():
         _integer(m, key, "model", 2 if key == "layers" else 1, most)
     _real(m, "gamma", "model", 0.0, 1e6)
+    hist = m.get("history_ms", [])
+    if not (isinstance(hist, list) and len(hist) <= HISTORY_MAX
+            and all(isinstance(x, int) and not isinstance(x, bool) and 0 < x <= HISTORY_MAX_MS for x in hist)
+            and hist == sorted(set(hist))):
+        raise ConfigError(f"model.history_ms must be at most {HISTORY_MAX} increasing integers in (0, "
+                          f"{HISTORY_MAX_MS}] ms, got {brief(hist)}")
     tr = _keys(raw["train"], "train", (*TRAIN_RANGES, "lr", "validation_fraction"),
                (*TRAIN_RANGES, "lr", "validation_fraction"))
     for key, (lo, hi) in TRAIN_RANGES.items():

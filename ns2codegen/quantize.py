@@ -148,6 +148,9 @@ def float_activation_bound(m: ExportModel) -> float:
 
 def from_checkpoint(ck: Checkpoint) -> ExportModel:
     cfg = ck.cfg
+    if cfg.history_ms:
+        raise QuantizationError(f"model.history_ms {cfg.history_ms}: a network that sees its neighbours' past "
+                                "states is an experiment (issue 52) and has no C export")
 
     def net(kind, i):
         return [(w.numpy().astype(np.float32), b.numpy().astype(np.float32))

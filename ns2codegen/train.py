@@ -97,6 +97,9 @@ def train(cfg: Config, ds: Dataset, epochs: int | None = None, seed: int | None 
     if list(ds.neighbor_types) != cfg.neighbor_types:
         raise DatasetError(f"data set neighbor_types {ds.neighbor_types} do not match the config's "
                            f"{cfg.neighbor_types}")
+    if ds.nbr_state.shape[1] != cfg.input_dim:
+        raise DatasetError(f"data set nbr_state has {ds.nbr_state.shape[1]} values per row, the config's phi takes "
+                           f"{cfg.input_dim} (model.history_ms {cfg.history_ms})")
     torch.manual_seed(seed)
     val_mask = split_by_pieces(ds, tr["pieces_per_scenario"], tr["validation_fraction"], seed)
     train_ds, val_ds = ds.subset(~val_mask), ds.subset(val_mask)

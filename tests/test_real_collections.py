@@ -182,3 +182,51 @@ def test_sample_info_finds_the_wake_and_relabels_exactly(cfg):
     assert s["wake"]["samples"] == int((info["above_xy_m"] <= 0.15).sum())
     assert s["wake_by_type"]["large"]["samples"] == 0 and s["wake_by_type"]["small"]["samples"] > 0
     assert s["plain"] == pytest.approx(float(np.mean(ds.label_g.astype(float) ** 2)), rel=1e-3)
+
+
+def _history_cfg(cfg, lags):
+    import copy
+
+    from ns2codegen.config import Config
+    raw = copy.deepcopy(cfg.raw)
+    raw["model"]["history_ms"] = lags
+    return Config.from_dict(raw)
+
+
+def test_history_inputs_are_the_same_neighbours_states_that_long_ago(cfg):
+    fl = _flight()
+    now = flights_to_dataset(cfg, [fl])
+    hcfg = _history_cfg(cfg, [50, 100, 200])
+    ds = flights_to_dataset(hcfg, [fl])
+    assert hcfg.input_dim == 24 and hcfg.phi_dims()[0] == 24 and ds.nbr_state.shape[1] == 24
+    assert np.array_equal(ds.nbr_offsets, now.nbr_offsets) and np.array_equal(ds.nbr_type, now.nbr_type)
+    assert np.array_equal(ds.nbr_state[:, :6], now.nbr_state) and np.array_equal(ds.label_g, now.label_g)
+    # the small robot's row of its large neighbour: sample k's lag-50 ms block is sample k-5's present state
+    rows = np.flatnonzero((np.repeat(now.robot_type, np.diff(now.nbr_offsets)) == 0) & (now.nbr_type == 1))
+    assert len(rows) > 300
+    for lag, col in ((5, 6), (10, 12), (20, 18)):
+        assert np.array_equal(ds.nbr_state[rows[lag:], col:col + 6], now.nbr_state[rows[:-lag], :6])
+    # less than 200 ms into the piece, the piece's first state: the large robot starts at x = -1 m
+    assert ds.nbr_state[rows[0], 18] == np.float32(-1.0) and now.nbr_state[rows[0], 0] > -1.0
+
+
+def test_history_is_validated_trained_and_never_exported(cfg, tmp_path):
+    from ns2codegen.checkpoint import load_checkpoint, save_checkpoint
+    from ns2codegen.config import ConfigError
+    from ns2codegen.data.dataset import DatasetError
+    from ns2codegen.model import HeteroDeepSet
+    from ns2codegen.quantize import QuantizationError, from_checkpoint
+    from ns2codegen.train import train
+
+    for bad in ([100, 50], [0], [50, 50], "50", [3000], [1.5]):
+        with pytest.raises(ConfigError, match="model.history_ms"):
+            _history_cfg(cfg, bad)
+    hcfg = _history_cfg(cfg, [50])
+    with pytest.raises(DatasetError, match="phi takes 12"):
+        train(hcfg, flights_to_dataset(cfg, [_flight()]), epochs=1)
+    model, rep = train(hcfg, flights_to_dataset(hcfg, [_flight()]), epochs=1)
+    assert model.phi[0].layers[0].in_features == 12 and np.isfinite(rep["validation"]["mse"])
+    save_checkpoint(tmp_path / "h.pt", model, hcfg, {"seed": 0, "data_hash": None})
+    with pytest.raises(QuantizationError, match="no C export"):
+        from_checkpoint(load_checkpoint(tmp_path / "h.pt"))
+    assert HeteroDeepSet(cfg).phi[0].layers[0].in_features == 6

@@ -9,7 +9,9 @@ One sample is one robot at one time step (paper, "Data Collection"):
   nbr_offsets     [N+1] neighbours of sample n are rows offsets[n]:offsets[n+1]
   nbr_type[m]     int   index into Config.neighbor_types (environment last)
   nbr_state[m]    6     x_ij = [p_j - p_i; v_j - v_i] (m, m/s, world frame);
-                        the environment row is [-p_i; -v_i] (p_j = v_j = 0)
+                        the environment row is [-p_i; -v_i] (p_j = v_j = 0);
+                        6 more per lag of the config's model.history_ms
+                        (the same neighbour's x_ij that long ago)
 
 Within a sample the neighbour rows are grouped by type in ascending type index,
 so the environment row (always present) is the last one.  Saved as ``.npz``.
@@ -66,8 +68,10 @@ class Dataset:
         if off.shape != (n + 1,) or off[0] != 0 or np.any(np.diff(off) < 0):
             raise DatasetError("nbr_offsets must be a non-decreasing CSR offset array starting at 0")
         m = int(off[-1])
-        if self.nbr_type.shape != (m,) or self.nbr_state.shape != (m, 6):
-            raise DatasetError("nbr_type / nbr_state do not match nbr_offsets")
+        if (self.nbr_type.shape != (m,) or self.nbr_state.ndim != 2 or self.nbr_state.shape[0] != m
+                or self.nbr_state.shape[1] < 6 or self.nbr_state.shape[1] % 6):
+            raise DatasetError("nbr_type / nbr_state do not match nbr_offsets (rows of 6 values, or 6 per "
+                               "history lag more)")
         nt = len(self.neighbor_types)
         if m and (self.nbr_type.min() < 0 or self.nbr_type.max() >= nt):
             raise DatasetError("nbr_type out of range")

@@ -63,21 +63,38 @@ def candidates(cfg: Config, fl: Flight, i: int, steps: np.ndarray) -> tuple[np.n
     return np.broadcast_to(tidx[others], rel.shape[:2]).astype(np.int64), rel
 
 
+def lag_steps(fl: Flight, history_ms: list[int]) -> list[int]:
+    """Each lag of ``history_ms`` in log samples of ``fl`` (its uniform period)."""
+    if not history_ms:
+        return []
+    h = float(np.median(np.diff(fl.t)))
+    return [max(1, int(round(ms * 1e-3 / h))) for ms in history_ms]
+
+
 def neighbor_rows(cfg: Config, fl: Flight, i: int, steps: np.ndarray):
     """The neighbour rows of robot i at time steps ``steps`` as the drone forms them
     (``ns2codegen.selection``: float32 relative states, the C's volume test, order
-    and max_neighbors cut, inputs clamped to their boxes), environment last.
-    Returns (sample index into steps, neighbour type, x [rows, 6] float32)."""
+    and max_neighbors cut, inputs clamped to their boxes), environment last.  With
+    the config's ``model.history_ms``, each row also holds the same neighbour's state
+    that long before (6 values per lag, clamped to the same box; the flight piece's
+    first sample where the piece is shorter): the selection is decided now.
+    Returns (sample index into steps, neighbour type, x [rows, 6 (1 + lags)] float32)."""
     tidx = cfg.robot_types.index(fl.types[i])
     boxes = boxes_f32(cfg)
     ntype, rel = candidates(cfg, fl, i, steps)
     _, _, acc = membership(volumes_f32(cfg), np.full(len(steps), tidx), ntype, rel, np.ones(ntype.shape, bool),
                            cfg.num_robot_types, cfg.model["max_neighbors"])
     ts, ss = np.nonzero(acc)                                                   # by time, then slot order
-    env = clamp(env_state(fl.p[steps, i], fl.v[steps, i]), boxes[cfg.env_index])
+    rob = [clamp(rel[ts, ss], boxes[ntype[ts, ss]])]
+    env = [clamp(env_state(fl.p[steps, i], fl.v[steps, i]), boxes[cfg.env_index])]
+    for lag in lag_steps(fl, cfg.history_ms):
+        past = np.maximum(steps - lag, 0)
+        _, rel_past = candidates(cfg, fl, i, past)
+        rob.append(clamp(rel_past[ts, ss], boxes[ntype[ts, ss]]))
+        env.append(clamp(env_state(fl.p[past, i], fl.v[past, i]), boxes[cfg.env_index]))
     return (np.concatenate([ts, np.arange(len(steps))]),
             np.concatenate([ntype[ts, ss], np.full(len(steps), cfg.env_index)]),
-            np.concatenate([clamp(rel[ts, ss], boxes[ntype[ts, ss]]), env]))
+            np.concatenate([np.concatenate(rob, 1), np.concatenate(env, 1)]))
 
 
 def flight_queries(cfg: Config, flights: list[Flight]) -> Queries:
@@ -159,7 +176,7 @@ def flights_to_dataset(cfg: Config, flights: list[Flight], scenario_names: list[
         n_samples += k
     sample_of = np.concatenate(rows_sample) if rows_sample else np.zeros(0, np.int64)
     types = np.concatenate(rows_type) if rows_type else np.zeros(0, np.int64)
-    states = np.concatenate(rows_state) if rows_state else np.zeros((0, 6), np.float32)
+    states = np.concatenate(rows_state) if rows_state else np.zeros((0, cfg.input_dim), np.float32)
     order = np.lexsort((types, sample_of))  # by sample, then type (environment last); stable within a type
     counts = np.bincount(sample_of, minlength=n_samples)
     offsets = np.zeros(n_samples + 1, np.int64)
