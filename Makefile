@@ -169,7 +169,7 @@ $(REAL)/all.npz: | deps
 	$(NS2) real data --out $(REAL) $(if $(REAL_HISTORY),--history-ms $(REAL_HISTORY)) --quiet
 # the paper's protocol: all flights, the random 80/20 split of 50 pieces per scenario
 $(REAL)/paper.json: $(REAL)/all.npz
-	$(REAL_TRAIN) --data $(REAL)/all.npz --axes paper --seeds $(REAL_SEEDS) > $@.tmp && mv $@.tmp $@
+	$(REAL_TRAIN) --data $(REAL)/all.npz --axes paper --seeds $(REAL_SEEDS) --save-dir $(REAL)/paper > $@.tmp && mv $@.tmp $@
 # trained without the held-out flights (every fifth of each scenario), scored on them
 $(REAL)/heldout.json: $(REAL)/all.npz
 	$(REAL_TRAIN) $(REAL_HELD) --axes paper --seeds $(REAL_SEEDS) --save-dir $(REAL)/heldout > $@.tmp && mv $@.tmp $@
@@ -188,17 +188,20 @@ $(REAL)/blind.json: $(foreach c,$(REAL_COLLECTIONS),$(REAL)/loco-$(c).json) $(RE
 $(REAL)-mem/blind.json: $(REAL)/authors.pt
 	$(MAKE) REAL=$(REAL)-mem REAL_HISTORY=50,100,200 $(foreach c,$(REAL_COLLECTIONS),$(REAL)-mem/loco-$(c).json) $(REAL)-mem/heldout.json
 	$(NS2) real blind --dir $(REAL)-mem --authors $(REAL)/authors.pt --seeds $(REAL_SEEDS) --out $@
+$(REAL)/memory.json: $(REAL)/blind.json $(REAL)-mem/blind.json
+	$(NS2) real memory --now $(REAL)/blind.json --past $(REAL)-mem/blind.json --out $@
 # the authors' published networks (trained on all their collections, these flights included)
 $(REAL)/authors.pt: $(REAL)/all.npz
 	$(NS2) real import-authors build/neural-swarm-data/models/models/output --out $@
 $(REAL)/authors.json: $(REAL)/authors.pt
 	$(NS2) real score --checkpoint $< --data-dir $(REAL) --out $@
-$(REAL)/gen/ns2_model_config.h: $(REAL)/heldout.json
-	$(NS2) export $(REAL)/heldout/H-20-seed0.pt --out $(REAL)/gen --quiet
+# the export: the paper's network trained on every flight of all three collections (seed 0)
+$(REAL)/gen/ns2_model_config.h: $(REAL)/paper.json
+	$(NS2) export $(REAL)/paper/H-20-seed0.pt --out $(REAL)/gen --quiet
 $(REAL)/c_check.json: $(REAL)/gen/ns2_model_config.h
-	$(NS2) real check-c --gen $(REAL)/gen --checkpoint $(REAL)/heldout/H-20-seed0.pt --data-dir $(REAL) --out $@
+	$(NS2) real check-c --gen $(REAL)/gen --checkpoint $(REAL)/paper/H-20-seed0.pt --data-dir $(REAL) --out $@
 real: $(REAL)/paper.json $(REAL)/heldout.json $(foreach a,$(REAL_AXES),$(REAL)/ablation-$(a).json) \
-		$(REAL)/authors.json $(REAL)/c_check.json $(REAL)/blind.json
+		$(REAL)/authors.json $(REAL)/c_check.json $(REAL)/blind.json $(REAL)/memory.json
 	$(NS2) real report --dir $(REAL) --checkpoint $(REAL)/heldout/H-20-seed0.pt
 
 # The simulator against the real flights (docs/simulator.md, "A simulator as rough as a

@@ -135,6 +135,31 @@ def real_blind(out_dir, authors, seeds, out, as_json):
     _emit(as_json, res, table(res))
 
 
+@real.command("memory")
+@click.option("--now", "now_path", type=click.Path(dir_okay=False), required=True,
+              help="`ns2 real blind` JSON of the networks of the present state")
+@click.option("--past", "past_path", type=click.Path(dir_okay=False), required=True,
+              help="`ns2 real blind` JSON of the networks that also see the neighbours' past (model.history_ms)")
+@click.option("--lags", default="50,100,200", show_default=True, help="the lags of --past (ms), for the table")
+@click.option("--out", type=click.Path(dir_okay=False), required=True, help="JSON (and a .md table beside it)")
+@_json_option
+def real_memory(now_path, past_path, lags, out, as_json):
+    """Does the wake have a memory? The blind scores with and without the neighbours' past states."""
+    from ns2codegen.fileio import atomic_write_bytes
+    from ns2exp.blind import memory, memory_table
+
+    _parent_ok(out)
+    try:
+        now, past = (json.loads(Path(p).read_text()) for p in (now_path, past_path))
+        rows = memory(now, past)
+    except (OSError, ValueError, KeyError, TypeError) as e:
+        raise click.ClickException(f"{now_path}, {past_path}: not two `ns2 real blind` results ({e})") from None
+    md = memory_table(rows, lags)
+    atomic_write_bytes(Path(out), json.dumps(rows, indent=1, sort_keys=True).encode())
+    atomic_write_bytes(Path(out).with_suffix(".md"), (md + "\n").encode())
+    _emit(as_json, rows, md)
+
+
 @real.command("import-authors")
 @click.argument("models_dir", type=click.Path(file_okay=False))
 @click.option("--out", required=True, type=click.Path(dir_okay=False), help="project checkpoint to write (.pt)")

@@ -136,14 +136,10 @@ def blind(data_dir: str | Path, authors: str | Path | None = None, seeds: int = 
     if held:
         ds = Dataset.load(d / "heldout.npz")
         info = load_samples(d / "heldout_samples.npz")
-        out["held_out_flights"] = score_split(ds, info, models(ds, held), masses, cfg.robot_types, onboard=False)
         june = np.array([n.startswith(ONBOARD_COLLECTION) for n in info["flight_names"]])[info["flight"]]
-        if june.any():
-            sub = ds.subset(june)
-            si = {k: (v[june] if isinstance(v, np.ndarray) and len(v) == len(ds) else v) for k, v in info.items()}
-            out["held_out_flights_2020"] = score_split(sub, si, models(sub, held), masses, cfg.robot_types,
-                                                       onboard=True)
-            out["held_out_flights_2020"]["gains"] = gains(out["held_out_flights_2020"])
+        out["held_out_flights"] = score_split(ds, info, models(ds, held), masses, cfg.robot_types,
+                                              onboard=bool(june.all()))
+        out["held_out_flights"]["gains"] = gains(out["held_out_flights"])
     return out
 
 
@@ -153,9 +149,8 @@ def table(res: dict) -> str:
     lines = ["| split: scored on | model | samples | overall plain | overall mass-neutral | wake plain | "
              "wake mass-neutral | wake small / large, mass-neutral |", "|---|---|---|---|---|---|---|---|"]
     splits = [(f"collection {k} left out", v) for k, v in res["leave_one_collection_out"].items()]
-    splits += [(name, res[key]) for key, name in (("held_out_flights", "whole held-out flights"),
-                                                  ("held_out_flights_2020", "held-out flights of 2020-06-16"))
-               if key in res]
+    if "held_out_flights" in res:
+        splits.append(("whole held-out flights", res["held_out_flights"]))
     label = {"ours": "ours (blind)", "onboard": "flown on board (blind)",
              "authors": "authors' published (training score)", "zero": "zero"}
 
@@ -170,7 +165,8 @@ def table(res: dict) -> str:
     for name, s in splits:
         for mname, m in s["models"].items():
             wt = m["labels"]["wake_by_type"]
-            lines.append(f"| {name} | {label.get(mname, mname)} | {s['scored']} (wake {m['labels']['wake']['samples']}) | "
+            lines.append(f"| {name} | {label.get(mname, mname)} | {s['scored']} "
+                         f"(wake {_mean(m['labels']['wake']['samples']):.0f}) | "
                          f"{cell(m, 'plain')} | {cell(m, 'neutral')} | {cell(m, 'wake', 'plain')} | "
                          f"{cell(m, 'wake', 'neutral')} | " + " / ".join(
                              "-" if wt[t]["neutral"] is None else
@@ -183,3 +179,45 @@ def write(res: dict, out: Path) -> None:
 
     atomic_write_bytes(out, json.dumps(res, indent=1, sort_keys=True).encode())
     atomic_write_bytes(out.with_suffix(".md"), (table(res) + "\n").encode())
+
+
+def memory(now: dict, past: dict) -> dict:
+    """The wake-memory test (issue 52): ours with each neighbour's past states
+    (``past``: ``blind`` of a folder built with ``model.history_ms``) against ours without
+    (``now``), per blind split: the mass-neutral and plain MSE in the wake and overall,
+    and whether the past lowers the wake MSE beyond the seed-to-seed spread (mean + std
+    of one below mean - std of the other)."""
+    def splits(res):
+        out = {f"collection {k} left out": v for k, v in res["leave_one_collection_out"].items()}
+        if "held_out_flights" in res:
+            out["whole held-out flights"] = res["held_out_flights"]
+        return out
+
+    rows = {}
+    a, b = splits(now), splits(past)
+    for name in a:
+        if name not in b:
+            continue
+        x, y = a[name]["models"]["ours"]["labels"], b[name]["models"]["ours"]["labels"]
+        row = {}
+        for key, get in (("wake_neutral", lambda r: r["wake"]["neutral"]), ("wake_plain", lambda r: r["wake"]["plain"]),
+                         ("overall_neutral", lambda r: r["neutral"]), ("overall_plain", lambda r: r["plain"])):
+            u, v = get(x), get(y)
+            row[key] = {"now": u, "with_past": v}
+        w = row["wake_neutral"]
+        sd = lambda r: r["std"] if isinstance(r, dict) else 0.0  # noqa: E731
+        row["wake_lower_beyond_spread"] = bool(_mean(w["with_past"]) + sd(w["with_past"]) < _mean(w["now"]) - sd(w["now"]))
+        rows[name] = row
+    return rows
+
+
+def memory_table(rows: dict, lags: list) -> str:
+    f = lambda r: f"{r['mean']:.2f} +- {r['std']:.2f}" if isinstance(r, dict) else f"{r:.2f}"  # noqa: E731
+    lines = [f"| blind split | wake, mass-neutral: now / with the past {lags} ms | wake, plain | overall, mass-neutral "
+             "| lower in the wake beyond the seeds' spread |", "|---|---|---|---|---|"]
+    for name, r in rows.items():
+        lines.append(f"| {name} | {f(r['wake_neutral']['now'])} / {f(r['wake_neutral']['with_past'])} | "
+                     f"{f(r['wake_plain']['now'])} / {f(r['wake_plain']['with_past'])} | "
+                     f"{f(r['overall_neutral']['now'])} / {f(r['overall_neutral']['with_past'])} | "
+                     f"{'yes' if r['wake_lower_beyond_spread'] else 'no'} |")
+    return "\n".join(lines)

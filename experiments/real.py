@@ -371,8 +371,11 @@ def summary(out_dir: str | Path) -> dict:
            "data": {k: data[k] for k in ("data_sets", "masses_g", "alignment", "cuts")},
            "labels_all": data["labels"].get("all"), "table_md": "\n".join(lines)}
     out["flights_md"] = flights_table(data["flights"])
+    extra = [(d / f).read_text() for f in ("blind.md", "memory.md") if (d / f).is_file()]   # ns2 real blind, memory
+    out["blind_md"] = extra
     atomic_write_bytes(d / "summary.json", json.dumps(out, indent=1).encode())
-    atomic_write_bytes(d / "summary.md", ("\n".join(lines) + "\n\n" + out["flights_md"] + "\n").encode())
+    atomic_write_bytes(d / "summary.md", ("\n".join(lines) + "\n\n" + "\n".join(extra) + "\n" + out["flights_md"]
+                                          + "\n").encode())
     return out
 
 
