@@ -12,7 +12,8 @@ dynamics.py     double integrator + learned force, eqs. (planning-dynamics) and
 aorrt.py        Stage 1: sequential AO-RRT with the others as dynamic obstacles
 joint.py        Stage 1 fallback: one RRT in the composite state of the whole team
 nearest.py      FindClosest of both RRTs: kd-tree plus brute force over the newest nodes
-scp.py          Stage 2: sequential convex programming, eq. (scp), cvxpy + Clarabel
+scp.py          Stage 2: sequential convex programming, eq. (scp), one parametrized (DPP)
+                cvxpy program per run, solved by Clarabel
 verify.py       independent check of a team solution (box, collisions, force bounds)
 planner.py      Algorithm "planning": Stage 1, post-processing, Stage 2, timings
 output.py       Crazyflie piecewise polynomials (high-level commander upload), CSV

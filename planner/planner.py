@@ -29,13 +29,16 @@ class PlanResult:
     def profile(self) -> dict:
         """Where the planning time went: Stage 1's search (per-robot trees and the
         composite-state search), Stage 2's iterations and convex solves (program
-        build with the Jacobians, cvxpy canonicalization, the solver itself), and the
-        learned-force evaluations of both stages."""
+        build or parameter setting with the Jacobians, cvxpy canonicalization, the
+        solver itself; the linearizations: one per solve with the rebuilt program, one
+        per new team solution with the parametrized one), and the learned-force
+        evaluations of both stages."""
         s2 = self.stage2.profile
         return {"stage1_s": self.stage1.time_s, "stage1_joint_s": self.stage1.joint_time_s,
                 "stage1_samples": int(sum(self.stage1.samples_per_robot)) + self.stage1.joint_samples,
                 "stage2_s": self.stage2.time_s, "scp_iterations": self.stage2.iterations,
-                "convex_solves": int(s2.get("solves", 0)), "cp_build_s": s2.get("build_s", 0.0),
+                "convex_solves": int(s2.get("solves", 0)), "scp_linearizations": int(s2.get("linearizations", 0)),
+                "cp_build_s": s2.get("build_s", 0.0),
                 "cp_canon_s": s2.get("canon_s", 0.0), "cp_solver_s": s2.get("solver_s", 0.0),
                 "force_calls": self.forces.get("calls", 0), "force_queries": self.forces.get("queries", 0),
                 "force_forward_s": self.forces.get("forward_s", 0.0), "force_jacobians": self.forces.get("jacobians", 0),

@@ -190,6 +190,9 @@ class RRTParams:
         _require("RRT", self, ints=("max_rounds", "ao_iterations", "ao_patience"), positive=("total_time_s",))
 
 
+PROGRAMS = ("parametrized", "rebuilt")
+
+
 @dataclass(frozen=True)
 class SCPParams:
     """Stage 2 parameters, eq. (scp)."""
@@ -206,11 +209,15 @@ class SCPParams:
     time_limit_s: float = 60.0
     solver: str = "CLARABEL"
     seed: int = 0
+    program: str = "parametrized"   # one DPP program per robot, its data changed per solve (scp.py);
+    #                                 "rebuilt": the program built anew for every solve (to compare)
 
     def __post_init__(self):
         _require("SCP", self, ints=("max_iterations",), counts=("max_shrinks",),
                  positive=("lambda_goal", "lambda_box", "lambda_defect", "b_p", "b_v", "b_u", "tol", "time_limit_s"),
                  nonneg=("collision_margin",))
+        if self.program not in PROGRAMS:
+            raise PlanningError(f"SCP parameter program must be one of {PROGRAMS}, got {self.program!r}")
 
 
 @dataclass

@@ -24,6 +24,15 @@ learned forces of the whole team, plus penalties on nonlinear dynamics defects,
 box and collision violations); otherwise the robot's trust region is halved and
 the program solved again.  Hence the merit decreases monotonically; iterations
 stop when it decreases by less than ``tol`` (relative), or at the limits.
+
+The program is built once per Stage 2 run for the whole team (_Stage2, the default
+SCPParams.program "parametrized"): a DPP program whose variables are the deviations
+from the current team solution and whose data (reference, forces, Jacobians, bounds,
+collision normals, trust-region scale) are cvxpy Parameters, so cvxpy canonicalizes it
+once and every solve only maps new parameter values into Clarabel's data.
+SCPParams.program "rebuilt" builds a fresh program for every solve (_Program,
+solve_cp), the same plans within the solver's tolerance; it is kept to compare the two
+(tests/test_planning.py, benchmarks/bench_plan.py).
 """
 from __future__ import annotations
 
@@ -93,7 +102,8 @@ def merit(pb: Problem, fm: ForceModel, trajs: list, par: SCPParams) -> tuple[flo
 
 def solve_cp(pb: Problem, fm: ForceModel, trajs: list, i: int, par: SCPParams, rho: float,
              time_limit: float, profile: dict | None = None) -> Trajectory | None:
-    """SolveCP: eq. (scp) for robot i around the current team solution.  ``profile``
+    """SolveCP: eq. (scp) for robot i around the current team solution, with a program
+    built for this solve (SCPParams.program "rebuilt"; the default is _Stage2).  ``profile``
     accumulates the solves and their seconds: building the program (linearization
     included), cvxpy's canonicalization and the solver's own time."""
     profile = {} if profile is None else profile
@@ -117,7 +127,7 @@ def solve_cp(pb: Problem, fm: ForceModel, trajs: list, i: int, par: SCPParams, r
         t2 = time.perf_counter()
         stats = getattr(problem, "_solver_stats", None)
         solver_s = float(stats.solve_time or 0.0) if stats is not None and stats.solve_time is not None else 0.0
-        for key, val in (("solves", 1), ("build_s", t1 - t0), ("solver_s", solver_s),
+        for key, val in (("solves", 1), ("linearizations", 1), ("build_s", t1 - t0), ("solver_s", solver_s),
                          ("canon_s", max(t2 - t1 - solver_s, 0.0))):
             profile[key] = profile.get(key, 0) + val
     if problem.status not in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE) or prog.p.value is None:
@@ -240,6 +250,241 @@ class _Program:
         return cons
 
 
+def _q_major(a: np.ndarray, T: int) -> np.ndarray:
+    """Rows of a substate array (team_substates: time-major, step k's points are rows
+    k (m-1) .. (k+1)(m-1) - 1) reordered point-major: rows (q-1) T .. q T - 1 are the
+    q-th points inside every step."""
+    return a.reshape(T, -1, *a.shape[1:]).swapaxes(0, 1).reshape(a.shape)
+
+
+def _within(x, b) -> list:
+    """|x| <= b as two rows of inequalities (cp.abs adds a variable and a third row)."""
+    return [x <= b, x >= -b]
+
+
+def _rowdot(J, X):
+    """Rows of the parameter J [R, d] dotted with the rows of the expression X [R, d]."""
+    return cp.sum(cp.multiply(J, X), axis=1)
+
+
+class _Stage2:
+    """The program of eq. (scp), built once per Stage 2 run (T fixed) for every robot of
+    the team and solved again with new data: a DPP program (cvxpy's Disciplined
+    Parametrized Programming), which cvxpy canonicalizes at its first solve and then
+    only maps the parameter values into the solver's data.
+
+    The variables are the deviations from the reference (the current team solution)
+    of the robot being optimized: dp, dv, dfa on x_0..x_T, du on u_0..u_{T-1} (active
+    axes), and the box slack delta; p = p_bar + dp etc.  Parameters: the robot's
+    reference, start, goal and kappa, the learned forces, their Jacobians (A_k and,
+    per neighbour slot, C^(j)_k), the force bounds, the collision normals and the
+    trust-region scale rho.  So one program serves every robot of the team (its
+    neighbours in slots 0..N-2).  The rows that the rebuilt program (_Program) adds or
+    leaves out with the data have a fixed size here and are switched off by their
+    data: a collision row away from the neighbour has the normal 0 and the right-hand
+    side -1 (0 >= -1), a neighbour's force rows whose Jacobian is zero have the force 0
+    and the bound 1 (|0| <= 1 + delta).  With f_a = 0 (``linear_forces`` False) the
+    program has no Jacobians and no neighbour force rows (the rebuilt program has none
+    either then).  A robot's linearization is recomputed only when the team solution
+    changed since its last solve (not after a rejected step, where only rho changes)."""
+
+    def __init__(self, pb: Problem, T: int, dt: float, par: SCPParams, linear_forces: bool = True):
+        self.pb, self.par, self.T, self.dt, self.linear = pb, par, T, dt, linear_forces
+        self.ax = list(pb.axes)
+        self.d, self.slots, self.m = len(self.ax), pb.n - 1, pb.limits.fa_substeps
+        self.S = T * (self.m - 1)
+        self._parameters()
+        d = self.d
+        self.dp, self.dv = cp.Variable((T + 1, d)), cp.Variable((T + 1, d))
+        self.dfa, self.du, self.delta = cp.Variable(T + 1), cp.Variable((T, d)), cp.Variable(nonneg=True)
+        self.daz = cp.Variable(T)       # kappa dfa: the change of the held acceleration along z
+        cons = self._own_rows()
+        if self.m > 1:
+            cons += self._inside_rows()
+        for k in range(self.slots):
+            cons += self._pair_rows(k)
+        # sum ||u||^2 = sum ||du||^2 + 2 <u_bar, du> + a constant
+        goal = cp.hstack([self.pbar[T] + self.dp[T] - self.goal, self.vbar[T] + self.dv[T]])
+        obj = (cp.sum_squares(self.du) + 2.0 * cp.sum(cp.multiply(self.ubar, self.du))
+               + par.lambda_goal * cp.norm(goal, "inf") + par.lambda_box * self.delta)
+        self.problem = cp.Problem(cp.Minimize(obj), cons)
+        self.data: dict = {}            # robot -> (the team solution, its parameter values)
+        self.current = None             # the robot whose values the parameters hold
+
+    def _parameters(self) -> None:
+        T, d, S, slots, Par = self.T, self.d, self.S, self.slots, cp.Parameter
+
+        def per_slot(shape):
+            return [Par(shape) for _ in range(slots)]
+
+        self.pbar, self.vbar, self.fabar, self.ubar = Par((T + 1, d)), Par((T + 1, d)), Par(T + 1), Par((T, d))
+        self.kappa, self.kfabar = Par(nonneg=True), Par(T + 1)    # kappa, kappa fa_bar
+        self.start, self.goal = Par(d), Par(d)
+        self.rho = Par(nonneg=True)
+        self.f_own, self.bound = Par(T + 1), Par(T + 1)           # F_i - fa_bar, bound_i at the knots
+        self.nk, self.ck = per_slot((T + 1, d)), per_slot(T + 1)  # collision normals and right-hand sides
+        if self.linear:
+            self.jp, self.jv = Par((T + 1, d)), Par((T + 1, d))   # A_k: dF_i/dp_i, dF_i/dv_i
+            self.cp_, self.cv = per_slot((T + 1, d)), per_slot((T + 1, d))   # C^(j)_k: dF_j/dp_i, dF_j/dv_i
+            self.fj, self.bj = per_slot(T + 1), per_slot(T + 1)   # neighbour j's force and bound (masked)
+        if self.m > 1:                                            # the same at the points inside the steps
+            self.fs_own, self.bounds = Par(S), Par(S)
+            self.ns, self.cs = per_slot((S, d)), per_slot(S)
+            if self.linear:
+                self.jps, self.jvs = Par((S, d)), Par((S, d))
+                self.cps, self.cvs = per_slot((S, d)), per_slot((S, d))
+                self.fsj, self.bsj = per_slot(S), per_slot(S)
+
+    def _slack(self, shape):
+        """delta spread over a shape (as _Program.slack)."""
+        return np.ones(shape) * self.delta
+
+    def _own_rows(self) -> list:
+        """Start, force linearization, dynamics, the action box, the state box widened
+        by delta, and the trust regions (_Program.own_constraints but the rows inside
+        the steps)."""
+        pb, par, lim, T, d, ax, dt = self.pb, self.par, self.pb.limits, self.T, self.d, self.ax, self.dt
+        dp, dv, dfa, du, slack = self.dp, self.dv, self.dfa, self.du, self._slack
+        p, v, fa, u = self.pbar + dp, self.vbar + dv, self.fabar + dfa, self.ubar + du
+        lo, hi = pb.box()
+        own = self.f_own + (_rowdot(self.jp, dp) + _rowdot(self.jv, dv) if self.linear else 0.0)
+        cons = [p[0] == self.start, v[0] == 0.0, dfa == own, self.daz == self.kappa * dfa[:-1]]
+        zc = ax.index(2)
+        for c in range(d):
+            a = u[:, c] + self.kfabar[:-1] + self.daz if c == zc else u[:, c]
+            cons += [v[1:, c] == v[:-1, c] + a * dt, p[1:, c] == p[:-1, c] + v[:-1, c] * dt + 0.5 * dt * dt * a]
+        return cons + [
+            *_within(u, lim.u_max),
+            p >= np.tile(lo[ax], (T + 1, 1)) - slack((T + 1, d)), p <= np.tile(hi[ax], (T + 1, 1)) + slack((T + 1, d)),
+            *_within(v, lim.v_max + slack((T + 1, d))), *_within(fa, self.bound + slack(T + 1)),
+            *_within(dp, self.rho * par.b_p), *_within(dv, self.rho * par.b_v), *_within(du, self.rho * par.b_u)]
+
+    def _inside_rows(self) -> list:
+        """The deviations at the points inside the steps (point-major, _q_major; affine
+        in the variables) and the robot's own force limit there."""
+        T, m, dt, dp, dv = self.T, self.m, self.dt, self.dp, self.dv
+        ez = np.zeros((1, self.d))
+        ez[0, self.ax.index(2)] = 1.0
+        dacc = self.du + cp.reshape(self.daz, (T, 1), order="F") @ ez
+        sq = [q / m * dt for q in range(1, m)]
+        self.dpq = cp.vstack([dp[:-1] + s * dv[:-1] + 0.5 * s * s * dacc for s in sq])
+        self.dvq = cp.vstack([dv[:-1] + s * dacc for s in sq])
+        own = self.fs_own
+        if self.linear:
+            own = own + _rowdot(self.jps, self.dpq) + _rowdot(self.jvs, self.dvq)
+        return _within(own, self.bounds + self._slack(self.S))
+
+    def _pair_rows(self, k: int) -> list:
+        """Neighbour slot k: the collision rows and, with a model, the neighbour's force
+        (trust region b_fa and limit), at the knots and inside the steps
+        (_Program.pair_constraints)."""
+        b_fa, slack, dp, dv = self.pb.limits.b_fa_g, self._slack, self.dp, self.dv
+        cons = [_rowdot(self.nk[k], dp) >= self.ck[k]]
+        if self.m > 1:
+            cons.append(_rowdot(self.ns[k], self.dpq) >= self.cs[k])
+        if self.linear:
+            lin = _rowdot(self.cp_[k], dp) + _rowdot(self.cv[k], dv)
+            cons += [*_within(lin, b_fa), *_within(self.fj[k] + lin, self.bj[k] + slack(self.T + 1))]
+            if self.m > 1:
+                lin = _rowdot(self.cps[k], self.dpq) + _rowdot(self.cvs[k], self.dvq)
+                cons += [*_within(lin, b_fa), *_within(self.fsj[k] + lin, self.bsj[k] + slack(self.S))]
+        return cons
+
+    def _collision(self, ref_i, ref_j, r) -> tuple[np.ndarray, np.ndarray]:
+        """Morgan's convexified collision rows (see _Program.pair_constraints) as data:
+        the normal and the right-hand side on the rows near the neighbour, 0 >= -1 on
+        the others."""
+        par, ax = self.par, self.ax
+        rel = ref_i - ref_j
+        dist = np.linalg.norm(rel, axis=1)
+        near = dist < r + 2.0 * par.b_p + 0.3
+        nrm = np.where(near[:, None], rel[:, ax] / np.maximum(dist, 1e-9)[:, None], 0.0)
+        return nrm, np.where(near, r + par.collision_margin - (nrm * rel[:, ax]).sum(1), -1.0)
+
+    def linearize(self, fm: ForceModel, trajs: list, i: int) -> list:
+        """The parameter values (pairs of parameter and value) of robot i's program
+        around the team solution ``trajs``: what _Program computes, as data."""
+        pb, ax, T, m, lin = self.pb, self.ax, self.T, self.m, self.linear
+        tr = trajs[i]
+        types = pb.type_index()
+        P, V = _team_arrays(trajs)
+        F, dP, dV = fm.jacobians(types, P, V, i)
+        bound = pb.fa_bound(fm, P, V)
+        r, kappa = pb.r_pair(), float(pb.kappa()[i])
+        vals = [(self.pbar, tr.p[:, ax]), (self.vbar, tr.v[:, ax]), (self.ubar, tr.u[:, ax]), (self.fabar, tr.fa),
+                (self.kappa, kappa), (self.kfabar, kappa * tr.fa), (self.start, pb.starts()[i, ax]),
+                (self.goal, pb.goals()[i, ax]), (self.f_own, F[:, i] - tr.fa), (self.bound, bound[:, i])]
+        if lin:
+            vals += [(self.jp, dP[i][:, ax]), (self.jv, dV[i][:, ax])]
+        if m > 1:
+            Ps, Vs = team_substates(trajs, pb.kappa(), m)
+            Fs, dPs, dVs = fm.jacobians(types, Ps, Vs, i)
+            bounds = pb.fa_bound(fm, Ps, Vs)
+            Ps, Fs, bounds = _q_major(Ps, T), _q_major(Fs, T), _q_major(bounds, T)
+            dPs, dVs = _q_major(dPs.swapaxes(0, 1), T), _q_major(dVs.swapaxes(0, 1), T)     # [S, N, 3]
+            vals += [(self.fs_own, Fs[:, i]), (self.bounds, bounds[:, i])]
+            if lin:
+                vals += [(self.jps, dPs[:, i][:, ax]), (self.jvs, dVs[:, i][:, ax])]
+        for k, j in enumerate(j for j in range(pb.n) if j != i):
+            vals += zip((self.nk[k], self.ck[k]), self._collision(P[:, i], P[:, j], r[i, j]))
+            if m > 1:
+                vals += zip((self.ns[k], self.cs[k]), self._collision(Ps[:, i], Ps[:, j], r[i, j]))
+            if not lin:
+                continue
+            on = bool(np.any(dP[j]) or np.any(dV[j]))       # the rebuilt program's rows of j's force
+            vals += [(self.cp_[k], dP[j][:, ax]), (self.cv[k], dV[j][:, ax]),
+                     (self.fj[k], F[:, j] if on else np.zeros(T + 1)),
+                     (self.bj[k], bound[:, j] if on else np.ones(T + 1))]
+            if m > 1:
+                on = (np.any(dPs[:, j].reshape(m - 1, T, 3), axis=(1, 2))
+                      | np.any(dVs[:, j].reshape(m - 1, T, 3), axis=(1, 2))).repeat(T)   # per point q
+                vals += [(self.cps[k], dPs[:, j][:, ax]), (self.cvs[k], dVs[:, j][:, ax]),
+                         (self.fsj[k], np.where(on, Fs[:, j], 0.0)), (self.bsj[k], np.where(on, bounds[:, j], 1.0))]
+        return vals
+
+    def solve(self, fm: ForceModel, trajs: list, i: int, rho: float, time_limit: float,
+              profile: dict) -> Trajectory | None:
+        """SolveCP for robot i with this program: the same result as solve_cp (the
+        rebuilt program) within the solver's tolerance.  ``profile`` as in solve_cp,
+        plus the linearizations (build_s is theirs and the parameters' setting;
+        canon_s includes this program's one canonicalization, at its first solve)."""
+        t0 = time.perf_counter()
+        ref, vals = self.data.get(i, (None, None))
+        if ref is None or any(a is not b for a, b in zip(ref, trajs)):
+            vals = self.linearize(fm, trajs, i)
+            self.data[i] = (list(trajs), vals)
+            self.current = None
+            profile["linearizations"] = profile.get("linearizations", 0) + 1
+        if self.current != i:
+            for prm, val in vals:
+                prm.value = val
+            self.current = i
+        self.rho.value = rho
+        t1 = time.perf_counter()
+        problem = self.problem
+        try:
+            kw = {"time_limit": max(time_limit, 0.1)} if self.par.solver == "CLARABEL" else {}
+            problem.solve(solver=self.par.solver, **kw)
+        except cp.error.SolverError:
+            return None
+        finally:
+            t2 = time.perf_counter()
+            stats = getattr(problem, "_solver_stats", None)
+            solver_s = float(stats.solve_time or 0.0) if stats is not None and stats.solve_time is not None else 0.0
+            for key, val in (("solves", 1), ("build_s", t1 - t0), ("solver_s", solver_s),
+                             ("canon_s", max(t2 - t1 - solver_s, 0.0))):
+                profile[key] = profile.get(key, 0) + val
+        if problem.status not in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE) or self.dp.value is None:
+            return None
+        out = trajs[i].copy()
+        ax = self.ax
+        out.p[:, ax] = self.pbar.value + self.dp.value
+        out.v[:, ax] = self.vbar.value + self.dv.value
+        out.u[:, ax] = self.ubar.value + self.du.value
+        out.fa = np.asarray(self.fabar.value + self.dfa.value, float)
+        return out
+
+
 def scp(pb: Problem, fm: ForceModel, trajs: list, par: SCPParams = SCPParams()) -> SCPResult:
     """Refine uniform-length trajectories (Stage 1 after post-processing)."""
     if len({t.T for t in trajs}) != 1:
@@ -253,6 +498,7 @@ def scp(pb: Problem, fm: ForceModel, trajs: list, par: SCPParams = SCPParams()) 
     rho = np.ones(pb.n)
     per_robot = [0.0] * pb.n
     profile: dict = {}
+    program = None          # the team's _Stage2 (par.program "parametrized")
     converged = False
     it = 0
     while it < par.max_iterations and time.perf_counter() < deadline:
@@ -261,7 +507,13 @@ def scp(pb: Problem, fm: ForceModel, trajs: list, par: SCPParams = SCPParams()) 
             for _ in range(par.max_shrinks + 1):
                 if time.perf_counter() >= deadline:
                     break
-                cand = solve_cp(pb, fm, trajs, int(i), par, rho[i], deadline - time.perf_counter(), profile)
+                left = deadline - time.perf_counter()
+                if par.program == "rebuilt":
+                    cand = solve_cp(pb, fm, trajs, int(i), par, rho[i], left, profile)
+                else:
+                    if program is None:
+                        program = _Stage2(pb, trajs[0].T, trajs[0].dt, par, not fm.is_zero)
+                    cand = program.solve(fm, trajs, int(i), rho[i], left, profile)
                 if cand is not None:
                     trial = list(trajs)
                     trial[i] = cand

@@ -138,6 +138,8 @@ def _missing_input_calls(tmp_path):
         ("real", "import-authors"): [nope, "--out", tmp_path / "authors.pt"],
         ("real", "authors-faz"): [nope / "authors.pt", "--data", nope, "--out", tmp_path / "faz.json"],
         ("real", "score"): ["--checkpoint", nope / "m.pt", "--data-dir", nope],
+        ("real", "blind"): ["--dir", nope, "--out", tmp_path / "blind.json"],
+        ("real", "memory"): ["--now", nope / "a.json", "--past", nope / "b.json", "--out", tmp_path / "m.json"],
         ("swarm-params",): [nope, nope / "crazyflies.yaml"],
         ("fly",): [nope, nope / "crazyflies.yaml", "--plan", nope, "--log", tmp_path / "f.jsonl"],
         ("flash",): [nope / "cf2.bin", "--uri", "radio://0/80/2M/E7E7E7E701"],

@@ -182,6 +182,34 @@ def test_scp_decreases_cost_monotonically_and_reaches_goal(cfg, fm, refined):
     assert sum((t.u ** 2).sum() for t in out.trajs) < sum((t.u ** 2).sum() for t in init)
 
 
+@pytest.mark.parametrize("dims, name, model", [(2, "SSL", "NN"), (3, "SLL", "NN"), (2, "SLL", "BL"), (3, "SSL", "BL")])
+def test_parametrized_scp_plans_as_the_rebuilt_program(cfg, fm, dims, name, model):
+    """Stage 2's one DPP program per run (SCPParams.program "parametrized", the default)
+    gives the plans of the program rebuilt at every solve ("rebuilt") within the
+    solver's tolerance, on the paper's three-robot cases with the model and with f_a = 0:
+    the same iterations and solves, the same merits, the same trajectories."""
+    from ns2exp.planning import scenario_problem
+    from ns2plan.scp import _Stage2
+
+    pb = scenario_problem(cfg, name, dims)
+    fm = fm if model == "NN" else ForceModel(cfg, None)
+    with single_thread():
+        s1 = AORRT(pb, fm, RRTParams(SearchParams(max_nodes=4000, max_samples=20000), ao_iterations=1, seed=0)).run()
+        init = post_process(s1.trajs, pb.kappa())
+        prog = _Stage2(pb, init[0].T, init[0].dt, SCPParams(), not fm.is_zero)
+        assert prog.problem.is_dpp()
+        old, new = (scp(pb, fm, init, SCPParams(max_iterations=3, program=p)) for p in ("rebuilt", "parametrized"))
+    assert old.iterations == new.iterations and old.profile["solves"] == new.profile["solves"]
+    assert new.profile["linearizations"] <= new.profile["solves"] == old.profile["linearizations"]
+    np.testing.assert_allclose(new.merit_history, old.merit_history, rtol=1e-4)
+    for a, b in zip(old.trajs, new.trajs):
+        np.testing.assert_allclose(b.p, a.p, atol=1e-4)
+        np.testing.assert_allclose(b.v, a.v, atol=1e-4)
+        np.testing.assert_allclose(b.u, a.u, atol=1e-3)
+        np.testing.assert_allclose(b.fa, a.fa, atol=1e-3)
+    assert old.max_defect == pytest.approx(new.max_defect, abs=1e-4)
+
+
 def test_plan_output_and_tracking(cfg, exported, refined, tmp_path):
     from ns2exp.tracking import track
 
@@ -336,7 +364,9 @@ def test_force_margin_and_clearance_are_kept(cfg):
     prof = res.profile()          # where the time went: counts that must agree with the result
     assert prof["scp_iterations"] == res.stage2.iterations >= 1
     assert prof["convex_solves"] >= prof["scp_iterations"] * pb.n
-    assert prof["force_jacobians"] == 2 * prof["convex_solves"]      # knots and inside-step points per program
+    # knots and inside-step points per linearization, at most one per solve (none after a rejected step)
+    assert prof["force_jacobians"] == 2 * prof["scp_linearizations"]
+    assert prof["scp_linearizations"] <= prof["convex_solves"]
     assert prof["force_queries"] >= prof["force_calls"] > 0
     assert 0 < prof["cp_solver_s"] <= prof["stage2_s"] and prof["stage1_joint_s"] <= prof["stage1_s"]
     for trajs in (res.stage1.trajs, res.trajs):
