@@ -20,7 +20,7 @@ def _live() -> bool:
               help="write the updated swarm file here [default: update SWARM_FILE in place]")
 @_json_option
 def swarm_params(export_dir, swarm_file, out, as_json):
-    """Write the app's firmware_params (ns2.selfType, ns2type masks, ns2gain) for the export
+    """Write the app's firmware_params (ns2.selfType, the ns2type type table, ns2gain) for the export
     EXPORT_DIR into every robot of SWARM_FILE (Crazyswarm2's crazyflies.yaml); the rest of
     the file (comments, order, other keys) stays as it was."""
     from ns2ground import swarm as sw

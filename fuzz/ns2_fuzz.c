@@ -242,13 +242,45 @@ static void check_neighbors(const ns2_peers_t *s, uint32_t now, int require_all_
     (void)require_all_valid;
 }
 
+/* The bookkeeping stays bounded: at most NS2_PEERS_MAX entries, one per radio id. */
+static void check_table(const ns2_peers_t *s)
+{
+    check(s->count <= NS2_PEERS_MAX, "peer table beyond NS2_PEERS_MAX");
+    for (uint8_t i = 0; i < s->count; ++i) {
+        for (uint8_t j = (uint8_t)(i + 1u); j < s->count; ++j) {
+            check(s->peer[i].id != s->peer[j].id, "one radio id in two slots");
+        }
+    }
+}
+
+/* ns2_type_table_get on any table, id and number of types against the documented
+ * layout (2 bits per radio id, 16 ids per word; a type not below n_types is 0). */
+static void check_type_table(void)
+{
+    uint32_t table[NS2_TYPE_TABLE_WORDS];
+    for (unsigned k = 0; k < NS2_TYPE_TABLE_WORDS; ++k) {
+        table[k] = below(3) == 0 ? 0u : (uint32_t)rnd();
+    }
+    const uint8_t n_types = (uint8_t)(below(4) == 0 ? below(256) : 1u + below(NS2_TYPE_TABLE_MAX_TYPES));
+    for (int q = 0; q < 8; ++q) {
+        const uint8_t id = (uint8_t)(q == 0 ? 0u : q == 1 ? 255u : below(256));
+        const uint8_t raw = (uint8_t)((table[id / 16u] >> (2u * (id % 16u))) & 3u);
+        const uint8_t got = ns2_type_table_get(table, id, n_types);
+        check(got == (raw < n_types ? raw : 0u), "type table: not the documented layout");
+        check(got < NS2_TYPE_TABLE_MAX_TYPES && (got < n_types || got == 0u), "type table: a type out of range");
+    }
+    check(ns2_type_table_get(NULL, (uint8_t)below(256), n_types) == 0u, "type table: NULL is not type 0");
+}
+
 static void fuzz_peers(unsigned long long count)
 {
     static ns2_peers_t s;
     unsigned long long done = 0;
     for (input_index = 0; done < count; ++input_index) {
+        check_type_table();
         ns2_peers_init(&s, below(4) == 0 ? value(-1.0f, 2.0f, 4u) : uniform(0.1f, 1.0f));
         const uint8_t n_ids = (uint8_t)(1u + below(NS2_PEERS_MAX + 4u));
+        const uint8_t id_base = (uint8_t)(below(2) ? 0u : below(256)); /* ids anywhere in 0..255, wrapping */
         uint32_t t = (uint32_t)rnd();
         /* hostile phase: wild samples, timestamps and ids */
         const uint32_t n_bad = 1u + below(60);
@@ -259,9 +291,10 @@ static void fuzz_peers(unsigned long long count)
             }
             t += below(30); /* true time; some samples carry a glitched timestamp */
             const uint32_t stamp = below(4) == 0 ? (uint32_t)rnd() : t;
-            const int32_t r = ns2_peers_update(&s, (uint8_t)below(n_ids), (uint8_t)below(256), stamp,
+            const int32_t r = ns2_peers_update(&s, (uint8_t)(id_base + below(n_ids)), (uint8_t)below(256), stamp,
                                                below(50) ? p : NULL);
             check(r == NS2_PEERS_OK || r == NS2_PEERS_REJECTED || r == NS2_PEERS_RESTARTED, "unknown status");
+            check_table(&s);
             float self[3] = {value(-3.0f, 3.0f, 8u), value(-3.0f, 3.0f, 8u), value(0.0f, 2.0f, 8u)};
             check_neighbors(&s, t + below(100), 0, self);
         }
@@ -297,8 +330,57 @@ static void fuzz_peers(unsigned long long count)
         check_neighbors(&s, t + 30u, 1, origin);
         ns2_neighbor_t out[NS2_PEERS_MAX];
         const float z[3] = {0.0f, 0.0f, 0.0f};
-        check(ns2_peers_neighbors(&s, 255u, z, z, t + 30u, 100u, out, NS2_PEERS_MAX) == s.count,
+        uint16_t others = 0; /* every peer but the robot itself (radio id 255 here) */
+        for (uint8_t i = 0; i < s.count; ++i) {
+            others = (uint16_t)(others + (s.peer[i].id != 255u));
+        }
+        check(ns2_peers_neighbors(&s, 255u, z, z, t + 30u, 100u, out, NS2_PEERS_MAX) == others,
               "a recovered peer is missing from the neighbour list");
+        /* churn: the table filled up with robots heard at the same time, then a robot
+         * never heard before arrives; with the table full of live peers it is refused,
+         * once one of them has been silent for NS2_PEERS_STALE_MS it takes that slot (the
+         * stalest: not the one heard again), a new track, and the others stay */
+        const uint32_t last = t + 30u; /* every peer's last sample */
+        const float p_new[3] = {0.5f, -0.5f, 1.0f};
+        uint8_t fresh_id = (uint8_t)rnd();
+        while (s.count <= NS2_PEERS_MAX) {
+            for (int again = 1; again;) {
+                again = 0;
+                for (uint8_t i = 0; i < s.count; ++i) {
+                    if (s.peer[i].id == fresh_id) {
+                        fresh_id = (uint8_t)(fresh_id + 1u);
+                        again = 1;
+                    }
+                }
+            }
+            if (s.count == NS2_PEERS_MAX) {
+                break;
+            }
+            ++done;
+            check(ns2_peers_update(&s, fresh_id, 0u, last, p_new) == NS2_PEERS_OK, "a free slot refused");
+            check_table(&s);
+        }
+        ++done;
+        check(ns2_peers_update(&s, fresh_id, 1u, last + below(NS2_PEERS_STALE_MS + 1u), p_new) == NS2_PEERS_REJECTED,
+              "a new peer took the slot of a live one");
+        const uint8_t keep = (uint8_t)below(NS2_PEERS_MAX); /* one peer is heard again later */
+        const uint32_t t_keep = last + 1u + below(NS2_PEERS_STALE_MS);
+        const uint8_t kept_id = s.peer[keep].id;
+        check(ns2_peers_update(&s, kept_id, 0u, t_keep, s.peer[keep].p) != NS2_PEERS_REJECTED,
+              "a live peer's sample rejected");
+        const uint32_t t_new = t_keep + 1u + below(NS2_PEERS_STALE_MS);
+        const int stale_any = t_new - last > NS2_PEERS_STALE_MS;
+        ++done;
+        const int32_t r = ns2_peers_update(&s, fresh_id, 1u, t_new, p_new);
+        check(r == (stale_any ? NS2_PEERS_OK : NS2_PEERS_REJECTED), "a silent peer's slot not given / given");
+        check_table(&s);
+        check(s.count == NS2_PEERS_MAX, "the table changed size");
+        int found_new = 0, found_kept = 0;
+        for (uint8_t i = 0; i < s.count; ++i) {
+            found_new |= s.peer[i].id == fresh_id && s.peer[i].type == 1u && s.peer[i].samples == 1u;
+            found_kept |= s.peer[i].id == kept_id;
+        }
+        check(found_new == stale_any && found_kept, "the new peer or the live one missing");
     }
     input_index = done;
 }

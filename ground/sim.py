@@ -10,7 +10,9 @@ flies in step with it: from the take-off command on, every ``sleep`` of the
 mission flies the swarm that long in the simulator, as the high-level commander
 would (hover at the take-off point, the uploaded poly4d pieces from the start
 command on, a descent from the land command), with the robot types, gains and
-learned-term switches the mission set; the robots' log packets (20 Hz, the
+learned-term switches the mission set, each robot under its radio id with the
+type table the mission wrote (so its peers' types are looked up as the app looks
+them up, whatever their ids); the robots' log packets (20 Hz, the
 variables of ns2ground.cf.LOG_BLOCKS) reach the mission as they are flown.  So the
 safety paths run as in a flight: ``Fault``s (``--sim-fault``) lose a robot's link
 (it hears nothing more and flies its plan on), report a low battery or an app
@@ -36,7 +38,7 @@ import numpy as np
 from ns2codegen.vehicle import G
 from ns2codegen.logs.align import PWM_FULL
 from ns2plan.output import DEG, TRAJECTORY_MEMORY_BYTES, read_poly4d
-from .swarm import GAIN1, GAIN3, Swarm
+from .swarm import GAIN1, GAIN3, TYPE_PARAMS, Swarm
 
 LOG_EVERY = 5           # the simulator logs at 100 Hz; the radio log blocks run at 20 Hz
 GROUND_Z = 0.03         # where a landing ends (m)
@@ -238,6 +240,10 @@ class SimSwarm:
         rs = list(self.robots.values())
         by_name = {r.name: r for r in self.swarm.robots}
         types = [self.cfg.robot_types[int(r.params.get("ns2.selfType", 0))] for r in rs]
+        # each robot's radio id, and its peers' types as its app looks them up: in the type
+        # table the mission wrote (PARAM ns2type.t0..t15; all 0, the first type, if none was)
+        ids = [by_name[r.name].radio_id for r in rs]
+        tables = [[int(r.params.get(f"ns2type.{k}", 0)) for k in TYPE_PARAMS] for r in rs]
         height = {r.name: next(args[0] for _, w, args in r.commands if w == "takeoff") for r in rs}
         self.start_pos = np.array([[*by_name[r.name].initial_position[:2], height[r.name]] for r in rs])
         enable = [int(r.params.get("ns2.enable", 1)) for r in rs]
@@ -245,7 +251,7 @@ class SimSwarm:
         self.types = types
         self.t0 = self.flown = max(r.when("takeoff") for r in rs)
         self.sim = CLoopSwarm(self.cfg, types, self.export_dir, self.start_pos, learned=learned, aero=True,
-                              gains=[r.gains() for r in rs], seed=self.seed)
+                              gains=[r.gains() for r in rs], seed=self.seed, ids=ids, type_tables=tables)
 
     def _fault(self, f: Fault) -> None:
         if f.kind == "ctrl-c":

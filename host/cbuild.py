@@ -57,6 +57,9 @@ float ns2_job_finish_f32(ns2_job_t *job, ns2_info_t *info);
 int16_t ns2_job_finish_q15(ns2_job_t *job, ns2_info_t *info);
 #define NS2_PEERS_MAX ...
 #define NS2_PEERS_RESTARTED ...
+#define NS2_PEERS_STALE_MS ...
+#define NS2_PEERS_REORDER_MS ...
+#define NS2_TYPE_TABLE_WORDS ...
 #define NS2_CTRL_BAD_STATE ...
 #define NS2_CTRL_BAD_SETPOINT ...
 #define NS2_CTRL_SATURATED ...
@@ -68,6 +71,7 @@ typedef struct { uint8_t id; uint8_t type; uint8_t samples; uint32_t t_ms; float
 typedef struct { ns2_peer_t peer[...]; uint8_t count; float alpha; } ns2_peers_t;
 void ns2_peers_init(ns2_peers_t *s, float alpha);
 int32_t ns2_peers_update(ns2_peers_t *s, uint8_t id, uint8_t type, uint32_t t_ms, const float p[3]);
+uint8_t ns2_type_table_get(const uint32_t table[16], uint8_t id, uint8_t n_types);
 uint16_t ns2_peers_neighbors(const ns2_peers_t *s, uint8_t self_id, const float p[3], const float v[3],
                              uint32_t now_ms, uint32_t max_age_ms, ns2_neighbor_t *out, uint16_t max);
 typedef struct { float mass_kg; float inertia[3]; float arm_m; float kappa_m; float lambda; float f_max_N;
@@ -269,6 +273,31 @@ def fill_gains(g, gains: dict) -> None:
     """cdata ``ns2_gains_t`` from a dict of its fields (ns2codegen.vehicle.default_gains)."""
     for k, val in gains.items():
         setattr(g, k, val)
+
+
+# The app's type table (firmware/include/ns2_peers.h): the robot type of every radio
+# id 0..255, TYPE_BITS bits per id in TYPE_TABLE_WORDS uint32 words, PARAM ns2type.t0..t15
+TYPE_BITS = 2
+TYPE_TABLE_WORDS = 16
+TYPE_TABLE_MAX_TYPES = 1 << TYPE_BITS
+RADIO_IDS = 256
+
+
+def type_table(types_by_id) -> list[int]:
+    """The type table's words (ns2_type_table_get decodes them) of ``{radio id: robot
+    type index}`` (or (id, type) pairs); ids not given are type 0."""
+    items = types_by_id.items() if isinstance(types_by_id, dict) else types_by_id
+    words = [0] * TYPE_TABLE_WORDS
+    per_word = 32 // TYPE_BITS
+    for rid, t in items:
+        rid, t = int(rid), int(t)
+        if not (0 <= rid < RADIO_IDS and 0 <= t < TYPE_TABLE_MAX_TYPES):
+            raise ValueError(f"radio id {rid} (0..{RADIO_IDS - 1}) or robot type {t} "
+                             f"(0..{TYPE_TABLE_MAX_TYPES - 1}) out of the type table's range")
+        shift = TYPE_BITS * (rid % per_word)
+        w = rid // per_word
+        words[w] = (words[w] & ~(((1 << TYPE_BITS) - 1) << shift)) | (t << shift)
+    return words
 
 
 class CModel:

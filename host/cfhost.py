@@ -84,8 +84,10 @@ typedef struct { float mass_kg; float kp[3]; float kd[3]; float ki[3]; float i_m
 typedef struct { uint32_t kind; uint8_t id, type; double par[21]; double psi1[5]; float p0[3];
                  float bias_acc_g[3], bias_gyro_dps[3]; float acc_scale; float sd_acc_g, sd_gyro_dps; float ext_pos_std_m;
                  ns2_vehicle_t veh; ns2_gains_t gains; ns2_pilot_cfg_t pilot_cfg; ns2_authors_gains_t authors;
-                 uint32_t pwm_exact; double psi1_nominal[5]; } ns2_fly_init_t;
-typedef struct { uint32_t kind; double psi1[5]; float sd_acc_g, sd_gyro_dps; ns2_pilot_t pilot; float pwm[4]; uint32_t fa_given; float fa_given_g; ...; }
+                 uint32_t pwm_exact; double psi1_nominal[5]; uint32_t use_type_table;
+                 uint32_t type_table[16]; } ns2_fly_init_t;
+typedef struct { uint32_t kind; uint8_t id, type; double psi1[5]; float sd_acc_g, sd_gyro_dps; ns2_pilot_t pilot; float pwm[4];
+                 uint32_t fa_given; float fa_given_g; uint32_t use_type_table; uint32_t type_table[16]; ...; }
     ns2_fly_robot_t;
 typedef struct { uint32_t tick; const float *p; const uint8_t *rx; } ns2_fly_frame_t;
 typedef struct { ns2_ctrl_state_t s; ns2_setpoint_t sp; uint32_t do_pos, now_ms; float battery_V; uint32_t n_peers;

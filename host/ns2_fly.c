@@ -12,7 +12,9 @@
  *          (std dev locSrv.extPosStdDev), finalize, externalize; the stabilizer
  *          reads the state of the previous task run;
  *   peers  the same mocap broadcast fills a per-robot peer-localization table
- *          (timestamp: reception tick, as peer_localization.c);
+ *          (timestamp: reception tick, as peer_localization.c), each peer's robot
+ *          type its true one or, as the app has it, looked up by its radio id in the
+ *          robot's type table (PARAM ns2type.t0..t15, ns2_type_table_get: ns2 fly --sim);
  *   control  either ns2_pilot (firmware/src, the app's code path) at 500/100 Hz,
  *          or ns2_pilot with the position law of the controller that flew the
  *          real flights (ctrl_authors.c: the replay of host/sim/replay.py),
@@ -63,6 +65,8 @@ void ns2_fly_init(ns2_fly_robot_t *r, const ns2_fly_init_t *in)
     memcpy(r->psi1, in->psi1, sizeof(r->psi1));
     r->pwm_exact = in->kind == NS2_FLY_AUTHORS && in->pwm_exact;
     memcpy(r->psi1_nominal, in->psi1_nominal, sizeof(r->psi1_nominal));
+    r->use_type_table = in->use_type_table != 0u;
+    memcpy(r->type_table, in->type_table, sizeof(r->type_table));
     memcpy(r->bias_acc_g, in->bias_acc_g, sizeof(r->bias_acc_g));
     memcpy(r->bias_gyro_dps, in->bias_gyro_dps, sizeof(r->bias_gyro_dps));
     r->acc_scale = in->acc_scale > 0.5f ? in->acc_scale : 1.0f;
@@ -304,7 +308,9 @@ uint32_t ns2_fly_run(ns2_fly_robot_t *rob, uint32_t n, double *x, const double *
                     if (j != i) {
                         const uint32_t e = r->n_peers++;
                         r->peer_id[e] = rob[j].id;
-                        r->peer_type[e] = rob[j].type;
+                        r->peer_type[e] = r->use_type_table
+                                              ? ns2_type_table_get(r->type_table, rob[j].id, NS2_NUM_ROBOT_TYPES)
+                                              : rob[j].type;
                         r->peer_t[e] = tick;
                         memcpy(r->peer_p[e], &frame->p[3 * j], sizeof(r->peer_p[e]));
                     }

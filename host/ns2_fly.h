@@ -22,7 +22,8 @@
 
 typedef struct {
     uint32_t kind;             /* NS2_FLY_PILOT, NS2_FLY_MELLINGER or NS2_FLY_AUTHORS */
-    uint8_t id, type;          /* radio id (not 0), robot type */
+    uint8_t id, type;          /* radio id (not 0: the firmware's peer table takes id 0 for a free
+                                * slot), robot type (its own; its peers' come from type_table) */
     double par[21];            /* ns2_sim.c parameters: m, J, lambda, B0 */
     double psi1[5];            /* PWM -> force (g), Table cfprops */
     float p0[3];               /* start position (kalman.initialX/Y/Z) */
@@ -38,6 +39,9 @@ typedef struct {
                                 * the exact inverse of psi1_nominal (what flew the real flights, vehicle.py
                                 * AUTHORS_PWM_EXACT), 0 = by the controller's own psi_2 */
     double psi1_nominal[5];    /* the type's psi_1 (psi1 above may carry the robot's thrust scatter) */
+    uint32_t use_type_table;   /* 1: each peer's robot type is looked up by its radio id in type_table, as
+                                * the app does (ns2_type_table_get); 0: its true type (any number of types) */
+    uint32_t type_table[NS2_TYPE_TABLE_WORDS]; /* the app's PARAM ns2type.t0..t15 */
 } ns2_fly_init_t;
 
 typedef struct {
@@ -68,6 +72,8 @@ typedef struct {
     uint8_t peer_id[NS2_FLY_MAX_PEERS], peer_type[NS2_FLY_MAX_PEERS];
     uint32_t peer_t[NS2_FLY_MAX_PEERS];
     float peer_p[NS2_FLY_MAX_PEERS][3];
+    uint32_t use_type_table;   /* ns2_fly_init_t's */
+    uint32_t type_table[NS2_TYPE_TABLE_WORDS];
 } ns2_fly_robot_t;
 
 /* One mocap broadcast frame: noisy positions [n][3] of all robots, received by robot i when rx[i]. */

@@ -78,8 +78,11 @@ def test_param_and_log_groups_in_the_elf(app):
                        "selfType": (PARAM_UINT8, "cfg"), "phiPerTick": (PARAM_UINT8, "cfg"),
                        "maxAgeMs": (PARAM_UINT16, "cfg"), "faLimit": (PARAM_FLOAT, "cfg"),
                        "sync": (PARAM_UINT32, "syncSeq"), "modelId": (PARAM_UINT32 | PARAM_RONLY, "modelId")}
-        assert {n: (t, where(a)) for n, t, a in params["ns2type"]} == {
-            "mask1": (PARAM_UINT32, "typeMask1"), "mask2": (PARAM_UINT32, "typeMask2")}
+        # the type table: the robot type of every radio id 0..255, 2 bits each (ns2_peers.h)
+        table = params["ns2type"]
+        assert [n for n, _, _ in table] == [f"t{k}" for k in range(16)]
+        assert all(t == PARAM_UINT32 and where(a) == "typeTable" for _, t, a in table)
+        assert [a - table[0][2] for _, _, a in table] == [4 * k for k in range(16)]   # t<k> is word k
         gains = params["ns2gain"]
         assert [n for n, _, _ in gains[:3]] == ["Lpx", "Lpy", "Lpz"] and len(gains) == 7 * 3 + 3
         assert all(t == PARAM_FLOAT and where(a) == "gains" for _, t, a in gains)
@@ -255,17 +258,61 @@ def test_sixteen_robot_swarm_through_the_firmware_peer_table(harness, robots, pe
     assert res["firmware_table_max"] == min(per_ms, 10)
 
 
+def _peers(harness, *steps):
+    """The harness's peer bookkeeping run (app_harness.c, mode peers): one dict per show."""
+    r = subprocess.run([str(harness), "peers", *map(str, steps)], capture_output=True, text=True, check=True)
+    out = [json.loads(line) for line in r.stdout.splitlines()]
+    for o in out:
+        o["by_id"] = {i: (ty, n, t) for i, ty, n, t in o["peers"]}
+    return out
+
+
+# a lab's numbering: ids from 0 to 255, large robots above 31 (issue 56)
+SWARM_IDS = (0, 2, 31, 32, 40, 77, 100, 128, 150, 180, 200, 220, 240, 250, 254, 255)
+SWARM_LARGE = (0, 32, 40, 128, 200, 255)
+
+
+def test_app_peer_bookkeeping_of_a_full_swarm_with_any_radio_ids(harness):
+    """The app (this robot: radio id 1) with the firmware's real peer localization and
+    the type table written as the ground writes it (PARAM ns2type.t0..t15): a swarm
+    numbered 0..255 with large robots above id 31 gets every peer with its own type;
+    radio id 0 never reaches the app (the firmware's table takes id 0 for a free slot,
+    which is why the ground side refuses it); a 16th peer fills the table and a 17th
+    is refused while all are live; a peer whose type the ground rewrites flies with the
+    new type from its next frame; a peer that disappears leaves the neighbour list after
+    ns2.maxAgeMs and gives its slot to the waiting robot after NS2_PEERS_STALE_MS."""
+    ids = ",".join(map(str, SWARM_IDS))
+    snap = _peers(harness, *[f"type:{i}=1" for i in SWARM_LARGE], f"ids:{ids}", "ms:200", "show",
+                  f"ids:{ids},60", "ms:100", "show",                         # a 16th peer: the table is full
+                  f"ids:{ids},60,61", "ms:100", "show",                      # a 17th: refused
+                  "type:40=0", "type:2=1", "ms:20", "show",                  # two robots change type
+                  f"ids:{ids.replace(',77,', ',')},60,61", "ms:300", "show",  # robot 77 disappears
+                  "ms:800", "show")                                          # ... for more than 1 s
+    full, sixteen, refused, retyped, silent, replaced = snap
+    seen = [i for i in SWARM_IDS if i != 0]
+    assert sorted(full["by_id"]) == seen and full["n_used"] == 15
+    assert all(full["by_id"][i][0] == int(i in SWARM_LARGE) and full["by_id"][i][1] == 2 for i in seen)
+    assert full["table"][15] >> 30 == 1 and full["table"][0] & 3 == 1   # ids 255 and 0 in the table
+    assert len(sixteen["peers"]) == 16 and 60 in sixteen["by_id"] and sixteen["n_used"] == 16
+    assert refused["by_id"].keys() == sixteen["by_id"].keys()           # 61 waits: every peer is live
+    assert retyped["by_id"][40][0] == 0 and retyped["by_id"][2][0] == 1 and retyped["by_id"][255][0] == 1
+    assert 77 in silent["by_id"] and 61 not in silent["by_id"] and silent["n_used"] == 15   # left out, slot kept
+    assert 77 not in replaced["by_id"] and replaced["by_id"][61][1] == 2 and len(replaced["peers"]) == 16
+    assert replaced["n_used"] == 16 and all(replaced["by_id"][i][0] == retyped["by_id"][i][0]
+                                            for i in replaced["by_id"] if i != 61)
+
+
 DEG2RAD = np.float32(0.017453292519943295)  # the app's NS2_DEG2RAD
 # one 1 kHz tick of the harness's trace mode (app_harness.c, trace_tick)
 TRACE = np.dtype([("disable", "<u4"), ("bat", "<f4"), ("p", "<f4", 3), ("v", "<f4", 3), ("q", "<f4", 4),
                   ("gyro", "<f4", 3), ("sp_p", "<f4", 3), ("sp_v", "<f4", 3), ("sp_a", "<f4", 3), ("yaw", "<f4"),
                   ("n", "<u4"), ("peers", [("id", "<u4"), ("x", "<f4", 3)], 3)])
-LARGE_IDS = (2, 4)  # ns2type.mask1: radio ids 2 and 4 are large robots, 3 is small
+PEER_IDS = (2, 3, 4)  # the trace's three peers; the first and the last are large robots
 
 
-def _trace_inputs(n=1500, seed=7):
+def _trace_inputs(n=1500, seed=7, ids=PEER_IDS):
     """A small robot (radio id 1) around a moving setpoint with a perturbation, gyro and
-    tilt; three peers (ids 2, 3, 4) circling 0.2-0.4 m above, their mocap frames at
+    tilt; three peers (radio ids ``ids``) circling 0.2-0.4 m above, their mocap frames at
     100 Hz with a fifth lost; no position setpoint (on the ground) for ticks 700-759."""
     rng = np.random.default_rng(seed)
     x = np.zeros(n, TRACE)
@@ -285,11 +332,12 @@ def _trace_inputs(n=1500, seed=7):
     for k in range(n):
         if k % 10 not in (1, 4) or rng.random() < 0.2:
             continue
-        ids = (2,) if k % 10 == 1 else (3, 4)  # two positions in one millisecond
-        for j, i in enumerate(ids):
+        which = (0,) if k % 10 == 1 else (1, 2)  # two positions in one millisecond
+        for j, w in enumerate(which):
+            i = w + 2   # the orbit of the w-th peer, whatever its radio id
             a = t[k] * (1.0 + i) + i
-            x["peers"][k, j] = (i, (0.15 * np.cos(a), 0.15 * np.sin(a), 1.0 + 0.1 * i))
-        x["n"][k] = len(ids)
+            x["peers"][k, j] = (ids[w], (0.15 * np.cos(a), 0.15 * np.sin(a), 1.0 + 0.1 * i))
+        x["n"][k] = len(which)
     return x
 
 
@@ -322,14 +370,17 @@ def _pilot_direct(ffi, lib, x, veh, gains, pcfg, large_ids):
     return pwm, fa, n_used
 
 
-@pytest.mark.parametrize("fixed,self_type", [(1, 0), (0, 0), (1, 1)])
-def test_app_motor_commands_equal_ns2_pilot_bit_for_bit(harness, exported, tmp_path, fixed, self_type):
+@pytest.mark.parametrize("fixed,self_type,ids", [(1, 0, PEER_IDS), (0, 0, PEER_IDS), (1, 1, PEER_IDS),
+                                                  (1, 0, (200, 3, 255)), (0, 1, (40, 99, 33))])
+def test_app_motor_commands_equal_ns2_pilot_bit_for_bit(harness, exported, tmp_path, fixed, self_type, ids):
     """The app (the real ns2_app.c on the firmware's headers and peer_localization.c)
     and ns2_pilot called directly on the same 1.5 s of 1 kHz inputs (moving setpoint,
     perturbation, three peers of both types with lost frames, a stretch on the ground)
     give the same motor PWM on every tick, bit for bit; the app's vehicle, default
     gains (generated ns2_vehicles.h) and PARAM defaults equal ns2codegen.vehicle's and
-    ns2_pilot_default_cfg's; the learned force was in use and the PWM varied."""
+    ns2_pilot_default_cfg's; the learned force was in use and the PWM varied.  The large
+    peers' radio ids may be any (200 and 255, 40 and 33): their types come from the
+    type table (PARAM ns2type.t0..t15) the ground writes."""
     from ns2host.cbuild import fill_gains, fill_vehicle
     from ns2host.cfhost import load_fly
     from ns2host.sim.vehicle import default_gains, vehicle
@@ -341,16 +392,16 @@ def test_app_motor_commands_equal_ns2_pilot_bit_for_bit(harness, exported, tmp_p
     fill_gains(gains[0], default_gains(v))
     lib.ns2_pilot_default_cfg(pcfg, self_type)
     pcfg.enable, pcfg.fixed = 1, fixed
-    x = _trace_inputs()
+    x = _trace_inputs(ids=ids)
     (tmp_path / "in.bin").write_bytes(x.tobytes())
-    mask = sum(1 << i for i in LARGE_IDS)
-    subprocess.run([str(harness), "trace", str(fixed), "1", str(self_type), hex(mask), str(tmp_path / "in.bin"),
-                    str(tmp_path / "out.bin")], check=True)
+    large = (ids[0], ids[2])
+    subprocess.run([str(harness), "trace", str(fixed), "1", str(self_type), ",".join(f"{i}=1" for i in large),
+                    str(tmp_path / "in.bin"), str(tmp_path / "out.bin")], check=True)
     out = (tmp_path / "out.bin").read_bytes()
     head = [bytes(ffi.buffer(c)) for c in (veh, gains, pcfg)]
     assert out[:len(b"".join(head))] == b"".join(head)  # ns2_vehicles.h == ns2codegen.vehicle, PARAM == default cfg
     app = np.frombuffer(out[len(b"".join(head)):], np.float32).reshape(-1, 4)
-    direct, fa, n_used = _pilot_direct(ffi, lib, x, veh, gains, pcfg, LARGE_IDS)
+    direct, fa, n_used = _pilot_direct(ffi, lib, x, veh, gains, pcfg, large)
     assert app.shape == direct.shape == (len(x), 4)
     assert np.array_equal(app.view(np.uint32), direct.view(np.uint32))
     on = x["disable"] == 0

@@ -141,3 +141,76 @@ def test_fly_sim_rehearses_the_safety_paths(exported, tmp_path, fault, cause):
     z_end = [float(u["stateEstimate.z"][-1]) for u in usd]
     # the simulator's own log (uSD): the robot without a link flew on, the others are down
     assert z_end[0] < 0.15 and ((z_end[1] > 0.6) if lost else (z_end[1] < 0.15)), z_end
+
+
+LAB_SWARM = """\
+# a lab's own numbering (issue 56): large robots above radio id 31
+robots:
+  cf200:
+    uri: radio://0/80/2M/E7E7E7E7C8
+    initial_position: [0.0, -0.5, 0.0]
+    type: cf21
+  cf40:
+    uri: radio://0/80/2M/E7E7E7E728
+    initial_position: [0.0, 0.5, 0.0]
+    type: big
+  cf255:
+    uri: radio://0/80/2M/E7E7E7E7FF
+    initial_position: [1.5, 0.0, 0.0]
+    type: big
+robot_types:
+  cf21: {ns2_type: small}
+  big: {ns2_type: large}
+"""
+
+
+def test_fly_sim_flies_large_robots_with_radio_ids_above_31(exported, tmp_path, monkeypatch):
+    """`ns2 fly --sim` with large robots numbered 40 and 255 and a small one 200: the
+    mission writes the type table ns2type.t0..t15 to every robot, the simulated robots
+    fly under those radio ids and look their peers' types up in it as the app does, and
+    the small robot passing under large robot 40 predicts its downwash; with the table
+    all zero (every peer small) it predicts far less."""
+    from ns2ground import sim as gsim
+
+    (tmp_path / "crazyflies.yaml").write_text(LAB_SWARM)
+    plan = tmp_path / "plan"
+    plan.mkdir()
+    small_a, small_b = (0.0, -0.5, 0.4), (0.0, 0.5, 0.4)
+    large_a, large_b = (0.0, 0.5, 0.8), (0.0, -0.5, 0.8)
+    (plan / "cf200.bin").write_bytes(poly4d_bytes([_swap_piece(small_a, small_b, SWAP_S)]))
+    (plan / "cf40.bin").write_bytes(poly4d_bytes([_swap_piece(large_a, large_b, SWAP_S)]))
+    (plan / "cf255.bin").write_bytes(poly4d_bytes([_swap_piece((1.5, 0.0, 0.6), (1.5, 0.0, 0.6), SWAP_S)]))
+    seen = {}
+    real_start = gsim.SimSwarm._start
+
+    def start(self):
+        real_start(self)
+        seen["ids"] = [int(r.id) for r in self.sim.robots]
+        seen["tables"] = [list(r.type_table) for r in self.sim.robots]
+    monkeypatch.setattr(gsim.SimSwarm, "_start", start)
+
+    def fly(log):
+        r = CliRunner().invoke(main, ["fly", str(exported.gen_dir), str(tmp_path / "crazyflies.yaml"), "--plan",
+                                      str(plan), "--log", str(log), "--sim", "--takeoff-s", "1", "--land-s", "1.5",
+                                      "--json"])
+        assert r.exit_code == 0, r.output
+        rows = [json.loads(x) for x in log.read_text().splitlines()]
+        assert rows[0]["flight"]["robots"] == {"cf200": "small", "cf40": "large", "cf255": "large"}
+        by = {n: [x for x in rows[1:] if x["robot"] == n] for n in ("cf200", "cf40", "cf255")}
+        for name, b in (("cf200", small_b), ("cf40", large_b)):
+            t = np.array([x["t_ms"] for x in by[name]]) / 1000.0
+            p = np.array([[x["stateEstimate.x"], x["stateEstimate.y"]] for x in by[name]])
+            i_end = np.searchsorted(t, t[0] + TAKEOFF_S + SWAP_S - 0.05)
+            assert np.abs(p[i_end] - b[:2]).max() < 0.1, (name, p[i_end])        # swapped
+        return np.array([x["ns2.faHat"] for x in by["cf200"]])
+
+    fa = fly(tmp_path / "flight.jsonl")
+    assert seen["ids"] == [200, 40, 255]
+    table = seen["tables"][0]
+    assert all(t == table for t in seen["tables"])            # the same table on every robot
+    assert {i for i in range(256) if (table[i // 16] >> (2 * (i % 16))) & 3} == {40, 255}
+    assert fa.min() < -1.0, fa.min()
+    # the same flight with the type table left at the app's boot value (every peer small)
+    monkeypatch.setattr(gsim, "TYPE_PARAMS", ("t_unwritten",) * 16)
+    fa0 = fly(tmp_path / "untyped.jsonl")
+    assert seen["tables"][0] == [0] * 16 and fa0.min() > 0.7 * fa.min(), (fa.min(), fa0.min())   # -4.8 g, -9.7 g

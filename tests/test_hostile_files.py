@@ -829,3 +829,261 @@ def test_28_config_property_on_every_way_in(cfg, exported, data):
             assert str(ck) in msg and "\n" not in msg and len(msg) < 400, msg
         else:   # only a mutation that changed nothing keeps the recorded hash
             assert Config.from_dict(raw).to_json() == cfg.to_json()
+
+
+# ================================================================== issue 56
+# The swarm file (ns2ground/swarm.py) and the radio log (ns2codegen/logs/radiolog.py):
+# any bytes, any encoding, any nesting give a checked result or one line naming the file.
+
+SWARM_FILE = """\
+# a lab's swarm (Crazyswarm2 layout)
+robots:
+  cf1:
+    enabled: true
+    uri: radio://0/80/2M/E7E7E7E701
+    initial_position: [0.0, -0.5, 0.0]
+    type: cf21
+    firmware_params:
+      ns2gain: {Lpx: 9.5}
+  cf40:
+    uri: radio://0/80/2M/E7E7E7E728
+    initial_position: [0.0, 0.5, 0.0]
+    type: big
+  cf255:
+    enabled: false
+    uri: radio://0/90/2M/E7E7E7E7FF
+    type: big
+robot_types:
+  cf21: {ns2_type: small}
+  big: {ns2_type: large}
+all:
+  firmware_params: {stabilizer: {controller: 5}}
+"""
+ENCODINGS = st.sampled_from(["utf-8", "utf-8-sig", "utf-16", "utf-16-le", "utf-16-be", "utf-32", "latin-1",
+                             "cp1252"])
+# text pieces a mutation splices in: YAML structure, hostile scalars, nesting, odd characters
+_PIECES = st.one_of(
+    st.sampled_from(["", "\n", ": ", "- ", "[", "]", "{", "}", "&a ", "*a", "!!python/object:os.system ", "? ",
+                     "'", '"', "\\", "\t", "\x00", "\x85", "\u2028", "\ufeff", "\udcff", "é", "\u202e",
+                     "1" + "0" * 400, "1e999", ".nan", "-.inf", "0x1F", "E7E7E7E700", "E7E7E7E7FF", "radio://0/126/2M/",
+                     "robots:", "type: big", "ns2_type: small", "uri: usb://0", "enabled: maybe", "cf1:", "cf40:"]),
+    st.integers(1, 300).map(lambda n: "[" * n + "]" * n),
+    st.sampled_from([30, 40, 100_000]).map(lambda n: "[" * n),
+    st.sampled_from([30, 40, 100_000]).map(lambda n: "{a: " * n + "1" + "}" * n),
+    st.sampled_from([30, 40, 300]).map(lambda n: "".join(" " * i + "k:\n" for i in range(n))),
+    st.text(max_size=12))
+
+
+@st.composite
+def lab_swarms(draw):
+    """A well-formed swarm file of a lab's own numbering: up to 20 robots, any radio ids
+    (0 and 255 among them; now and then a duplicate), mostly valid types, channels and
+    positions, enabled or not."""
+    n = draw(st.integers(1, 20))
+    ids = draw(st.lists(st.sampled_from([0, 255, 31, 32, 40]) | st.integers(0, 255), min_size=n, max_size=n,
+                        unique=draw(st.integers(0, 3)) > 0))
+    robots = []
+    alias = draw(st.sampled_from(["", "", "fp", "ns2"]))   # firmware_params (or its ns2 group) shared by an alias
+    for k, rid in enumerate(ids):
+        channel = draw(st.sampled_from([80] * 8 + [0, 125, 126]))
+        typ = draw(st.sampled_from(["cf21"] * 6 + ["big"] * 6 + ["small", "large", "huge"]))
+        x = draw(st.floats(-5.0, 5.0) | st.sampled_from([1e3, -1e3, 1001.0]))
+        fp = {"": "", "fp": "    firmware_params: " + ("&fp {stabilizer: {controller: 5}}" if k == 0 else "*fp"),
+              "ns2": "    firmware_params: {ns2: " + ("&n {enable: 1}" if k == 0 else "*n") + "}"}[alias]
+        robots.append(f"  cf{k}:\n    enabled: {draw(st.sampled_from(['true'] * 3 + ['false']))}\n"
+                      f"    uri: radio://0/{channel}/2M/E7E7E7E7{rid:02X}\n"
+                      f"    initial_position: [{x}, 0.0, 0.0]\n    type: {typ}\n" + (fp + "\n" if fp else ""))
+    return ("robots:\n" + "".join(robots) + "robot_types:\n  cf21: {ns2_type: small}\n  big: {ns2_type: large}\n"
+            ).encode()
+
+
+@st.composite
+def swarm_files(draw):
+    """Bytes of a swarm file: the valid one mutated (pieces spliced in or cut out), in any
+    encoding, with bytes flipped or cut; a well-formed one of any numbering; or any
+    bytes at all."""
+    kind = draw(st.integers(0, 9))
+    if kind == 0:
+        return draw(st.binary(max_size=600))
+    if kind <= 3:
+        return draw(lab_swarms())
+    text = SWARM_FILE
+    for _ in range(draw(st.integers(0, 3))):
+        i = draw(st.integers(0, len(text)))
+        j = min(len(text), i + draw(st.integers(0, 12)))
+        text = text[:i] + draw(_PIECES) + text[j:]
+    data = _encode(text, draw(ENCODINGS))
+    for _ in range(draw(st.integers(0, 2))):
+        if data and draw(st.booleans()):
+            k = draw(st.integers(0, len(data) - 1))
+            data = data[:k] + bytes([data[k] ^ draw(st.integers(1, 255))]) + data[k + 1:]
+    if data and draw(st.integers(0, 4)) == 0:
+        data = data[:draw(st.integers(0, len(data)))]
+    return data
+
+
+def _encode(text: str, enc: str) -> bytes:
+    try:
+        return text.encode(enc)
+    except UnicodeEncodeError:
+        return text.encode("utf-8", "surrogatepass")
+
+
+@settings(derandomize=True, max_examples=300, deadline=None, database=None,
+          suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
+@given(data=st.data())
+def test_56_swarm_file_property(cfg, data):
+    """ns2ground.swarm.load (ns2 swarm-params, ns2 fly) and read_robots (ns2 flash --swarm)
+    on any bytes: a SwarmFileError of one line naming the file, or a swarm whose every
+    robot holds the loader's guarantees; then the app's parameters, written back with
+    the round trip, load again to the same robots and the same type table."""
+    from ns2ground import swarm as sw
+
+    raw = data.draw(swarm_files())
+    with tempfile.TemporaryDirectory() as d:
+        f = Path(d) / "crazyflies.yaml"
+        f.write_bytes(raw)
+        try:
+            robots = sw.read_robots(f)
+        except sw.SwarmFileError as e:
+            msg = str(e)
+            assert msg.startswith(f"{f}: ") and "\n" not in msg and len(msg) < 500, msg
+            robots = None
+        try:
+            s = sw.load(f, cfg)
+        except sw.SwarmFileError as e:
+            msg = str(e)
+            assert msg.startswith(f"{f}: ") and "\n" not in msg and len(msg) < 500, msg
+            event("swarm file refused")
+            return
+        event("swarm file accepted")
+        assert robots == ({r.name: r.uri for r in s.enabled} or None)   # flash refuses a swarm with none enabled
+        ids = [r.radio_id for r in s.robots]
+        assert len(set(ids)) == len(ids) and all(0 <= i <= 255 for i in ids)
+        assert 0 not in [r.radio_id for r in s.enabled] or len(s.enabled) == 1
+        for r in s.robots:
+            assert sw.NAME.fullmatch(r.name) and sw.URI.fullmatch(r.uri) and r.ns2_type in cfg.robot_types
+            assert all(math.isfinite(x) and abs(x) <= sw.POSITION_MAX_M for x in r.initial_position)
+        try:
+            table = [sw.params(s, cfg, r)["ns2type"] for r in s.robots]
+        except sw.SwarmFileError as e:   # a user's gain that is not one
+            assert str(e).startswith(f"{f}: robots.") and "ns2gain" in str(e)
+            return
+        for r in s.robots:
+            t = cfg.robot_types.index(r.ns2_type)
+            assert all((tb[f"t{r.radio_id // 16}"] >> (2 * (r.radio_id % 16))) & 3 == t for tb in table)
+        out = Path(d) / "out.yaml"
+        s2 = sw.write_params(f, cfg, out)
+        assert f.read_bytes() == raw
+        assert [(r.name, r.uri, r.ns2_type) for r in s2.robots] == [(r.name, r.uri, r.ns2_type) for r in s.robots]
+        assert all(dict(r.firmware_params["ns2type"]) == table[0] for r in s2.robots)
+        for r in s2.robots:   # each robot's own type, also where the file shared its parameters by an alias
+            assert r.firmware_params["ns2"]["selfType"] == cfg.robot_types.index(r.ns2_type), r.name
+
+
+def _radio_lines(n=30):
+    """ns2 fly's radio log of two robots (a header, then their log blocks at 20 Hz)."""
+    out = [{"flight": {"robots": {"cf1": "small", "cf40": "large"}, "sync": 7}}]
+    for k in range(n):
+        for name, z, boot in (("cf1", 0.5, 1000), ("cf40", 0.9, 77)):
+            t = boot + 50 * k
+            out += [{"robot": name, "t_ms": t, "host_ms": 50 * k + 3, "pm.vbat": 3.9, "ns2.faHat": -1.0},
+                    {"robot": name, "t_ms": t, "host_ms": 50 * k + 4, "stateEstimate.x": 0.01 * k,
+                     "stateEstimate.y": 0.0, "stateEstimate.z": z, "stateEstimate.vx": 0.2, "stateEstimate.vy": 0.0,
+                     "stateEstimate.vz": 0.0, **{f"motor.m{j}": 30000 for j in range(1, 5)},
+                     "stateEstimate.qw": 1.0, "stateEstimate.qx": 0.0, "stateEstimate.qy": 0.0,
+                     "stateEstimate.qz": 0.0}]
+    return [json.dumps(x) for x in out]
+
+
+RADIO_LINES = _radio_lines()
+_LINE_PIECES = st.one_of(
+    st.sampled_from(["", "[", "]", "{", "}", ",", ":", '"', "\\", "\\u0000", "\\ud800", "\u2028", "\x00", "\r",
+                     "NaN", "-Infinity", "1e999", "1" + "0" * 400, "1" + "0" * 5000, "true", "null", '"robot"',
+                     '"cf1"', '"cf9"', '"t_ms"', '"stateEstimate.z"', "3e38", "-1", "150.0", "65536"]),
+    st.sampled_from([9, 50, 2_000, 100_000]).map(lambda n: "[" * n),
+    st.sampled_from([9, 50, 2_000, 100_000]).map(lambda n: "[" * n + "]" * n),
+    st.sampled_from([9, 2_000, 100_000]).map(lambda n: '{"a": ' * n + "1" + "}" * n),
+    st.text(max_size=10))
+
+
+@st.composite
+def radio_logs(draw):
+    """Bytes of a radio log: ns2 fly's mutated (lines dropped, repeated or spliced into),
+    in any encoding, with bytes flipped or cut; or any bytes at all."""
+    if draw(st.integers(0, 9)) == 0:
+        return draw(st.binary(max_size=600))
+    lines = list(RADIO_LINES)
+    for _ in range(draw(st.integers(0, 3))):
+        k = draw(st.integers(0, len(lines) - 1))
+        op = draw(st.sampled_from(["splice", "splice", "drop", "repeat", "new"]))
+        if op == "splice":
+            i = draw(st.integers(0, len(lines[k])))
+            j = min(len(lines[k]), i + draw(st.integers(0, 8)))
+            lines[k] = lines[k][:i] + draw(_LINE_PIECES) + lines[k][j:]
+        elif op == "drop":
+            del lines[k]
+        elif op == "repeat":
+            lines.insert(k, lines[k])
+        else:
+            lines.insert(k, draw(_LINE_PIECES))
+        if not lines:
+            break
+    data = _encode("\n".join(lines) + "\n", draw(ENCODINGS))
+    if data and draw(st.integers(0, 4)) == 0:
+        k = draw(st.integers(0, len(data) - 1))
+        data = data[:k] + bytes([data[k] ^ draw(st.integers(1, 255))]) + data[k + 1:]
+    if data and draw(st.integers(0, 4)) == 0:
+        data = data[:draw(st.integers(0, len(data)))]
+    return data
+
+
+@settings(derandomize=True, max_examples=300, deadline=None, database=None,
+          suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
+@given(data=st.data())
+def test_56_radio_log_property(cfg, data):
+    """ns2codegen.logs.radiolog (ns2 logs-to-data LOG.jsonl) on any bytes: a RadioLogError
+    of one line naming the file (and the line, when a line is at fault), or flights whose
+    every sample is a checked, finite value in its physical range."""
+    from ns2codegen.logs import radiolog
+    from ns2codegen.logs.align import LogError
+
+    raw = data.draw(radio_logs())
+    with tempfile.TemporaryDirectory() as d:
+        f = Path(d) / "flight.jsonl"
+        f.write_bytes(raw)
+        try:
+            flights = radiolog.read(f)
+        except radiolog.RadioLogError as e:
+            msg = str(e)
+            assert msg.startswith(f"{f}: ") and "\n" not in msg and len(msg) < 500, msg
+            event("radio log refused by read")
+            return
+        for fl in flights:
+            assert fl["robots"] and all(n.isprintable() and 0 < len(n) <= radiolog.NAME_MAX for n in fl["robots"])
+            for samples in fl["samples"].values():
+                for line, t, h, vals in samples:
+                    assert radiolog._number(t) and radiolog._number(h) and t >= 0
+                    assert all(radiolog._number(v) for v in vals.values())
+                    assert all(lo <= vals[k] <= hi for k, (lo, hi) in radiolog.RANGE.items() if k in vals)
+        try:
+            pieces, reports = radiolog.radiolog_to_flights(cfg, f)
+        except LogError as e:
+            msg = str(e)
+            assert msg.startswith(f"{f}: ") and "\n" not in msg and len(msg) < 500, msg
+            event("radio log refused")
+            return
+        event("radio log accepted")
+        for p in pieces:
+            assert np.isfinite(p.p).all() and np.isfinite(p.v).all() and np.isfinite(p.t).all()
+
+
+@pytest.mark.parametrize("line", ["[" * 100_000, "[" * 100_000 + "]" * 100_000, '{"a": ' * 100_000])
+def test_56_radio_log_nested_100000_deep_is_one_line(tmp_path, line):
+    """Issue 56: ns2 logs-to-data on a line nested 100,000 deep: one line naming file and line."""
+    f = tmp_path / "flight.jsonl"
+    f.write_text("\n".join(RADIO_LINES[:3] + [line] + RADIO_LINES[3:]) + "\n")
+    out = tmp_path / "d.npz"
+    out.write_bytes(SENTINEL)
+    r = run(["logs-to-data", f, "--out", out])
+    assert_refused(r, f, "line 4: not JSON of a radio log: nested deeper than 8 levels", out)

@@ -74,6 +74,23 @@ GOOD = _lines(40)
      "line 1: flight.robots: robot types ['tiny'] are not in the config"),
     (lambda x: [y for y in x if "motor.m1" not in str(y)], "robot cf1: no samples of ['stateEstimate.vz', 'motor.m1', "),
     (lambda x: [], "no flight header line"),
+    # issue 56: nested 100,000 deep, numbers beyond any float or of more digits than Python converts,
+    # values no Crazyflie logs, names that are not one printable line
+    (lambda x: x[:5] + ["[" * 100_000] + x[5:], "line 6: not JSON of a radio log: nested deeper than 8 levels"),
+    (lambda x: x[:5] + ["[" * 100_000 + "]" * 100_000] + x[5:], "line 6: not JSON of a radio log: nested deeper"),
+    (lambda x: x[:5] + ['{"robot": "cf1", "x": ' + "{" * 50_000] + x[5:], "line 6: not JSON of a radio log: nested"),
+    (lambda x: x[:3] + ['{"robot": "cf1", "t_ms": 1' + "0" * 5000 + ', "host_ms": 2}'] + x[4:], "line 4: not JSON ("),
+    (lambda x: x[:3] + ['{"robot": "cf1", "t_ms": 1' + "0" * 400 + ', "host_ms": 2}'] + x[4:],
+     "line 4: t_ms: missing or not a finite number"),
+    (lambda x: x[:3] + ['{"robot": "cf1", "t_ms": 1, "host_ms": 2, "pm.vbat": 1e999}'] + x[4:],
+     "line 4: pm.vbat: inf is not a finite number"),
+    (lambda x: x[:3] + [dict(x[3], robot=["cf1"])] + x[4:], "line 4: robot: ['cf1'] is not a robot of the flight"),
+    (lambda x: x[:6] + [dict(x[6], **{"stateEstimate.z": 150.0})] + x[7:],
+     "line 7: stateEstimate.z: 150.0 is outside the physical range [-100, 100]: corrupt log"),
+    (lambda x: x[:6] + [dict(x[6], **{"stateEstimate.z": 3e38})] + x[7:], "line 7: stateEstimate.z: 3e+38 is beyond"),
+    (lambda x: x[:8] + [dict(x[8], **{"stateEstimate.qw": 0.0})] + x[9:], "line 9: stateEstimate.qw/qx/qy/qz: norm 0"),
+    (lambda x: [{"flight": {"robots": {"cf1\n": "small"}}}] + x[1:], "line 1: flight.robots: 'cf1\\n': a robot's"),
+    (lambda x: [{"flight": {"robots": {"cf1": "small"}, "sync": "x"}}] + x[1:], "line 1: flight.sync: 'x'"),
 ])
 def test_bad_radio_logs_are_one_line_errors(tmp_path, edit, message):
     log = _write(tmp_path / "f.jsonl", edit(list(GOOD)))
@@ -83,3 +100,38 @@ def test_bad_radio_logs_are_one_line_errors(tmp_path, edit, message):
     last = r.output.strip().splitlines()[-1]
     assert last.startswith(f"Error: {log}") and message in last, last
     assert not out.exists()
+
+
+@pytest.mark.parametrize("encode, message", [
+    (lambda t: t.encode("utf-16"), "UTF-16 text (byte-order mark ff fe)"),
+    (lambda t: t.encode("utf-32"), "UTF-32 text (byte-order mark ff fe 00 00)"),
+    (lambda t: t.encode()[:300] + b"\xff\xfe" + t.encode()[300:], "line 3: not UTF-8 text (byte 0xff)"),
+    (lambda t: bytes(range(256)), "line 2: not UTF-8 text (byte 0x80)"),   # 0x0a ends line 1
+])
+def test_a_radio_log_that_is_not_utf8_is_one_line(tmp_path, encode, message):
+    """Issue 56: a radio log in another encoding or binary: one line naming the file."""
+    log = tmp_path / "f.jsonl"
+    log.write_bytes(encode("".join(json.dumps(x) + "\n" for x in GOOD)))
+    r = CliRunner().invoke(main, ["logs-to-data", str(log), "--out", str(tmp_path / "d.npz")])
+    assert r.exit_code == 1 and isinstance(r.exception, SystemExit), (r.output, r.exception)
+    line, = r.output.strip().splitlines()
+    assert line.startswith(f"Error: {log}: ") and message in line, line
+    assert not (tmp_path / "d.npz").exists()
+
+
+def test_utf8_byte_order_mark_and_crlf_are_read(tmp_path):
+    """A radio log saved by an editor (UTF-8 with a byte-order mark, CRLF line ends) reads as
+    ns2 fly wrote it; lines are numbered as an editor numbers them (U+2028 in a string
+    does not end a line)."""
+    good = "".join(json.dumps(x) + "\n" for x in GOOD)
+    log = tmp_path / "f.jsonl"
+    log.write_bytes(b"\xef\xbb\xbf" + good.replace("\n", "\r\n").encode())
+    from ns2codegen.logs import radiolog
+
+    assert [len(f["samples"]["cf1"]) for f in radiolog.read(log)] == [len(GOOD[1:]) // 2]
+    lines = list(GOOD)
+    lines[0] = {"flight": dict(lines[0]["flight"], note="a\u2028b")}   # the header's other keys are not read
+    lines[4] = "{not json"
+    log.write_text("".join((x if isinstance(x, str) else json.dumps(x, ensure_ascii=False)) + "\n" for x in lines))
+    with pytest.raises(radiolog.RadioLogError, match=r"line 5: not JSON"):
+        radiolog.read(log)

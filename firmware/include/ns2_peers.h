@@ -21,6 +21,21 @@
  * updated for longer than max_age_ms are left out of the neighbour list, which
  * is sorted nearest first so that the NS2_MAX_NEIGHBORS limit keeps the
  * nearest robots.  No dynamic memory.
+ *
+ * Bookkeeping: the table holds NS2_PEERS_MAX robots of any radio id 0..255, one
+ * entry per id.  A sample of a new id when the table is full takes the slot of the
+ * stalest peer, one not heard from for more than NS2_PEERS_STALE_MS before that
+ * sample (or stamped more than NS2_PEERS_REORDER_MS after it: a clock that went back), so
+ * a robot that disappears (landed, switched off, out of radio range) gives its slot
+ * to the next robot heard; with NS2_PEERS_MAX live peers a new one is rejected.  A
+ * peer's robot type is the one given with its latest accepted sample, so a peer
+ * whose type changes (the ground rewrote the type table) carries the new type from
+ * its next sample on.
+ *
+ * Type table: the robot type of every radio id 0..255 in NS2_TYPE_TABLE_WORDS
+ * 32-bit words, NS2_TYPE_BITS bits per id (id i: word i / 16, bits 2 (i % 16) and
+ * 2 (i % 16) + 1), so up to 4 robot types; the app's PARAM ns2type.t0 .. t15, which
+ * the ground side writes (host/cbuild.py type_table, through ns2ground/swarm.py).
  */
 #ifndef NS2_PEERS_H
 #define NS2_PEERS_H
@@ -37,6 +52,11 @@
 #define NS2_PEERS_V_MAX_MS 50.0f    /* |implied velocity| per axis */
 #define NS2_PEERS_GAP_MS 1000u      /* longer gaps restart the velocity estimate */
 #define NS2_PEERS_REORDER_MS 1000u  /* older samples within this window are late: rejected */
+#define NS2_PEERS_STALE_MS 1000u    /* a peer silent for longer gives its slot to a new one when full */
+
+#define NS2_TYPE_BITS 2u            /* bits of the type table per radio id */
+#define NS2_TYPE_TABLE_WORDS 16u    /* 256 radio ids x NS2_TYPE_BITS in uint32 words */
+#define NS2_TYPE_TABLE_MAX_TYPES 4u /* robot types the table can name */
 
 #define NS2_PEERS_OK 0
 #define NS2_PEERS_REJECTED (-1)     /* table full or sample invalid / out of order */
@@ -60,9 +80,14 @@ typedef struct {
 void ns2_peers_init(ns2_peers_t *s, float alpha);
 
 /* Record a position sample of robot `id` (of robot type `type`) taken at t_ms.
- * Returns NS2_PEERS_OK (0), NS2_PEERS_REJECTED (-1) when the table is full or the
- * sample is invalid or late, or NS2_PEERS_RESTARTED (1) after a jump. */
+ * Returns NS2_PEERS_OK (0), NS2_PEERS_REJECTED (-1) when the table is full of live
+ * peers or the sample is invalid or late, or NS2_PEERS_RESTARTED (1) after a jump.
+ * The first sample of a new peer (in a free slot or a stale peer's) is NS2_PEERS_OK. */
 int32_t ns2_peers_update(ns2_peers_t *s, uint8_t id, uint8_t type, uint32_t t_ms, const float p[3]);
+
+/* The robot type of radio id `id` in the type table (above); a type that is not
+ * below n_types (not a robot type of the export) is type 0; a NULL table: 0. */
+uint8_t ns2_type_table_get(const uint32_t table[NS2_TYPE_TABLE_WORDS], uint8_t id, uint8_t n_types);
 
 /* Neighbour list (at most max entries) of the robot at p, v at time now_ms,
  * excluding peers older than max_age_ms (or stamped after now_ms) and the robot's

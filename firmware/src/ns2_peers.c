@@ -21,6 +21,25 @@ static int within3(const float x[3], float lim)
     return fabsf(x[0]) <= lim && fabsf(x[1]) <= lim && fabsf(x[2]) <= lim; /* false for NaN/Inf */
 }
 
+/* The entry of the full table whose last sample lies furthest back from t_ms
+ * (modulo 2^32) among those stale at t_ms: more than NS2_PEERS_STALE_MS before it,
+ * or more than NS2_PEERS_REORDER_MS after it.  NULL: every peer is live. */
+static ns2_peer_t *stalest(ns2_peers_t *s, uint32_t t_ms)
+{
+    ns2_peer_t *out = NULL;
+    uint32_t worst = 0u;
+    for (uint8_t i = 0; i < s->count; ++i) {
+        ns2_peer_t *e = &s->peer[i];
+        const uint32_t ahead = t_ms - e->t_ms; /* modulo 2^32 */
+        const int stale = (uint32_t)(e->t_ms - t_ms) > NS2_PEERS_REORDER_MS && ahead > NS2_PEERS_STALE_MS;
+        if (stale && (out == NULL || ahead > worst)) {
+            out = e;
+            worst = ahead;
+        }
+    }
+    return out;
+}
+
 int32_t ns2_peers_update(ns2_peers_t *s, uint8_t id, uint8_t type, uint32_t t_ms, const float p[3])
 {
     if (s == NULL || p == NULL || !within3(p, NS2_PEERS_P_MAX_M)) {
@@ -33,16 +52,20 @@ int32_t ns2_peers_update(ns2_peers_t *s, uint8_t id, uint8_t type, uint32_t t_ms
             break;
         }
     }
+    int32_t ret = NS2_PEERS_OK;
     if (e == NULL) {
-        if (s->count >= NS2_PEERS_MAX) {
-            return NS2_PEERS_REJECTED;
+        if (s->count < NS2_PEERS_MAX) {
+            e = &s->peer[s->count++];
+        } else {
+            e = stalest(s, t_ms); /* a peer that disappeared gives its slot */
+            if (e == NULL) {
+                return NS2_PEERS_REJECTED; /* NS2_PEERS_MAX live peers */
+            }
         }
-        e = &s->peer[s->count++];
         e->id = id;
         e->samples = 0;
         e->v[0] = e->v[1] = e->v[2] = 0.0f;
     }
-    int32_t ret = NS2_PEERS_OK;
     if (e->samples > 0u) {
         const uint32_t ahead = t_ms - e->t_ms; /* modulo 2^32 */
         if (ahead == 0u) {
@@ -79,6 +102,17 @@ int32_t ns2_peers_update(ns2_peers_t *s, uint8_t id, uint8_t type, uint32_t t_ms
     e->p[1] = p[1];
     e->p[2] = p[2];
     return ret;
+}
+
+uint8_t ns2_type_table_get(const uint32_t table[NS2_TYPE_TABLE_WORDS], uint8_t id, uint8_t n_types)
+{
+    if (table == NULL) {
+        return 0u;
+    }
+    const uint32_t per_word = 32u / NS2_TYPE_BITS;
+    const uint32_t shift = NS2_TYPE_BITS * ((uint32_t)id % per_word);
+    const uint8_t type = (uint8_t)((table[(uint32_t)id / per_word] >> shift) & ((1u << NS2_TYPE_BITS) - 1u));
+    return type < n_types ? type : 0u;
 }
 
 uint16_t ns2_peers_neighbors(const ns2_peers_t *s, uint8_t self_id, const float p[3], const float v[3],

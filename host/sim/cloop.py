@@ -69,7 +69,8 @@ class CLoopSwarm:
     def __init__(self, cfg: Config, types: list[str], gen_dir, positions, learned: str | None = None,
                  aero: bool = False, battery_V: float = 3.9, controllers=None, gains=None,
                  sensing: Sensing | None = None, seed: int = 0, rough: Roughness | None = None,
-                 authors=None, fa_given: Callable | None = None, battery_given: Callable | None = None):
+                 authors=None, fa_given: Callable | None = None, battery_given: Callable | None = None,
+                 ids=None, type_tables=None):
         """learned: None (baseline, f_a = 0), "float" or "fixed"; aero: ground-truth
         interactions (host/sim/aero.py) on or off; controllers: per robot "ns2" (the
         app's path, default), "mellinger" (the firmware's) or "authors" (the app's path
@@ -85,7 +86,10 @@ class CLoopSwarm:
         flight's logged prediction, replay.py); battery_given: None (battery_V, or the
         rough simulator's sag), or ``battery_given(t)`` -> [N] each robot's supply
         voltage (V; a real flight's logged one, replay.py; read every step, the
-        settling reads t = 0)."""
+        settling reads t = 0); ids: per robot its radio id (default 1, 2, ...);
+        type_tables: None (each robot knows its peers' true types), or per robot the
+        words of its type table (the app's PARAM ns2type.t0..t15), in which it looks
+        each peer's type up by radio id, as the app does (ns2 fly --sim)."""
         if learned not in (None, "float", "fixed"):
             raise ValueError(f"learned must be None, 'float' or 'fixed', got {learned!r}")
         self.cfg = cfg
@@ -110,6 +114,7 @@ class CLoopSwarm:
         if n > lib.NS2_FLY_MAX_ROBOTS:
             raise ValueError(f"at most {lib.NS2_FLY_MAX_ROBOTS} robots, got {n}")
         self.robots = ffi.new("ns2_fly_robot_t[]", n)
+        ids = list(ids) if ids is not None else [i + 1 for i in range(n)]
         acc_b, acc_scale, gyro_b = self.sensing.biases(self.rng, n)
         se = self.sensing
         self.rough = rough
@@ -129,7 +134,9 @@ class CLoopSwarm:
                 it.authors.mass_kg, it.authors.i_max, it.authors.k_fa = a["mass_kg"], a["i_max"], a.get("k_fa", 1.0)
                 it.authors.kp, it.authors.kd, it.authors.ki = list(a["kp"]), list(a["kd"]), list(a["ki"])
                 it.pwm_exact, it.psi1_nominal = int(AUTHORS_PWM_EXACT), list(veh.psi1)
-            it.id, it.type = i + 1, int(self.type_idx[i])
+            it.id, it.type = ids[i], int(self.type_idx[i])
+            if type_tables is not None:
+                it.use_type_table, it.type_table = 1, list(type_tables[i])
             it.par, it.psi1, it.p0 = list(self.dyn.par[i]), list(np.asarray(veh.psi1) * thrust[i]), list(self.state.p[i])
             it.bias_acc_g, it.bias_gyro_dps, it.acc_scale = list(acc_b[i]), list(gyro_b[i]), acc_scale[i]
             sd_acc, sd_gyro = ((se.acc_sd_g, se.gyro_sd_dps) if rough is None

@@ -15,6 +15,16 @@ to within the spread of the radio's fastest deliveries (a few ms; the dry run's
 packets all arrive at the same delay).  The grid rate is the log rate (the median
 sample spacing), a gap counts beyond 2.5 periods.  Every bad line is one error
 naming the file and the line.
+
+What the reader guarantees (docs/inputs.md): any file, whatever its bytes, gives
+either flights whose every value was checked or a ``RadioLogError`` of one line
+naming the file, and the line where one line is at fault: text that is not UTF-8
+(a binary file, UTF-16 or UTF-32 text; UTF-8's byte-order mark is skipped), a line
+that is not one JSON object, nested deeper than ``MAX_NESTING`` levels (checked
+before the JSON parser, which would recurse), a number beyond ``VALUE_MAX`` (or of
+more digits than Python converts), a robot name that is not printable or longer
+than ``NAME_MAX``, and values outside the physical range of the uSD reader
+(``align.PLAUSIBLE``, unit quaternions, clocks of at least 0).
 """
 from __future__ import annotations
 
@@ -25,11 +35,20 @@ from pathlib import Path
 import numpy as np
 
 from ..config import Config
-from .align import MIN_PIECE, PWM_FULL, VARIABLES, LogError, RobotLog, align
+from .align import MIN_PIECE, PLAUSIBLE, PWM_FULL, QUAT_NORM, VARIABLES, LogError, RobotLog, align
 
 FA_ONBOARD = "ns2.faHat"   # the app's prediction in flight (g)
 BASE = VARIABLES["p"][0]   # the packets that carry it are a robot's samples
 GAP_PERIODS = 2.5
+MAX_NESTING = 8            # a line nests 3 levels at most ({"flight": {"robots": {...}}})
+VALUE_MAX = 1e15           # |any number| (clocks in ms are exact in float64 far beyond it)
+NAME_MAX = 64              # characters of a robot's name
+BOMS = ((b"\x00\x00\xfe\xff", "UTF-32"), (b"\xff\xfe\x00\x00", "UTF-32"), (b"\xfe\xff", "UTF-16"),
+        (b"\xff\xfe", "UTF-16"))
+# each logged variable's physical range, as the uSD reader checks it (align.PLAUSIBLE)
+RANGE = {**{n: PLAUSIBLE[k] for k in ("p", "v", "battery_V") for n in VARIABLES[k]},
+         **{n: (PLAUSIBLE["pwm"][0] * PWM_FULL, PLAUSIBLE["pwm"][1] * PWM_FULL) for n in VARIABLES["pwm"]},
+         **{n: (-QUAT_NORM[1], QUAT_NORM[1]) for n in VARIABLES["q"]}}
 
 
 class RadioLogError(LogError):
@@ -37,26 +56,89 @@ class RadioLogError(LogError):
 
 
 def _number(x) -> bool:
-    return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
+    if isinstance(x, bool) or not isinstance(x, (int, float)):
+        return False
+    try:
+        return math.isfinite(x) and abs(x) <= VALUE_MAX
+    except OverflowError:   # an integer beyond any float
+        return False
+
+
+def _not_number(x) -> str:
+    """Why ``x`` is refused as a value (``_number(x)`` is false)."""
+    finite = isinstance(x, float) and math.isfinite(x) or isinstance(x, int) and not isinstance(x, bool)
+    return f"is beyond +-{VALUE_MAX:g}" if finite else "is not a finite number"
+
+
+def _nesting(line: str) -> int:
+    """The deepest nesting of JSON arrays and objects in ``line``, outside strings."""
+    depth = deepest = 0
+    in_str = escaped = False
+    for ch in line:
+        if in_str:
+            if escaped:
+                escaped = False
+            elif ch == "\\":
+                escaped = True
+            elif ch == '"':
+                in_str = False
+        elif ch == '"':
+            in_str = True
+        elif ch in "[{":
+            depth += 1
+            deepest = max(deepest, depth)
+        elif ch in "]}":
+            depth -= 1
+    return deepest
+
+
+def _text(path: Path) -> str:
+    try:
+        data = path.read_bytes()
+    except OSError as e:
+        raise RadioLogError(f"{path}: cannot read the radio log ({e.strerror or e})") from e
+    for bom, enc in BOMS:
+        if data.startswith(bom):
+            raise RadioLogError(f"{path}: {enc} text (byte-order mark {bom.hex(' ')}): ns2 fly's radio log is UTF-8")
+    if data.startswith(b"\xef\xbb\xbf"):
+        data = data[3:]
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as e:
+        line = data.count(b"\n", 0, e.start) + 1
+        raise RadioLogError(f"{path}: line {line}: not UTF-8 text (byte 0x{data[e.start]:02x}): not ns2 fly's "
+                            f"radio log") from None
+
+
+def _record(where: str, line: str):
+    """One line's JSON value (one-line errors naming ``where``)."""
+    if (line.count("[") + line.count("{") > MAX_NESTING) and _nesting(line) > MAX_NESTING:
+        raise RadioLogError(f"{where}: not JSON of a radio log: nested deeper than {MAX_NESTING} levels")
+    try:
+        return json.loads(line)
+    except json.JSONDecodeError as e:
+        raise RadioLogError(f"{where}: not JSON ({e.msg})") from None
+    except (ValueError, RecursionError) as e:   # e.g. an integer of more digits than Python converts
+        raise RadioLogError(f"{where}: not JSON ({' '.join(str(e).split())[:120]})") from None
+
+
+def _quote(x, limit: int = 60) -> str:
+    r = repr(x)
+    return r if len(r) <= limit else r[:limit - 3] + "..."
 
 
 def read(path) -> list[dict]:
     """The flights of a radio log: ``[{"line": n, "robots": {name: type}, "sync": seq,
     "samples": {name: [(line, t_ms, host_ms, {variable: value})]}}]``."""
     path = Path(path)
-    try:
-        text = path.read_text()
-    except (OSError, UnicodeDecodeError) as e:
-        raise RadioLogError(f"{path}: cannot read the radio log ({getattr(e, 'strerror', None) or e})") from e
+    text = _text(path)
     flights: list[dict] = []
-    for n, line in enumerate(text.splitlines(), 1):
+    for n, line in enumerate(text.split("\n"), 1):   # the lines an editor numbers (not str.splitlines)
+        line = line.removesuffix("\r")
         if not line.strip():
             continue
         where = f"{path}: line {n}"
-        try:
-            rec = json.loads(line)
-        except json.JSONDecodeError as e:
-            raise RadioLogError(f"{where}: not JSON ({e.msg})") from None
+        rec = _record(where, line)
         if not isinstance(rec, dict):
             raise RadioLogError(f"{where}: not a JSON object")
         if "flight" in rec:
@@ -64,22 +146,40 @@ def read(path) -> list[dict]:
             robots = h.get("robots") if isinstance(h, dict) else None
             if not (isinstance(robots, dict) and robots and all(isinstance(t, str) for t in robots.values())):
                 raise RadioLogError(f"{where}: flight.robots must map each robot's name to its robot type")
-            flights.append({"line": n, "robots": dict(robots), "sync": h.get("sync"),
+            bad = next((r for r in robots if not (r and len(r) <= NAME_MAX and r.isprintable())), None)
+            if bad is not None:
+                raise RadioLogError(f"{where}: flight.robots: {_quote(bad)}: a robot's name is 1 to {NAME_MAX} "
+                                    f"printable characters")
+            sync = h.get("sync")
+            if sync is not None and not _number(sync):
+                raise RadioLogError(f"{where}: flight.sync: {_quote(sync)} {_not_number(sync)}")
+            flights.append({"line": n, "robots": dict(robots), "sync": sync,
                             "samples": {r: [] for r in robots}})
             continue
         if not flights:
             raise RadioLogError(f"{where}: a log packet before the first flight header line")
         robot = rec.get("robot")
-        if robot not in flights[-1]["robots"]:
-            raise RadioLogError(f"{where}: robot: {robot!r} is not a robot of the flight of line "
+        if not isinstance(robot, str) or robot not in flights[-1]["robots"]:
+            raise RadioLogError(f"{where}: robot: {_quote(robot)} is not a robot of the flight of line "
                                 f"{flights[-1]['line']} ({', '.join(flights[-1]['robots'])})")
         for key in ("t_ms", "host_ms"):
             if not _number(rec.get(key)):
-                raise RadioLogError(f"{where}: {key}: missing or not a finite number")
+                raise RadioLogError(f"{where}: {key}: missing or not a finite number (within +-{VALUE_MAX:g})")
+        if rec["t_ms"] < 0:
+            raise RadioLogError(f"{where}: t_ms: {rec['t_ms']!r} is before the robot's boot")
         values = {k: v for k, v in rec.items() if k not in ("robot", "t_ms", "host_ms")}
         bad = next((k for k, v in values.items() if not _number(v)), None)
         if bad is not None:
-            raise RadioLogError(f"{where}: {bad}: {values[bad]!r} is not a finite number")
+            raise RadioLogError(f"{where}: {bad if bad.isprintable() else _quote(bad)}: {_quote(values[bad])} "
+                                f"{_not_number(values[bad])}")
+        bad = next((k for k, v in values.items() if k in RANGE and not RANGE[k][0] <= v <= RANGE[k][1]), None)
+        if bad is not None:
+            raise RadioLogError(f"{where}: {bad}: {values[bad]!r} is outside the physical range "
+                                f"[{RANGE[bad][0]:g}, {RANGE[bad][1]:g}]: corrupt log")
+        if all(q in values for q in VARIABLES["q"]):
+            qn = math.sqrt(sum(float(values[q]) ** 2 for q in VARIABLES["q"]))
+            if not QUAT_NORM[0] <= qn <= QUAT_NORM[1]:
+                raise RadioLogError(f"{where}: stateEstimate.qw/qx/qy/qz: norm {qn:.3g}, not a unit quaternion")
         flights[-1]["samples"][robot].append((n, float(rec["t_ms"]), float(rec["host_ms"]), values))
     if not flights:
         raise RadioLogError(f"{path}: no flight header line (ns2 fly's radio log, docs/flying.md)")

@@ -9,7 +9,8 @@
  *    localization (mocap broadcasts), drained every 1 ms into the app's own table
  *    of up to NS2_PEERS_MAX = 16 robots (the firmware keeps 10 and never frees a
  *    slot; see drain_peers), velocity by finite differences (ns2_peers), robot
- *    types from the ns2type parameters; the environment is always included by
+ *    types from the type table ns2type.t0..t15 (2 bits for each radio id
+ *    0..255, written by the ground side); the environment is always included by
  *    the library;
  *  - prediction spread over the 1 ms stabilizer ticks (ns2_pilot_step, ns2_job_*):
  *    begun at each 100 Hz position tick from the current state and neighbours,
@@ -34,7 +35,8 @@
  * parameter ns2.sync (broadcast to all drones before take-off) logs the uSD
  * event ns2Sync with the written value as seq; ns2codegen.logs.align aligns the
  * robots' clocks on it.
- * PARAM: ns2 (switches, limits, sync, modelId), ns2type (robot types of radio ids), ns2gain.
+ * PARAM: ns2 (switches, limits, sync, modelId), ns2type (t0..t15: the robot type of every
+ * radio id, ns2_type_table_get), ns2gain.
  * LOG ns2: faHat (g), inferUs (the app's longest 1 ms step in the last period, us),
  * nUsed, status, ctrlStatus, ex/ey/ez (position error, m).
  */
@@ -71,6 +73,9 @@
 #if !NS2_HAVE_VEHICLES
 #error "ns2_vehicles.h: a robot type lacks rigid-body parameters in the config (see ns2codegen/default.toml)"
 #endif
+#if NS2_NUM_ROBOT_TYPES > NS2_TYPE_TABLE_MAX_TYPES
+#error "the app's type table (ns2type.t0..t15, 2 bits per radio id) names at most 4 robot types"
+#endif
 
 #define NS2_DEG2RAD 0.017453292519943295f
 
@@ -90,8 +95,9 @@ static uint32_t syncSeq;   /* PARAM ns2.sync: a new value logs the event ns2Sync
 static uint32_t syncLogged;
 EVENTTRIGGER(ns2Sync, uint32, seq)
 
-static uint32_t typeMask1; /* radio id i is robot type 1 when bit i is set */
-static uint32_t typeMask2; /* ... type 2 (for a third robot type) */
+/* PARAM ns2type.t0..t15: the robot type of radio id i is bits 2 (i % 16) and up of
+ * word i / 16 (ns2_peers.h, ns2_type_table_get); all 0 (the first type) at boot */
+static uint32_t typeTable[NS2_TYPE_TABLE_WORDS];
 
 static ns2_gains_t gains;  /* PARAM ns2gain, copied into the controller at 100 Hz */
 static uint8_t gainsType = 0xFFu; /* robot type whose default gains were loaded last */
@@ -112,17 +118,6 @@ void appMain(void)
     while (1) {
         vTaskDelay(M2T(2000));
     }
-}
-
-static uint8_t type_of(uint8_t id)
-{
-    if (id < 32u && (typeMask2 >> id) & 1u) {
-        return 2u < NS2_NUM_ROBOT_TYPES ? 2u : 0u;
-    }
-    if (id < 32u && (typeMask1 >> id) & 1u) {
-        return 1u < NS2_NUM_ROBOT_TYPES ? 1u : 0u;
-    }
-    return 0u;
 }
 
 static uint8_t self_type(void)
@@ -184,7 +179,12 @@ static void to_setpoint(const setpoint_t *sp, ns2_setpoint_t *d)
  * freed, so any 10 positions per millisecond get through (docs/app.md).  The radio
  * task writes id, x, y, z, then the timestamp (after a call, so last): an entry
  * with timestamp 0 is being written (or free) and is taken at the next tick.  The
- * app owns the peer table: other readers of peer localization see it drained. */
+ * app owns the peer table: other readers of peer localization see it drained.
+ * Each position gets the robot type of its radio id in the type table as it is
+ * now, so a type the ground rewrites holds from the peer's next position on.  Id 0
+ * marks a free slot in the firmware's table (peer_localization.c), so a robot
+ * whose radio id is 0 is never seen as a peer (the ground side refuses it in a
+ * swarm). */
 static void drain_peers(void)
 {
     for (uint8_t i = 0; i < PEER_LOCALIZATION_MAX_NEIGHBORS; ++i) {
@@ -193,7 +193,8 @@ static void drain_peers(void)
             continue;
         }
         const float p[3] = {o->pos.x, o->pos.y, o->pos.z};
-        (void)ns2_pilot_peer(&pilot, o->id, type_of(o->id), o->pos.timestamp, p);
+        (void)ns2_pilot_peer(&pilot, o->id, ns2_type_table_get(typeTable, o->id, NS2_NUM_ROBOT_TYPES),
+                             o->pos.timestamp, p);
         o->pos.timestamp = 0u;
         o->id = 0u;
     }
@@ -276,10 +277,26 @@ PARAM_ADD(PARAM_UINT32, sync, &syncSeq)
 PARAM_ADD(PARAM_UINT32 | PARAM_RONLY, modelId, &modelId)
 PARAM_GROUP_STOP(ns2)
 
+/* the type table: tK holds radio ids 16 K .. 16 K + 15 */
 PARAM_GROUP_START(ns2type)
-PARAM_ADD(PARAM_UINT32, mask1, &typeMask1)
-PARAM_ADD(PARAM_UINT32, mask2, &typeMask2)
+PARAM_ADD(PARAM_UINT32, t0, &typeTable[0])
+PARAM_ADD(PARAM_UINT32, t1, &typeTable[1])
+PARAM_ADD(PARAM_UINT32, t2, &typeTable[2])
+PARAM_ADD(PARAM_UINT32, t3, &typeTable[3])
+PARAM_ADD(PARAM_UINT32, t4, &typeTable[4])
+PARAM_ADD(PARAM_UINT32, t5, &typeTable[5])
+PARAM_ADD(PARAM_UINT32, t6, &typeTable[6])
+PARAM_ADD(PARAM_UINT32, t7, &typeTable[7])
+PARAM_ADD(PARAM_UINT32, t8, &typeTable[8])
+PARAM_ADD(PARAM_UINT32, t9, &typeTable[9])
+PARAM_ADD(PARAM_UINT32, t10, &typeTable[10])
+PARAM_ADD(PARAM_UINT32, t11, &typeTable[11])
+PARAM_ADD(PARAM_UINT32, t12, &typeTable[12])
+PARAM_ADD(PARAM_UINT32, t13, &typeTable[13])
+PARAM_ADD(PARAM_UINT32, t14, &typeTable[14])
+PARAM_ADD(PARAM_UINT32, t15, &typeTable[15])
 PARAM_GROUP_STOP(ns2type)
+_Static_assert(NS2_TYPE_TABLE_WORDS == 16u, "ns2type.t0..t15 are the type table's words");
 
 /* gains of eqs. (v_ref), (pos_ctrl), (omega_ref), (att_ctrl): see ns2_controller.h */
 #define NS2_GAIN3(NAME)                      \

@@ -19,7 +19,9 @@
  *       packets of K positions, one packet per millisecond, for one second: how
  *       many peers the app keeps and its network uses, and the most the firmware's
  *       table ever held.
- *   harness trace FIXED ENABLE SELF_TYPE MASK1 IN OUT
+ *   harness trace FIXED ENABLE SELF_TYPE TYPES IN OUT
+ *       TYPES: the peers' robot types, ID=TYPE,... (others type 0; "-": none), written
+ *       into the type table as the ground does (PARAM ns2type.tK);
  *       the app's inputs of N 1 kHz stabilizer ticks from IN (N records of
  *       TRACE_WORDS little-endian 32-bit words: see trace_tick), given to the app as
  *       the stabilizer does (peers through peerLocalizationTellPosition, the clock,
@@ -32,6 +34,16 @@
  *       tick:N (N stabilizer ticks); prints the robot type the controller flies,
  *       the gains (PARAM ns2gain), the gains the controller uses and each type's
  *       default gains, as float arrays in ns2_gains_t order.
+ *   harness peers STEP...
+ *       the peer bookkeeping of the app (this robot: radio id 1, hovering), from boot;
+ *       each STEP is GROUP.NAME=VALUE (a parameter write, as above), type:ID=TYPE
+ *       (radio id ID's robot type written into the type table, PARAM ns2type.tK, as
+ *       the ground does), ids:ID,ID,... (the robots whose positions mocap broadcasts
+ *       from now on; "ids:" none), ms:N (N stabilizer ticks; every 10 ms a mocap frame
+ *       of the broadcast robots, told to the firmware's peer localization in packets
+ *       of 4 positions per millisecond, so at most 40 robots) or show (prints one JSON
+ *       line: the time, the app's peer table in slot order as [id, type, samples,
+ *       t_ms], the neighbours the last prediction used, the type table's words).
  */
 #include <stdio.h>
 #include <stdlib.h>
@@ -68,6 +80,42 @@ static float battery_V = 3.9f;
 float pmGetBatteryVoltage(void) { return battery_V; }
 TickType_t xTaskGetTickCount(void) { return now_ms; }
 void vTaskDelay(const TickType_t ticks) { (void)ticks; }
+
+/* Radio id `id` is of robot type `type`: its word of the type table written as the
+ * ground writes it (PARAM ns2type.tK, done as param_logic.c does it). */
+static int set_type(unsigned id, unsigned type)
+{
+    if (id > 255u || type >= NS2_TYPE_TABLE_MAX_TYPES) {
+        return -1;
+    }
+    const unsigned k = id / 16u, shift = 2u * (id % 16u);
+    const uint32_t w = (typeTable[k] & ~(3u << shift)) | ((uint32_t)type << shift);
+    char name[8];
+    snprintf(name, sizeof name, "t%u", k);
+    return param_write(__params_ns2type, name, &w, sizeof w);
+}
+
+/* TYPES of the trace mode: ID=TYPE,... or "-" */
+static int set_types(const char *spec)
+{
+    if (strcmp(spec, "-") == 0) {
+        return 0;
+    }
+    for (const char *c = spec; *c != '\0';) {
+        unsigned id, type;
+        int used = 0;
+        if (sscanf(c, "%u=%u%n", &id, &type, &used) != 2 || set_type(id, type) != 0) {
+            return -1;
+        }
+        c += used;
+        if (*c == ',') {
+            ++c;
+        } else if (*c != '\0') {
+            return -1;
+        }
+    }
+    return 0;
+}
 
 static void tell(int id, float x, float y, float z)
 {
@@ -195,7 +243,11 @@ static int trace(char **argv)
     cfg.fixed = (uint8_t)atoi(argv[2]);
     cfg.enable = (uint8_t)atoi(argv[3]);
     cfg.self_type = (uint8_t)atoi(argv[4]);
-    typeMask1 = (uint32_t)strtoul(argv[5], NULL, 0);
+    if (set_types(argv[5]) != 0) {
+        fprintf(stderr, "%s: not ID=TYPE,... (radio id 0..255, type below %u)\n", argv[5],
+                (unsigned)NS2_TYPE_TABLE_MAX_TYPES);
+        return 1;
+    }
     controllerOutOfTreeInit();
     FILE *in = fopen(argv[6], "rb");
     if (in == NULL) {
@@ -245,6 +297,41 @@ static void print_gains(const char *name, const ns2_gains_t *g)
     printf("]");
 }
 
+/* One parameter write GROUP.NAME=VALUE of the app's groups, as param_logic.c does it:
+ * 0 written, 1 refused (message on stderr). */
+static int write_step(const char *arg)
+{
+    char group[32], name[32];
+    double value;
+    if (sscanf(arg, "%31[^.].%31[^=]=%lf", group, name, &value) != 3) {
+        fprintf(stderr, "%s: not GROUP.NAME=VALUE\n", arg);
+        return 1;
+    }
+    struct param_s *table = strcmp(group, "ns2") == 0       ? __params_ns2
+                            : strcmp(group, "ns2type") == 0 ? __params_ns2type
+                            : strcmp(group, "ns2gain") == 0 ? __params_ns2gain
+                                                            : NULL;
+    const struct param_s *e = table != NULL ? param_find(table, name) : NULL;
+    if (e == NULL) {
+        fprintf(stderr, "%s: no such parameter of the app\n", arg);
+        return 1;
+    }
+    const float f = (float)value;
+    const uint32_t u32 = (uint32_t)value;
+    const uint16_t u16 = (uint16_t)value;
+    const uint8_t u8 = (uint8_t)value;
+    const size_t size = (size_t)1u << (e->type & PARAM_BYTES_MASK);
+    const void *v = (e->type & PARAM_TYPE_FLOAT) ? (const void *)&f
+                    : size == 4                  ? (const void *)&u32
+                    : size == 2                  ? (const void *)&u16
+                                                 : (const void *)&u8;
+    if (param_write(table, name, v, size) != 0) {
+        fprintf(stderr, "%s: not writable\n", arg);
+        return 1;
+    }
+    return 0;
+}
+
 static int params(int argc, char **argv)
 {
     _Static_assert(sizeof(ns2_gains_t) % sizeof(float) == 0, "ns2_gains_t is floats");
@@ -252,8 +339,6 @@ static int params(int argc, char **argv)
     rig_boot(&r);
     uint32_t tick = 0;
     for (int a = 2; a < argc; ++a) {
-        char group[32], name[32];
-        double value;
         unsigned n;
         if (sscanf(argv[a], "tick:%u", &n) == 1) {
             for (unsigned k = 0; k < n; ++k, ++tick) {
@@ -261,30 +346,7 @@ static int params(int argc, char **argv)
             }
             continue;
         }
-        if (sscanf(argv[a], "%31[^.].%31[^=]=%lf", group, name, &value) != 3) {
-            fprintf(stderr, "%s: not GROUP.NAME=VALUE or tick:N\n", argv[a]);
-            return 1;
-        }
-        struct param_s *table = strcmp(group, "ns2") == 0       ? __params_ns2
-                                : strcmp(group, "ns2type") == 0 ? __params_ns2type
-                                : strcmp(group, "ns2gain") == 0 ? __params_ns2gain
-                                                                : NULL;
-        const struct param_s *e = table != NULL ? param_find(table, name) : NULL;
-        if (e == NULL) {
-            fprintf(stderr, "%s: no such parameter of the app\n", argv[a]);
-            return 1;
-        }
-        const float f = (float)value;
-        const uint32_t u32 = (uint32_t)value;
-        const uint16_t u16 = (uint16_t)value;
-        const uint8_t u8 = (uint8_t)value;
-        const size_t size = (size_t)1u << (e->type & PARAM_BYTES_MASK);
-        const void *v = (e->type & PARAM_TYPE_FLOAT) ? (const void *)&f
-                        : size == 4                  ? (const void *)&u32
-                        : size == 2                  ? (const void *)&u16
-                                                     : (const void *)&u8;
-        if (param_write(table, name, v, size) != 0) {
-            fprintf(stderr, "%s: not writable\n", argv[a]);
+        if (write_step(argv[a]) != 0) {
             return 1;
         }
     }
@@ -300,10 +362,78 @@ static int params(int argc, char **argv)
     return 0;
 }
 
+#define PEERS_PER_MS 4u    /* positions per mocap packet (extPositionPacked) */
+#define PEERS_FRAME_MS 10u /* mocap frames at 100 Hz */
+
+static void show_peers(uint32_t tick)
+{
+    printf("{\"ms\": %u, \"peers\": [", (unsigned)tick);
+    for (uint8_t i = 0; i < pilot.peers.count; ++i) {
+        const ns2_peer_t *e = &pilot.peers.peer[i];
+        printf("%s[%u, %u, %u, %u]", i ? ", " : "", (unsigned)e->id, (unsigned)e->type, (unsigned)e->samples,
+               (unsigned)e->t_ms);
+    }
+    printf("], \"n_used\": %u, \"table\": [", (unsigned)pilot.n_used);
+    for (unsigned k = 0; k < NS2_TYPE_TABLE_WORDS; ++k) {
+        printf("%s%u", k ? ", " : "", (unsigned)typeTable[k]);
+    }
+    printf("]}\n");
+}
+
+static int peers(int argc, char **argv)
+{
+    rig_t r;
+    rig_boot(&r);
+    uint32_t tick = 1; /* the firmware's peer table stamps xTaskGetTickCount(); 0 would read as incomplete */
+    unsigned ids[PEERS_PER_MS * PEERS_FRAME_MS];
+    unsigned n_ids = 0;
+    for (int a = 2; a < argc; ++a) {
+        const char *arg = argv[a];
+        unsigned n, id, type;
+        if (strncmp(arg, "ids:", 4) == 0) {
+            n_ids = 0;
+            for (const char *c = arg + 4; *c != '\0';) {
+                int used = 0;
+                if (n_ids == sizeof ids / sizeof ids[0] || sscanf(c, "%u%n", &id, &used) != 1 || id > 255u) {
+                    fprintf(stderr, "%s: not ids:ID,... (radio ids 0..255, at most %u)\n", arg,
+                            (unsigned)(sizeof ids / sizeof ids[0]));
+                    return 1;
+                }
+                ids[n_ids++] = id;
+                c += used;
+                c += *c == ',';
+            }
+        } else if (sscanf(arg, "ms:%u", &n) == 1) {
+            for (unsigned k = 0; k < n; ++k, ++tick) {
+                now_ms = tick;
+                const unsigned slot = tick % PEERS_FRAME_MS; /* this millisecond's packet of the frame */
+                for (unsigned j = slot * PEERS_PER_MS; j < (slot + 1u) * PEERS_PER_MS && j < n_ids; ++j) {
+                    const float ang = 6.2831853f * (float)ids[j] / 256.0f;
+                    tell((int)ids[j], 0.3f * cosf(ang), 0.3f * sinf(ang), 1.3f);
+                }
+                rig_tick(&r, tick);
+            }
+        } else if (sscanf(arg, "type:%u=%u", &id, &type) == 2) {
+            if (set_type(id, type) != 0) {
+                fprintf(stderr, "%s: radio id 0..255, type below %u\n", arg, (unsigned)NS2_TYPE_TABLE_MAX_TYPES);
+                return 1;
+            }
+        } else if (strcmp(arg, "show") == 0) {
+            show_peers(tick);
+        } else if (write_step(arg) != 0) {
+            return 1;
+        }
+    }
+    return 0;
+}
+
 int main(int argc, char **argv)
 {
     if (argc > 1 && strcmp(argv[1], "params") == 0) {
         return params(argc, argv);
+    }
+    if (argc > 1 && strcmp(argv[1], "peers") == 0) {
+        return peers(argc, argv);
     }
     if (argc > 7 && strcmp(argv[1], "trace") == 0) {
         return trace(argv);
@@ -317,7 +447,7 @@ int main(int argc, char **argv)
     rig_boot(&r);
     cfg.fixed = fixed;
     cfg.enable = enable;
-    typeMask1 = 1u << 2; /* radio id 2 is a large robot */
+    (void)set_type(2u, 1u); /* radio id 2 is a large robot */
     float sum[4] = {0};
     for (uint32_t tick = 0; tick < 1000u; ++tick) {
         now_ms = tick;
