@@ -230,3 +230,18 @@ def test_history_is_validated_trained_and_never_exported(cfg, tmp_path):
     with pytest.raises(QuantizationError, match="no C export"):
         from_checkpoint(load_checkpoint(tmp_path / "h.pt"))
     assert HeteroDeepSet(cfg).phi[0].layers[0].in_features == 6
+
+
+def test_the_memory_verdict_needs_more_than_the_seeds_spread():
+    from ns2exp.blind import memory, memory_table
+
+    def res(wake_mean, wake_std):
+        m = {"labels": {"plain": 3.0, "neutral": 2.0, "wake": {"plain": 9.0,
+                        "neutral": {"mean": wake_mean, "std": wake_std}}}}
+        return {"leave_one_collection_out": {"2020-06-16": {"models": {"ours": m}}}}
+
+    now = res(10.0, 0.5)
+    assert memory(now, res(8.9, 0.5))["collection 2020-06-16 left out"]["wake_lower_beyond_spread"]
+    rows = memory(now, res(9.1, 0.5))
+    assert not rows["collection 2020-06-16 left out"]["wake_lower_beyond_spread"]
+    assert "| collection 2020-06-16 left out | 10.00 +- 0.50 / 9.10 +- 0.50 |" in memory_table(rows, [50, 100, 200])
