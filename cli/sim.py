@@ -109,19 +109,24 @@ def sim_rings(gen_dir, out_dir, duration, learned, simulator, quiet, as_json):
 @_gen_option("build/real/authors-gen", "export of the network that flew the real flights (the authors', "
              "`ns2 real import-authors` + `ns2 export`): in the loop of the replays")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False), default="build/sim/calibration",
-              show_default=True, help="calibration.json and calibration.md")
+              show_default=True, help="calibration.json, calibration.md and the fitted parameter files rough.toml and "
+              "read_law.toml (host/sim/params/' form)")
 @click.option("--per-scenario", type=click.IntRange(min=1), default=None,
               help="replay only the first N flights of each swap scenario (default: every swap flight)")
 @click.option("--refit/--no-refit", default=True, show_default=True,
-              help="fit the roughness again (else compare with host/sim/roughness.py's defaults)")
+              help="fit the roughness and the z law again (else compare with host/sim/params/rough.toml and "
+                   "read_law.toml)")
 @click.option("--workers", type=click.IntRange(min=1), default=1, show_default=True,
               help="replay this many flights at once (processes)")
 @_quiet_option
 @_json_option
 def sim_calibrate(logs_dir, data_dir, gen_dir, out_dir, per_scenario, refit, workers, quiet, as_json):
     """Measure the real flights' roughness, fit host/sim/roughness.py to it, replay the real
-    swaps in the clean and the rough simulator: the calibration and sim-to-real tables."""
+    swaps in the clean and the rough simulator: the calibration and sim-to-real tables, and
+    the fitted parameter files (copy them over host/sim/params/ to adopt the fit)."""
     import json
+    import shlex
+    import sys
 
     from ns2codegen.config import Config
     from ns2codegen.logs.align import logs_to_flights
@@ -144,5 +149,5 @@ def sim_calibrate(logs_dir, data_dir, gen_dir, out_dir, per_scenario, refit, wor
     if per_scenario is not None:
         names = first_per_folder(pieces_by_flight(swap_flights(flights)), per_scenario)
     res = calibrate(cfg, gen_dir, flights, hover, type_of, out_dir, workers=workers, names=names,
-                    rough=None if refit else Roughness())
+                    rough=None if refit else Roughness(), command=shlex.join(["ns2", *sys.argv[1:]]))
     _emit(as_json, res, (Path(out_dir) / "calibration.md").read_text())

@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import json
 import math
+import time
 from dataclasses import asdict, replace
 from pathlib import Path
 
@@ -36,15 +37,16 @@ import numpy as np
 
 from ns2codegen.config import Config
 from ns2codegen.data.from_logs import Flight
-from ns2codegen.fileio import atomic_write_bytes
+from ns2codegen.fileio import atomic_write_files
 from ns2codegen.parallel import forked_map
 
 from ns2host.sim import flightstats as fs
 from ns2host.sim.cloop import CLoopSwarm
 from ns2host.sim.replay import pieces_by_flight, replay
-from ns2host.sim.roughness import EFFECTS, Roughness, hp_share
+from ns2host.sim.paramfile import source_commit
+from ns2host.sim.roughness import EFFECTS, Roughness, dump_roughness, hp_share
 from ns2host.sim.scenarios import random_walk
-from ns2host.sim.vehicle import AUTHORS_GAINS, AUTHORS_TYPE, G, READ_LAW
+from ns2host.sim.vehicle import AUTHORS_GAINS, AUTHORS_TYPE, G, READ_LAW, dump_read_law
 
 # neural-swarm2.tex, flight tests: "in the L2S case [...] the median z-error is reduced
 # from 17 cm to 7 cm" (real flights, BL -> NN, the authors' controller on every robot)
@@ -639,11 +641,13 @@ def roughness_dict(rough: Roughness) -> dict:
 
 def calibrate(cfg: Config, gen_dir, flights: list[Flight], hover_by_robot: dict, robot_type_of: dict,
               out_dir: str | Path, workers: int = 1, names: list[str] | None = None,
-              rough: Roughness | None = None) -> dict:
+              rough: Roughness | None = None, command: str = "ns2 sim calibrate") -> dict:
     """Fit (unless ``rough`` is given), compare, write out_dir/calibration.json and
-    calibration.md; returns the JSON."""
+    calibration.md and, with a fit, the fitted parameter files rough.toml and
+    read_law.toml beside them (host/sim/params' form, made by ``command`` at this
+    checkout's commit; copied over host/sim/params/ they become the simulator's);
+    returns the JSON."""
     out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
     fit_report, law = None, READ_LAW
     if rough is None:
         rough, fit_report = fit(cfg, gen_dir, flights, hover_by_robot, robot_type_of, workers)
@@ -652,10 +656,25 @@ def calibrate(cfg: Config, gen_dir, flights: list[Flight], hover_by_robot: dict,
     l2s = paper_l2s(cfg, gen_dir, rough, law=law)
     res = {"roughness": roughness_dict(rough), "read_law": law, "effects": list(EFFECTS), "fit": fit_report,
            "compare": cmp, "paper_l2s": l2s}
-    atomic_write_bytes(out_dir / "calibration.json", json.dumps(res, indent=1, sort_keys=True).encode())
-    md = markdown(res)
-    atomic_write_bytes(out_dir / "calibration.md", md.encode())
+    files = {"calibration.json": json.dumps(res, indent=1, sort_keys=True), "calibration.md": markdown(res)}
+    if fit_report is not None:
+        files.update(param_files(rough, law, command))
+    atomic_write_files(out_dir, files)
+    if fit_report is None:        # no fit: no parameter file of an earlier run beside this report
+        for name in PARAM_FILES:
+            (out_dir / name).unlink(missing_ok=True)
     return res
+
+
+PARAM_FILES = ("rough.toml", "read_law.toml")
+
+
+def param_files(rough: Roughness, law: dict, command: str) -> dict:
+    """{name: text} of the parameter files of a fit (rough.toml, read_law.toml), their
+    origin this checkout's commit, ``command`` and today (UTC)."""
+    origin = {"commit": source_commit(), "command": command, "date": time.strftime("%Y-%m-%d", time.gmtime()),
+              "report": "calibration.md and calibration.json beside this file"}
+    return dict(zip(PARAM_FILES, (dump_roughness(rough, origin), dump_read_law(law, origin))))
 
 
 def markdown(res: dict) -> str:

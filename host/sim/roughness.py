@@ -1,76 +1,41 @@
 """What a real Crazyflie has and the clean simulator does not: each effect separate,
 switchable (``Roughness.without(name)``; ``None`` in cloop.py flies the clean
-simulator), its parameters fitted to the real flights of 16 June 2020 by
-``ns2 sim calibrate`` (host/sim/calibration.py ``fit_roughness``: the statistics of
-host/sim/flightstats.py, real against simulated, never a swap or ring result).
-The defaults below are that fit's output (docs/simulator.md, "Roughness"); a test
-refits them from the logs.
+simulator).  The parameters are data: params/rough.toml (units, sources, the commit
+and command of the fit), written by ``ns2 sim calibrate`` (experiments/calibrate.py,
+``make calibrate``) from the real flights of 16 June 2020, never from a swap or ring
+result; ``Roughness()`` is that file, ``load_roughness(path)`` another one.  The
+models, the statistics they are fitted to and the current values: docs/simulator.md.
 
 vibration    propeller vibration seen by the IMU: white noise per 1 kHz sample added
              (in quadrature) to the BMI088 datasheet noise of sensing.py, per robot
-             type, accelerometer (g) and gyro (deg/s).  Source: the fast part (above
-             about 5 Hz) of the free-air residual force and the motor-command noise,
-             which the datasheet noise leaves 2-4x too small, matched by replays of
-             the real pair random walks flown by the controller that flew them
-             (experiments/calibrate.py fit_vibration).
+             type, accelerometer (g) and gyro (deg/s).
 turbulence   rotor-wake turbulence: a force along z on every robot, a first-order
              Gauss-Markov process of correlation time tau_s whose standard deviation
              is ``ratio`` x |f_a,z| of the ground truth at that robot (the wakes and
-             the ground it sits in; no wake, no turbulence).  Source: the scatter of
-             the real residual under a neighbour for the same relative state, beyond
-             the clean simulator's, and its fast share (tau).
+             the ground it sits in; no wake, no turbulence).
 thrust       per-robot thrust scatter: each robot's psi_1 (PWM -> force) scaled by
              1 + eps, eps ~ N(0, sd), drawn per flight; the controller keeps the
-             type's nominal map.  Source: the spread of the robots' hover thrust
-             within a type (experiments/real.py hover_masses).
+             type's nominal map.
 battery      battery sag: the voltage the motors and the controller see falls
-             linearly from start_V at sag_V_per_min.  Source: the logged pm.vbat.
+             linearly from start_V at sag_V_per_min.
 wake         the wake's profile read off the real flights: the ground truth's initial
              jet width sigma_0 and spreading rate S (aero.py) scaled by
-             wake_sigma0_scale and wake_spread_scale.  Source: the real labels of
-             every robot under a neighbour, against the truth evaluated at the same
-             logged states (least squares of the difference; no controller, no
-             replay): the paper-calibrated wake is too wide beside its axis.
+             wake_sigma0_scale and wake_spread_scale.
 lateral      the wake's lateral force on a robot beside its axis: the truth's constant
              K_XY (aero.py, 0.15: pushed out by the profile's gradient) replaced per
-             receiving robot's type by ``lateral_k_xy``.  Source: the horizontal
-             residual of the real robots beside a wake (experiments/calibrate.py
-             lateral_k_xy: least squares on the truth's push): the real large robots
-             are drawn in (read -0.07), the small ones feel about none, where replays
-             with the truth's constant read +0.07 and +0.04; matched by replays of the
-             real pair swaps (experiments/calibrate.py fit_lateral: the reading is
-             linear in the constant flown).  With it the replayed large robots stay
-             under a neighbour's axis about as long as the real ones (docs/simulator.md).
+             receiving robot's type by ``lateral_k_xy``.
 moment       the wakes' moment on a robot (OFF by default: not in DEFAULT_EFFECTS): each
              rotor responds to the downwash at its own disc (aero.py
-             AeroModel.forces_moments: the truth's wake profile at the rotor, the same
-             rotor response), the four rotors' forces make a moment about the centre of
-             mass, scaled by ``moment_gain`` and bounded by physics: about a
+             AeroModel.forces_moments), the four rotors' forces make a moment about the
+             centre of mass, scaled by ``moment_gain`` and bounded by physics: about a
              horizontal axis at most |f_a,z| x arm / sqrt 2, the wake's whole force on
-             one side of the robot (steady_moment).  Source: the bottom robot's motor
-             commands in the real swaps (flightstats.swap_attitude: its attitude loop's
-             largest departure from the four motors' mean, 0.40-0.67 of full PWM in the
-             real swaps, 0.10-0.32 in the simulator without it; its 0.2 s average,
-             0.18-0.32 real, 0.02-0.03 without it), matched by replays
-             (experiments/calibrate.py fit_moment, on the slow part: gain 6.4 under
-             the bound).  Unbounded, the fitted gain (2.5) turned robots under two
-             others over; bounded, the fitted gain tilts the pair swaps' robots 1.1-1.7x
-             as far as the real ones and turns robots under two others over again.
-             The real robots part their motors 0.13-0.49 in free air too, so most of
-             that departure is not the wake's (docs/simulator.md): kept switchable, off.
+             one side of the robot (steady_moment).  Off: at its fitted gain it tilts
+             the replayed robots further than the real ones turn (docs/simulator.md).
 moment_turbulence
              the wakes' turbulent moment (OFF by default): a torque about the body x
              and y axes, each a first-order Gauss-Markov process of the turbulence's
              correlation time, standard deviation ``moment_turbulence_ratio`` x
-             |f_a,z| of the truth at the robot x its arm (no wake, none).  Source: the
-             real bottom robots' motor departure is about half fast (faster than its
-             0.2 s average, flightstats.swap_attitude): a moment faster than the
-             attitude responds parts the motors without turning the robot; fitted on
-             the raw departure with the steady moment fitted on the slow part
-             (experiments/calibrate.py fit_moment).  It parts them, but neither tilts
-             the robots nor moves their z error (docs/simulator.md); with the bounded
-             steady moment at its fitted gain the replays part the motors as far as
-             the real ones without it: fitted 0, kept switchable, off.
+             |f_a,z| of the truth at the robot x its arm (no wake, none); fitted 0.
 """
 from __future__ import annotations
 
@@ -79,6 +44,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from .paramfile import PARAMS_DIR, Param, dump_params, load_params
 from .vehicle import base_type
 
 EFFECTS = ("vibration", "turbulence", "thrust", "battery", "wake", "lateral", "moment", "moment_turbulence")
@@ -88,31 +54,76 @@ DEFAULT_EFFECTS = ("vibration", "turbulence", "thrust", "battery", "wake", "late
 LOW_BATTERY_V = 3.2
 
 
+# The parameters of params/rough.toml: name (a field of Roughness) -> unit, source, kind.
+# Keyed ones are by robot type.  The functions named are experiments/calibrate.py's.
+ROUGH_PARAMS = {
+    "vibration_acc_g": Param("g", "fit_vibration: the fast part of the free-air residual force, replays of the real "
+                             "pair random walks flown as they flew against the same real flights, in quadrature; "
+                             "white noise per 1 kHz accelerometer sample", keyed=True, nonneg=True),
+    "vibration_gyro_dps": Param("deg/s", "fit_vibration: the free-air motor-command noise, the same replays, in "
+                                "quadrature; white noise per 1 kHz gyro sample", keyed=True, nonneg=True),
+    "turbulence_ratio": Param("1 (force sd per unit |f_a,z|)", "fit_turbulence: the real within-bin wake scatter "
+                              "beyond the simulator's (the other effects on), per unit of the bins' rms force, "
+                              "pooled over the pair swaps", nonneg=True),
+    "turbulence_tau_s": Param("s", "fit_turbulence: the share of that excess scatter in the fast part "
+                              "(roughness.hp_share)", nonneg=True),
+    "thrust_sd": Param("1 (relative sd of psi_1)", "thrust_sd: the spread of the robots' hover thrust within a type "
+                       "(`ns2 real data`, data_report.json hover.by_robot)", nonneg=True),
+    "battery_start_V": Param("V", "flightstats.battery: median of pm.vbat in the first second of every flight piece",
+                             nonneg=True),
+    "battery_sag_V_per_min": Param("V/min", "flightstats.battery: median straight-line slope of pm.vbat of every "
+                                   "flight piece, negated"),
+    "wake_sigma0_scale": Param("1 (factor on aero.py's sigma_0)", "fit_wake: least squares of real label - truth at "
+                               "the logged states of every robot under a neighbour (no replay)", nonneg=True),
+    "wake_spread_scale": Param("1 (factor on aero.py's spreading rate S)", "fit_wake: the same least squares",
+                               nonneg=True),
+    "lateral_k_xy": Param("1 (aero.py K_XY: push per unit r / sigma)", "fit_lateral: the labels' reading of the "
+                          "lateral push (lateral_k_xy) in the real pair swaps, matched by replays flown as they flew",
+                          keyed=True),
+    "moment_gain": Param("1 (factor on aero.py's per-rotor moment)", "fit_moment: the slow part of the bottom "
+                         "robot's motor departure in the real pair swaps, matched by replays (effect off by default)",
+                         nonneg=True),
+    "moment_turbulence_ratio": Param("1 (torque sd per unit |f_a,z| x arm)", "fit_moment: the whole motor departure, "
+                                     "the steady moment at its gain (effect off by default)", nonneg=True),
+    "hover_motor_noise": Param("1 (fraction of full PWM)", "flightstats.free_air motor_noise of the real flights; not "
+                               "an effect: the bound of BL-tuned's gain search (experiments/swarm.py)",
+                               keyed=True, nonneg=True),
+}
+ROUGH_FILE = PARAMS_DIR / "rough.toml"
+_FILE = load_params(ROUGH_FILE, ROUGH_PARAMS)[0]     # Roughness()'s values
+
+
+def _from_file(name: str):
+    """A field whose default is params/rough.toml's value (a fresh copy of a table)."""
+    v = _FILE[name]
+    return field(default_factory=lambda: dict(v)) if isinstance(v, dict) else field(default=v)
+
+
 @dataclass(frozen=True)
 class Roughness:
     # propeller vibration (per 1 kHz sample), by robot type
-    vibration_acc_g: dict = field(default_factory=lambda: {"small": 0.0613, "large": 0.0882})
-    vibration_gyro_dps: dict = field(default_factory=lambda: {"small": 2.28, "large": 6.594})
+    vibration_acc_g: dict = _from_file("vibration_acc_g")
+    vibration_gyro_dps: dict = _from_file("vibration_gyro_dps")
     # rotor-wake turbulence
-    turbulence_ratio: float = 0.025
-    turbulence_tau_s: float = 0.002
+    turbulence_ratio: float = _from_file("turbulence_ratio")
+    turbulence_tau_s: float = _from_file("turbulence_tau_s")
     # per-robot thrust scatter (relative standard deviation of psi_1)
-    thrust_sd: float = 0.0158
+    thrust_sd: float = _from_file("thrust_sd")
     # battery sag
-    battery_start_V: float = 3.552
-    battery_sag_V_per_min: float = 0.1063
+    battery_start_V: float = _from_file("battery_start_V")
+    battery_sag_V_per_min: float = _from_file("battery_sag_V_per_min")
     # the wake's profile (aero.calibrated's scales)
-    wake_sigma0_scale: float = 0.848
-    wake_spread_scale: float = 0.474
+    wake_sigma0_scale: float = _from_file("wake_sigma0_scale")
+    wake_spread_scale: float = _from_file("wake_spread_scale")
     # the wake's lateral push per unit r / sigma on a robot of each type (aero.py K_XY)
-    lateral_k_xy: dict = field(default_factory=lambda: {"small": -0.053, "large": -0.176})
+    lateral_k_xy: dict = _from_file("lateral_k_xy")
     # the wakes' moment (a factor on aero.py's per-rotor moment; the effect is off by default)
-    moment_gain: float = 4.715
+    moment_gain: float = _from_file("moment_gain")
     # the wakes' turbulent moment (torque sd per unit |f_a,z| x arm; off by default)
-    moment_turbulence_ratio: float = 0.0
+    moment_turbulence_ratio: float = _from_file("moment_turbulence_ratio")
     # not an effect: the motor-command noise of the real robots in free air (flightstats),
     # the bound of BL-tuned's gain search in the rough simulator (experiments/swarm.py)
-    hover_motor_noise: dict = field(default_factory=lambda: {"small": 0.0274, "large": 0.04613})
+    hover_motor_noise: dict = _from_file("hover_motor_noise")
     enabled: tuple = DEFAULT_EFFECTS
 
     def without(self, *names: str) -> "Roughness":
@@ -168,6 +179,20 @@ class Roughness:
         if not self.on("battery") or self.battery_sag_V_per_min <= 0.0:
             return math.inf
         return max(self.battery_start_V - LOW_BATTERY_V, 0.0) / self.battery_sag_V_per_min * 60.0
+
+
+def load_roughness(path) -> Roughness:
+    """The Roughness of a parameter file (ROUGH_PARAMS; the default effects on)."""
+    return Roughness(**load_params(path, ROUGH_PARAMS)[0])
+
+
+def dump_roughness(rough: Roughness, origin: dict) -> str:
+    """params/rough.toml's text of ``rough``'s parameters, made as ``origin`` says
+    (paramfile: commit, command, ...)."""
+    values = {name: getattr(rough, name) for name in ROUGH_PARAMS}
+    return dump_params(values, ROUGH_PARAMS, origin,
+                       "The rough simulator's parameters (host/sim/roughness.py Roughness), fitted to the real\n"
+                       "flights of 16 June 2020; `make calibrate` writes a new one beside its report.")
 
 
 def _known(names) -> None:
