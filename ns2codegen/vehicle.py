@@ -79,7 +79,7 @@ def default_gains(veh: Vehicle) -> dict:
     # Kwd = Kw / lambda is the motor-delay compensation of the rate term (tau_d_dot /
     # lambda, ns2_controller.h), but not about yaw: the rotors' drag torque is weak, so
     # a yaw D term turns the gyro's vibration into motor commands (the real robots'
-    # free-air vibration, docs/simulator.md: 0.27 PWM rms at hover on a large robot
+    # free-air vibration, docs/notebook/2026-11-simulator-calibration-rounds.md: 0.27 PWM rms at hover on a large robot
     # with it, 0.04 without, real 0.05-0.06; the authors' large robots fly none either)
     return {"Lp": [2.0, 2.0, 2.5], "Kv": [4.0 * veh.mass] * 3, "Gv": [1.5] * 3,
             "Lq": [18.0, 18.0, 8.0], "Kw": list(40.0 * J), "Gw": list(20.0 * J),
