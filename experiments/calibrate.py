@@ -17,7 +17,8 @@
    mean, its slow part for the steady moment, the whole for the turbulent one); and the z
    law that flew (fit_read_law: the authors' law with the gains, the share of the
    prediction taken off and the mass parameter with which replays read back what the
-   real swaps read, flightstats.z_law);
+   real swaps read, flightstats.z_law); the fit is written as parameter files
+   (rough.toml, read_law.toml: host/sim/params/' form) beside the report;
 3. replay the real swap flights in the clean and the rough simulator (VARIANTS:
    the project's controller or the authors', with its stored gains or the z law read
    off the logs, the authors' published network in the loop or the prediction the
