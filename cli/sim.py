@@ -124,27 +124,20 @@ def sim_calibrate(logs_dir, data_dir, gen_dir, out_dir, per_scenario, refit, wor
     """Measure the real flights' roughness, fit host/sim/roughness.py to it, replay the real
     swaps in the clean and the rough simulator: the calibration and sim-to-real tables, and
     the fitted parameter files (copy them over host/sim/params/ to adopt the fit)."""
-    import json
     import shlex
     import sys
 
-    from ns2codegen.config import Config
     from ns2codegen.logs.align import logs_to_flights
     from ns2exp.calibrate import calibrate, first_per_folder, swap_flights
+    from ns2exp.real import collection_config
     from ns2host.sim.replay import pieces_by_flight
     from ns2host.sim.roughness import Roughness
 
-    data_dir = Path(data_dir)
-    for need in (data_dir / "real.toml", data_dir / "data_report.json", Path(logs_dir) / "flights.toml"):
-        if not need.is_file():
-            raise click.ClickException(f"{need} missing: run `ns2 real data` first")
-    cfg = Config.load(data_dir / "real.toml")
+    cfg, hover = collection_config(data_dir)    # 16 June 2020 as that day weighed its robots
+    if not (Path(logs_dir) / "flights.toml").is_file():
+        raise click.ClickException(f"{Path(logs_dir) / 'flights.toml'} missing: run `ns2 real data` first")
     flights, _ = logs_to_flights(cfg, logs_dir)
     type_of = {rid: t for fl in flights for rid, t in zip(fl.robots, fl.types)}
-    try:
-        hover = json.loads((data_dir / "data_report.json").read_text())["hover"]["by_robot"]
-    except (KeyError, ValueError) as e:
-        raise click.ClickException(f"{data_dir / 'data_report.json'}: no hover.by_robot ({e})") from e
     names = None
     if per_scenario is not None:
         names = first_per_folder(pieces_by_flight(swap_flights(flights)), per_scenario)

@@ -162,6 +162,29 @@ def real_config(cfg: Config, hover: dict) -> Config:
     return _with_masses(cfg, masses)
 
 
+CALIBRATION_COLLECTION = "2020-06-16"   # the flights the simulator is calibrated on (make calibrate)
+
+
+def collection_config(data_dir: str | Path, key: str = CALIBRATION_COLLECTION) -> tuple[Config, dict]:
+    """``real.toml`` of ``ns2 real data``'s folder with each type's mass set to its hover
+    thrust in collection ``key`` alone (0.1 g; 16 June 2020: 32.5 g, 63.1 g), and the
+    collection's hover medians per robot (``data_report.json``): the labels of one day's
+    flights as that day weighed them."""
+    d = Path(data_dir)
+    for need in (d / "real.toml", d / "data_report.json"):
+        if not need.is_file():
+            raise RealDataError(f"{need} missing: run `ns2 real data` first")
+    try:
+        hover = json.loads((d / "data_report.json").read_text())["hover"]
+        masses = {t: round(v["median_g"], 1) for t, v in hover["by_collection"][key].items()}
+        by_robot = hover["by_robot"][key]
+    except (KeyError, ValueError, TypeError, AttributeError) as e:
+        raise RealDataError(f"{d / 'data_report.json'}: no hover.by_collection/by_robot of {key} ({e}): "
+                            "run `ns2 real data` again") from None
+    cfg = Config.load(d / "real.toml")
+    return _with_masses(cfg, {t: masses.get(t, cfg.vehicle(t)["mass_g"]) for t in cfg.robot_types}), by_robot
+
+
 def label_report(cfg: Config, flights: list[Flight]) -> dict:
     """f_a,z label statistics per robot type and scenario, against the on-board prediction."""
     from ns2codegen.data.dataset import scenario_name
