@@ -183,11 +183,16 @@ $(REAL)/loco-%.json: $(REAL)/all.npz
 # the blind scores: overall, in the wake, per scenario; plain and mass-neutral; both mass conventions
 $(REAL)/blind.json: $(foreach c,$(REAL_COLLECTIONS),$(REAL)/loco-$(c).json) $(REAL)/heldout.json $(REAL)/authors.pt
 	$(NS2) real blind --dir $(REAL) --authors $(REAL)/authors.pt --seeds $(REAL_SEEDS) --out $@
-# the wake's memory (issue 52): the same blind splits with every neighbour's state also 50, 100
-# and 200 ms ago (model.history_ms), in a folder of their own
+# the wake's memory (issue 52): the blind splits with every neighbour's state also 50, 100 and
+# 200 ms ago (model.history_ms), in a folder of their own; by default the blind day only (June 2020
+# left out: 276,468 samples of 2019 to train on); the 2019 days left out train on 3.5x more
+# (REAL_MEM_SPLITS="2019-12-11 2019-12-20 2020-06-16", and heldout for the held-out flights)
+REAL_MEM_SPLITS ?= 2020-06-16
 $(REAL)-mem/blind.json: $(REAL)/authors.pt
-	$(MAKE) REAL=$(REAL)-mem REAL_HISTORY=50,100,200 $(foreach c,$(REAL_COLLECTIONS),$(REAL)-mem/loco-$(c).json) $(REAL)-mem/heldout.json
-	$(NS2) real blind --dir $(REAL)-mem --authors $(REAL)/authors.pt --seeds $(REAL_SEEDS) --out $@
+	$(MAKE) REAL=$(REAL)-mem REAL_HISTORY=50,100,200 $(foreach c,$(filter-out heldout,$(REAL_MEM_SPLITS)),$(REAL)-mem/loco-$(c).json) \
+		$(if $(filter heldout,$(REAL_MEM_SPLITS)),$(REAL)-mem/heldout.json)
+	$(NS2) real blind --dir $(REAL)-mem --authors $(REAL)/authors.pt --seeds $(REAL_SEEDS) \
+		$(foreach c,$(filter-out heldout,$(REAL_MEM_SPLITS)),--collection $(c)) --out $@
 $(REAL)/memory.json: $(REAL)/blind.json $(REAL)-mem/blind.json
 	$(NS2) real memory --now $(REAL)/blind.json --past $(REAL)-mem/blind.json --out $@
 # the authors' published networks (trained on all their collections, these flights included)

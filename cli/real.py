@@ -120,9 +120,11 @@ def real_score(checkpoint, data_dir, out, as_json):
 @click.option("--authors", type=click.Path(dir_okay=False), default=None,
               help="the authors' published network (`ns2 real import-authors`): scored beside ours (a training score)")
 @click.option("--seeds", type=int, default=3, show_default=True, help="networks per split scored (mean +- std)")
+@click.option("--collection", "collections", multiple=True,
+              help="score only these collections left out (repeat; default every one, and the held-out flights)")
 @click.option("--out", type=click.Path(dir_okay=False), required=True, help="JSON (and a .md table beside it)")
 @_json_option
-def real_blind(out_dir, authors, seeds, out, as_json):
+def real_blind(out_dir, authors, seeds, collections, out, as_json):
     """Blind scores: each collection scored by the networks trained without it, the held-out
     flights by those trained without them, beside the on-board prediction flown on 16 June
     2020, the authors' network and zero; overall, in the wake, per scenario; plain and
@@ -130,7 +132,7 @@ def real_blind(out_dir, authors, seeds, out, as_json):
     from ns2exp.blind import blind, table, write
 
     _parent_ok(out)
-    res = blind(out_dir, authors, seeds)
+    res = blind(out_dir, authors, seeds, collections or None)
     write(res, Path(out))
     _emit(as_json, res, table(res))
 

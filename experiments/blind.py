@@ -106,8 +106,9 @@ def gains(split: dict, ours: str = "ours", refs=("onboard", "authors", "zero")) 
     return out
 
 
-def blind(data_dir: str | Path, authors: str | Path | None = None, seeds: int = 3) -> dict:
-    """The blind splits of ``data_dir`` (``make real``'s folder) scored (module docstring)."""
+def blind(data_dir: str | Path, authors: str | Path | None = None, seeds: int = 3, collections=None) -> dict:
+    """The blind splits of ``data_dir`` (``make real``'s folder) scored (module docstring);
+    ``collections``: only these left out, and no held-out flights (default: every one)."""
     from ns2codegen.config import Config
     from ns2codegen.data.dataset import Dataset
 
@@ -123,7 +124,12 @@ def blind(data_dir: str | Path, authors: str | Path | None = None, seeds: int = 
         m["zero"] = [np.zeros(len(ds))]
         return m
 
+    unknown = sorted(set(collections or ()) - {c.key for c in COLLECTIONS})
+    if unknown:
+        raise RealDataError(f"collection {unknown[0]}: not one of {', '.join(c.key for c in COLLECTIONS)}")
     for c in COLLECTIONS:
+        if collections is not None and c.key not in collections:
+            continue
         ckpts = sorted((d / f"loco-{c.key}").glob("H-20-seed*.pt"))[:seeds]
         if not ckpts:
             raise RealDataError(f"{d / f'loco-{c.key}'}: no trained network (make real trains them)")
@@ -132,7 +138,7 @@ def blind(data_dir: str | Path, authors: str | Path | None = None, seeds: int = 
             ds, load_samples(d / f"c-{c.key}_samples.npz"), models(ds, ckpts), masses, cfg.robot_types,
             onboard=c.key == ONBOARD_COLLECTION)
         out["leave_one_collection_out"][c.key]["gains"] = gains(out["leave_one_collection_out"][c.key])
-    held = sorted((d / "heldout").glob("H-20-seed*.pt"))[:seeds]
+    held = sorted((d / "heldout").glob("H-20-seed*.pt"))[:seeds] if collections is None else []
     if held:
         ds = Dataset.load(d / "heldout.npz")
         info = load_samples(d / "heldout_samples.npz")
