@@ -26,8 +26,8 @@ from .crazyflie import BUILD, REPO  # the source checkout (see firmware_sources)
 
 BUILD_ROOT = BUILD / "host"
 GENERATED = ("ns2_model_config.h", "ns2_model_float.h", "ns2_model_fixed.h")
-# host-only helpers, plus the controller vector loop shared with the QEMU image
-HOST_SOURCES = ["host/ns2_host.c", "firmware/target/ns2_ctrl_vectors.c"]
+# host-only helpers, plus the controller and adaptation vector loops shared with the QEMU image
+HOST_SOURCES = ["host/ns2_host.c", "firmware/target/ns2_ctrl_vectors.c", "firmware/target/ns2_adapt_vectors.c"]
 
 CDEF = """
 typedef struct { uint8_t type; float rel[6]; } ns2_neighbor_t;
@@ -92,6 +92,20 @@ typedef struct { ns2_ctrl_state_t s; ns2_setpoint_t sp; float fa[3]; float dt_po
                  uint32_t flags; } ns2_step_in_t;
 typedef struct { float u[4]; float pwm[4]; float T_d, T_d_dot; uint32_t status; } ns2_step_out_t;
 void ns2_ctrl_run_steps(ns2_ctrl_t *c, const ns2_step_in_t *in, ns2_step_out_t *out, uint32_t n);
+typedef struct { float mass_kg; float lambda; float psi1[5]; float h_s; float min_z_m; float min_r33; } ns2_label_cfg_t;
+typedef struct { ns2_label_cfg_t cfg; ...; } ns2_label_t;
+typedef struct { uint8_t enable; float forget; float p0; float p_max; float bias_max_g; float scale_max;
+                 float fa_max_g; float label_max_g; float wake_g; } ns2_adapt_cfg_t;
+typedef struct { float theta[2]; float P[3]; ...; } ns2_adapt_t;
+typedef struct { float vz, z, q[4], pwm[4], battery_V; float nn_g; ns2_adapt_cfg_t cfg; uint32_t flags; } ns2_adapt_in_t;
+typedef struct { float label_N, label_g; float out_g, term_g; float theta[2]; float P[3];
+                 uint32_t label_status, adapt_status, updates; } ns2_adapt_out_t;
+void ns2_label_init(ns2_label_t *l, const ns2_label_cfg_t *cfg);
+void ns2_adapt_reset(ns2_adapt_t *a, const ns2_adapt_cfg_t *cfg);
+void ns2_adapt_default_cfg(ns2_adapt_cfg_t *cfg);
+float ns2_label_exp_neg(float x);
+void ns2_adapt_run_steps(ns2_label_t *l, ns2_adapt_t *a, const ns2_adapt_in_t *in, ns2_adapt_out_t *out,
+                         uint32_t n);
 void ns2_host_predict_batch(int fixed, uint16_t slice, uint32_t n_queries, const uint8_t *robot_type,
                             const float *p, const float *v, const uint32_t *offsets,
                             const ns2_neighbor_t *neighbors, float *out_f, int16_t *out_q,
@@ -156,7 +170,7 @@ def _key(gen_dir: Path, f: dict) -> str:
     h = hashlib.sha256()
     files = [REPO / s for s in f["NS2_SOURCES"]] + sorted((REPO / "firmware" / "include").glob("*.h")) \
         + sorted((REPO / "firmware" / "src").glob("*.h")) + [REPO / s for s in HOST_SOURCES] \
-        + [REPO / "host" / "ns2_host.h", REPO / "firmware" / "target" / "ns2_ctrl_vectors.h"] \
+        + [REPO / "host" / "ns2_host.h"] + sorted((REPO / "firmware" / "target").glob("ns2_*_vectors.h")) \
         + [gen_dir / g for g in GENERATED]
     for p in files:
         h.update(p.name.encode())
@@ -220,7 +234,8 @@ def load(gen_dir: str | Path):
         ffi = FFI()
         ffi.cdef(CDEF)
         ffi.set_source(name, "".join(f'#include "{h}"\n' for h in (
-                           "ns2_deepset.h", "ns2_peers.h", "ns2_controller.h", "ns2_ctrl_vectors.h", "ns2_host.h")),
+                           "ns2_deepset.h", "ns2_peers.h", "ns2_controller.h", "ns2_ctrl_vectors.h", "ns2_adapt_vectors.h",
+                           "ns2_host.h")),
                        include_dirs=[str(REPO / i) for i in f["NS2_INCLUDES"]] + [str(gen_dir), str(REPO / "host"),
                                      str(REPO / "firmware" / "target")],
                        extra_objects=[str(o) for o in objs],

@@ -1,0 +1,99 @@
+/*
+ * ns2_adapt.h - on-board adaptation on top of the frozen deep set (issue 53
+ * item 2, docs/adaptation.md):
+ *
+ *   f = NN(x) + sat(theta^T psi(x)),  psi = [1, NN(x)]  (a bias in g and a scale),
+ *
+ * theta by recursive least squares with exponential forgetting on the robot's own
+ * label y (ns2_label.h, of the sample NS2_LABEL_DELAY position ticks back, paired
+ * with the NN value used then):
+ *
+ *   e = y - NN - theta^T psi,  k = P psi / (lambda + psi^T P psi),
+ *   theta <- proj(theta + k e),  P <- (P - k psi^T P) / lambda,
+ *
+ * proj clamps theta to |theta_0| <= bias_max_g, |theta_1| <= scale_max; P stays
+ * symmetric positive semi-definite, its trace capped at p_max (no covariance
+ * wind-up while nothing excites it) and its diagonal kept >= NS2_ADAPT_P_MIN;
+ * sat limits the adapted term to +-fa_max_g.  float32, no dynamic memory, no
+ * libm; bit for bit the reference ns2codegen.onboard.adapt_f32.
+ *
+ * No update (theta and P held) when the label is not sane (any NS2_LABEL_* flag:
+ * warm-up, bad input, ground contact, tilt, a saturated motor), |y| > label_max_g,
+ * or the labelled sample was in a wake: the caller's wake flag (the pilot: a robot
+ * neighbour inside the interaction volume) or |NN| > wake_g (in a wake the network
+ * is in charge: the adaptation never learns there, it only applies the bias and
+ * scale it has).
+ *
+ * Safety: a configuration out of its ranges (NaN, forgetting outside
+ * [NS2_ADAPT_FORGET_MIN, 1], negative or absurd limits) gives f = NN with
+ * NS2_ADAPT_BAD_PARAM and theta held, until a good one returns; enable = 0 gives
+ * f = NN exactly (theta held); a non-finite NN gives f = 0 and NS2_ADAPT_BAD_INPUT
+ * (the NN history restarts); theta or P ever non-finite: reset to the initial
+ * state (NS2_ADAPT_RESET).  |f - NN| <= fa_max_g always.
+ */
+#ifndef NS2_ADAPT_H
+#define NS2_ADAPT_H
+
+#include <stdint.h>
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+#define NS2_ADAPT_UPDATED 1u     /* theta updated this step */
+#define NS2_ADAPT_OFF 2u         /* enable = 0 */
+#define NS2_ADAPT_BAD_PARAM 4u   /* configuration out of range: f = NN */
+#define NS2_ADAPT_BAD_INPUT 8u   /* NN non-finite: f = 0 */
+#define NS2_ADAPT_LABEL 16u      /* label not sane (its NS2_LABEL_* flags): no update */
+#define NS2_ADAPT_LABEL_BOUND 32u /* |label| > label_max_g: no update */
+#define NS2_ADAPT_WAKE 64u       /* the labelled sample in a wake: no update */
+#define NS2_ADAPT_RESET 128u     /* non-finite memory was reset */
+#define NS2_ADAPT_CLAMPED 256u   /* theta projected or the adapted term limited */
+
+#define NS2_ADAPT_FORGET_MIN 0.5f
+#define NS2_ADAPT_P_MIN 1.0e-6f
+#define NS2_ADAPT_LIMIT_MAX 1.0e3f /* upper bound of every limit of the configuration */
+#define NS2_ADAPT_NN_DELAY 2u      /* = NS2_LABEL_DELAY */
+
+typedef struct {
+    uint8_t enable;
+    float forget;       /* lambda in [NS2_ADAPT_FORGET_MIN, 1]: 0.995 = a 2 s memory at 100 Hz */
+    float p0;           /* initial P = p0 I, (0, p_max] */
+    float p_max;        /* trace of P at most this */
+    float bias_max_g;   /* |theta_0| */
+    float scale_max;    /* |theta_1| */
+    float fa_max_g;     /* |theta^T psi| */
+    float label_max_g;  /* |label| beyond: no update */
+    float wake_g;       /* |NN| beyond: a wake, no update */
+} ns2_adapt_cfg_t;
+
+typedef struct {
+    float theta[2];     /* bias (g), scale */
+    float P[3];         /* P00, P01, P11 */
+    float nn[NS2_ADAPT_NN_DELAY + 1u]; /* NN of the last position ticks, oldest first, g */
+    uint8_t wake;       /* bit i: the tick i ticks back was in a wake (the caller's flag) */
+    uint8_t n_nn;       /* ticks of NN history, up to NS2_ADAPT_NN_DELAY + 1 */
+    float term_g;       /* the adapted term of the last step, g */
+    float out_g;        /* f of the last step, g */
+    uint32_t status;
+    uint32_t updates;   /* updates since the last reset */
+} ns2_adapt_t;
+
+void ns2_adapt_default_cfg(ns2_adapt_cfg_t *cfg);
+/* 1 if every field is in range (else a step reports NS2_ADAPT_BAD_PARAM). */
+int ns2_adapt_cfg_ok(const ns2_adapt_cfg_t *cfg);
+/* theta = 0, P = p0 I (p0 of cfg when in range, else 1), history emptied. */
+void ns2_adapt_reset(ns2_adapt_t *a, const ns2_adapt_cfg_t *cfg);
+/* One position tick: nn_g the network's f_a,z now, wake nonzero when this tick is
+ * in a wake, label_g / label_status those of ns2_label_step at this tick (the
+ * sample NS2_LABEL_DELAY ticks back).  Returns f in g (also a->out_g). */
+float ns2_adapt_step(ns2_adapt_t *a, const ns2_adapt_cfg_t *cfg, float nn_g, int wake, float label_g,
+                     uint32_t label_status);
+/* trace of P */
+float ns2_adapt_trace(const ns2_adapt_t *a);
+
+#ifdef __cplusplus
+}
+#endif
+
+#endif /* NS2_ADAPT_H */

@@ -1,0 +1,270 @@
+"""Issue 53: the on-board label (firmware/src/ns2_label.c) and the adaptation on top
+of the deep set (ns2_adapt.c) equal their float32 references (ns2codegen.onboard)
+bit for bit on random, hostile and real sequences, in the host build and on the
+emulated STM32F405; the label equals the data pipeline's (float64) within a stated
+tolerance on real 16 June 2020 flights; bad input gives defined, bounded outputs
+and a status, and recovery."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from conftest import ARM, QEMU, REAL_DATA, needs, real_logs
+from ns2codegen import onboard as ob
+from ns2codegen.onboard import AdaptCfg, LabelCfg
+from ns2codegen.logs.collection import COLLECTION
+from ns2codegen.vehicle import G
+from ns2host import onboard as host
+
+OUT_KEYS = ("label_N", "label_g", "out_g", "term_g", "theta", "P", "label_status", "adapt_status", "updates")
+# the float32 label against the float64 pipeline on the real flights below, grams
+REAL_LABEL_TOLERANCE_G = 1e-4
+
+
+def reference(lcfg: LabelCfg, t: host.Ticks) -> dict:
+    lab_N, lab_g, lst = ob.label_f32(lcfg, t.vz, t.z, t.q, t.pwm, t.battery_V)
+    res = ob.adapt_f32(t.cfgs, t.nn_g, t.wake, lab_g, lst, t.reset)
+    return {"label_N": lab_N, "label_g": lab_g, "label_status": lst, "adapt_status": res.pop("status"), **res}
+
+
+def assert_bits(a: dict, b: dict) -> None:
+    for k in OUT_KEYS:
+        x, y = np.asarray(a[k]), np.asarray(b[k])
+        assert x.shape == y.shape, k
+        if x.dtype == np.float32:
+            x, y = x.view(np.uint32), y.view(np.uint32)
+        bad = np.flatnonzero((x != y).reshape(len(x), -1).any(1))
+        assert bad.size == 0, (k, bad[:5], a[k][bad[:3]], b[k][bad[:3]])
+
+
+def label_cfg(cfg, robot_type: str = "small", **kw) -> LabelCfg:
+    return LabelCfg.of_vehicle(cfg.vehicle(robot_type), **kw)
+
+
+def hover_ticks(cfg, rng, n: int, robot_type: str = "small", offset_g: float = 0.0, noise: float = 0.02):
+    """A robot hovering at 0.5 m with noisy velocity and the PWM that holds its weight
+    (psi_1 solved numerically), plus ``offset_g`` of unmodelled weight."""
+    veh = cfg.vehicle(robot_type)
+    k = np.asarray(veh["psi1"], float)
+    per_motor_g = (veh["mass_g"] + offset_g) / 4
+    pw = np.linspace(0.01, 1.0, 100_000)
+    pwm0 = pw[np.argmin(np.abs(k[0] + k[1] * pw + k[2] + k[3] * pw * pw + k[4] * pw - per_motor_g))]
+    vz = rng.normal(0, noise, n)
+    q = np.tile([1.0, 0.0, 0.0, 0.0], (n, 1)) + rng.normal(0, 0.01, (n, 4))
+    pwm = np.clip(pwm0 + rng.normal(0, noise, (n, 4)), 0.0, 1.0)
+    return vz, np.full(n, 0.5), q, pwm, np.full(n, 4.2)
+
+
+def wild_ticks(cfg, seed: int, n: int) -> tuple[LabelCfg, host.Ticks]:
+    """Random ticks: hover-like, with NaN/Inf/absurd inputs, saturated and stopped
+    motors, ground contact, tilt, wakes, absurd parameter writes and resets."""
+    rng = np.random.default_rng(seed)
+    vz, z, q, pwm, bat = hover_ticks(cfg, rng, n, offset_g=rng.uniform(-5, 5), noise=0.1)
+    nn = rng.normal(0, 2.0, n) + np.where(rng.random(n) < 0.1, rng.normal(-8, 4, n), 0.0)
+    z = z + rng.normal(0, 0.3, n)
+    wild = [np.nan, np.inf, -np.inf, 1e9, -1e9, 2.0, -0.5, 0.0, 1.0, 11.0, 1e-30, -0.0]
+    for arr in (vz, z, bat, nn):
+        m = rng.random(n) < 0.01
+        arr[m] = rng.choice(wild, m.sum())
+    for arr in (q, pwm):
+        m = rng.random(arr.shape) < 0.005
+        arr[m] = rng.choice(wild, m.sum())
+    pwm[rng.random(n) < 0.02, rng.integers(0, 4)] = 1.0
+    q[rng.random(n) < 0.02] = [0.8, 0.6, 0.0, 0.0]            # 74 degrees of roll
+    base = AdaptCfg()
+    cfgs, cur = [], base
+    for t in range(n):
+        r = rng.random()
+        if r < 0.01:
+            field = str(rng.choice(ob.ADAPT_FIELDS))
+            value = int(rng.choice([0, 1, 2, 255])) if field == "enable" else \
+                float(rng.choice([np.nan, np.inf, -1.0, 0.0, 0.3, 2.0, 1e6, 0.99, 5.0, 1e-7]))
+            cur = AdaptCfg(**{**cur.as_dict(), field: value})
+        elif r < 0.02:
+            cur = AdaptCfg(**{**base.as_dict(), "forget": float(rng.uniform(0.9, 1.0)),
+                              "p_max": float(rng.uniform(1, 100)), "wake_g": float(rng.uniform(0, 5))})
+        cfgs.append(cur)
+    lc = label_cfg(cfg, min_z_m=0.2)
+    return lc, host.ticks(vz, z, q, pwm, bat, nn, cfgs, rng.random(n) < 0.002, rng.random(n) < 0.1)
+
+
+def test_exp_neg_bit_exact_and_accurate(exported):
+    from ns2host import cbuild
+
+    _, lib = cbuild.load(exported.gen_dir)
+    xs = np.concatenate([np.linspace(0, 20, 4001), np.random.default_rng(0).uniform(0, 1e4, 2000),
+                         [np.nan, -1.0, np.inf, 1e4, 1.0001e4]]).astype(np.float32)
+    c = np.array([lib.ns2_label_exp_neg(float(x)) for x in xs], np.float32)
+    r = np.array([ob.exp_neg_f32(x) for x in xs], np.float32)
+    assert np.array_equal(c.view(np.uint32), r.view(np.uint32))
+    for hi, rtol in ((1.0, 3e-7), (20.0, 1e-5)):                 # lambda h of a Crazyflie: about 0.16
+        ok = (xs >= 0) & (xs <= hi)
+        assert np.allclose(r[ok], np.exp(-xs[ok].astype(float)), rtol=rtol, atol=0), hi
+    assert r[-5] == 1.0 and r[-4] == 1.0 and r[-3] == 0.0 and r[-1] == 0.0    # NaN and x <= 0 give 1, beyond 1e4 0
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3, 4])
+def test_random_and_hostile_sequences_bit_exact(cfg, exported, seed):
+    lc, t = wild_ticks(cfg, seed, 6000)
+    c, r = host.run_host(exported.gen_dir, lc, t), reference(lc, t)
+    assert_bits(c, r)
+    # every path was taken, and whatever came in, the outputs are finite and bounded
+    st = c["adapt_status"]
+    for bit in (ob.ADAPT_UPDATED, ob.ADAPT_BAD_PARAM, ob.ADAPT_BAD_INPUT, ob.ADAPT_LABEL, ob.ADAPT_WAKE):
+        assert (st & bit).any(), bit
+    for bit in (ob.LABEL_BAD_INPUT, ob.LABEL_WARMUP, ob.LABEL_GROUND, ob.LABEL_TILTED, ob.LABEL_SATURATED):
+        assert (c["label_status"] & bit).any(), bit
+    for k in ("label_N", "out_g", "term_g", "theta", "P"):
+        assert np.isfinite(c[k]).all(), k
+    assert (np.abs(c["theta"][:, 0]) <= max(cf.bias_max_g for cf in t.cfgs if ob.adapt_cfg_ok(cf))).all()
+    lim = np.array([cf.fa_max_g if ob.adapt_cfg_ok(cf) else 0.0 for cf in t.cfgs], np.float32)
+    assert (np.abs(c["term_g"]) <= lim).all()
+    nn_ok = np.isfinite(t.nn_g) & (np.abs(t.nn_g) <= 1e30)
+    assert np.array_equal(c["out_g"][~nn_ok], np.zeros((~nn_ok).sum(), np.float32))
+    assert (c["label_N"][c["label_status"] & (ob.LABEL_BAD_INPUT | ob.LABEL_WARMUP) > 0] == 0).all()
+
+
+def test_label_of_a_known_hover_is_the_unmodelled_weight(cfg, exported):
+    """A robot 3 g heavier than its config: the label is -3 g (gravity's share the
+    network does not know) and the adaptation's bias takes it within 3 s."""
+    rng = np.random.default_rng(5)
+    n = 600
+    vz, z, q, pwm, bat = hover_ticks(cfg, rng, n, offset_g=3.0, noise=0.001)
+    q[:] = [1.0, 0.0, 0.0, 0.0]
+    t = host.ticks(vz, z, q, pwm, bat, np.zeros(n))
+    c = host.run_host(exported.gen_dir, label_cfg(cfg), t)
+    assert_bits(c, reference(label_cfg(cfg), t))
+    assert abs(np.mean(c["label_g"][5:]) + 3.0) < 0.05
+    assert (c["label_status"][:4] == ob.LABEL_WARMUP).all() and (c["label_status"][4:] == 0).all()
+    theta0 = c["theta"][:, 0]
+    assert abs(theta0[300] + 3.0) < 0.3 and abs(theta0[-1] + 3.0) < 0.2     # 3 s at 100 Hz
+    assert abs(c["out_g"][-1] + 3.0) < 0.2
+
+
+def test_bad_input_defined_status_and_recovery(cfg, exported):
+    rng = np.random.default_rng(6)
+    n = 400
+    vz, z, q, pwm, bat = hover_ticks(cfg, rng, n, offset_g=2.0, noise=0.01)
+    nn = np.zeros(n)
+    base = AdaptCfg()
+    cfgs = [base] * n
+    for k in range(150, 170):                      # an absurd forgetting factor written, then a good one
+        cfgs[k] = AdaptCfg(**{**base.as_dict(), "forget": 7.0})
+    for k in range(200, 205):
+        cfgs[k] = AdaptCfg(**{**base.as_dict(), "forget": float("nan")})
+    vz[100] = np.nan                               # a NaN sensor
+    pwm[250:260, 2] = 1.0                          # a saturated motor
+    z[300:320] = 0.02                              # on the ground
+    nn[350] = np.inf                               # a non-finite network output
+    lc = label_cfg(cfg)
+    t = host.ticks(vz, z, q, pwm, bat, nn, cfgs)
+    c = host.run_host(exported.gen_dir, lc, t)
+    assert_bits(c, reference(lc, t))
+    st, lst, th = c["adapt_status"], c["label_status"], c["theta"]
+    # NaN sensor: label 0 with BAD_INPUT, four warm-up ticks, then labels again, equal to a fresh start's
+    assert lst[100] == ob.LABEL_BAD_INPUT and c["label_N"][100] == 0 and (lst[101:105] == ob.LABEL_WARMUP).all()
+    assert lst[105] == 0
+    fresh = host.run_host(exported.gen_dir, lc, host.ticks(vz[101:130], z[101:130], q[101:130], pwm[101:130],
+                                                           bat[101:130], nn[101:130]))
+    assert np.array_equal(fresh["label_N"].view(np.uint32), c["label_N"][101:130].view(np.uint32))
+    assert (st[100:105] & ob.ADAPT_LABEL).all() and not (st[100:105] & ob.ADAPT_UPDATED).any()
+    assert np.array_equal(th[99], th[104])
+    # absurd parameters: f = NN, theta held, BAD_PARAM; updates again with the good value
+    assert (st[150:170] == ob.ADAPT_BAD_PARAM).all() and (st[200:205] == ob.ADAPT_BAD_PARAM).all()
+    assert np.array_equal(c["out_g"][150:170], np.zeros(20, np.float32)) and np.array_equal(th[149], th[169])
+    assert (st[170:180] & ob.ADAPT_UPDATED).all() and (st[205:215] & ob.ADAPT_UPDATED).all()
+    # saturated motor and ground: labelled with the flag, never learned from
+    sat = np.flatnonzero(lst & ob.LABEL_SATURATED)
+    assert sat.min() == 250 and sat.max() == 263 and not (st[sat] & ob.ADAPT_UPDATED).any()
+    gnd = np.flatnonzero(lst & ob.LABEL_GROUND)
+    assert gnd.min() == 302 and gnd.max() == 321 and not (st[gnd] & ob.ADAPT_UPDATED).any()
+    # non-finite NN: f = 0 with BAD_INPUT, the NN history restarts (two ticks without a pair)
+    assert st[350] == ob.ADAPT_BAD_INPUT and c["out_g"][350] == 0
+    assert (st[351:353] & ob.ADAPT_LABEL).all() and st[353] & ob.ADAPT_UPDATED
+    assert abs(th[-1, 0] + 2.0) < 0.3
+
+
+def test_wake_is_never_learned(cfg, exported):
+    """In a wake (the caller's flag, or |NN| > wake_g) theta never moves, whatever the
+    labels say (here 6 g of downwash the network does not know); the adapted term
+    there stays within fa_max_g."""
+    rng = np.random.default_rng(7)
+    n = 600
+    vz, z, q, pwm, bat = hover_ticks(cfg, rng, n, offset_g=0.0, noise=0.01)
+    phase = (np.arange(n) // 50) % 4
+    flag = phase == 1                                               # a neighbour above: the pilot's flag
+    nn = np.where(phase == 3, -20.0, 0.0)                           # beyond wake_g
+    pwm[phase >= 1] *= 0.93                                         # the wake's unexplained downforce
+    lc = label_cfg(cfg)
+    t = host.ticks(vz, z, q, pwm, bat, nn, wake=flag)
+    c = host.run_host(exported.gen_dir, lc, t)
+    assert_bits(c, reference(lc, t))
+    delayed = lambda a: np.concatenate([[False, False], a[:-2]])   # noqa: E731 (the labelled sample)
+    wake_pairs = np.flatnonzero(delayed(flag) | delayed(phase == 3))
+    assert wake_pairs.size > 200
+    assert (c["adapt_status"][wake_pairs] & ob.ADAPT_WAKE).all()
+    assert not (c["adapt_status"][wake_pairs] & ob.ADAPT_UPDATED).any()
+    for k in wake_pairs:
+        assert np.array_equal(c["theta"][k], c["theta"][k - 1])
+    assert (c["adapt_status"][delayed(phase == 2)] & ob.ADAPT_UPDATED).mean() > 0.8  # learns outside wakes
+    assert (np.abs(c["term_g"]) <= AdaptCfg().fa_max_g).all()
+
+
+SWAPS = "neural-swarm-2020-06-16-swaps.tar.xz"
+REAL_MEMBERS = [f"{COLLECTION}/{f}" for f in ("swap_sl/cf51_04", "swap_sl/cf101_04", "swap_lll/cf100_01",
+                                               "swap_lll/cf101_01", "swap_lll/cf102_01")]
+
+
+@pytest.fixture(scope="module")
+def real_robots(cfg):
+    """(label config, Ticks with the on-board prediction flown as NN, the pipeline's f_a,z in N)
+    of every labelled robot of two real 16 June 2020 flights (swap_sl, swap_lll)."""
+    from ns2codegen.data.from_logs import labelled_steps
+    from ns2codegen.logs.align import logs_to_flights
+    from ns2codegen.logs.collection import write_manifest
+
+    root = real_logs(SWAPS, REAL_MEMBERS)
+    write_manifest(root)
+    flights, _ = logs_to_flights(cfg, root)
+    out = []
+    for fl, i, steps, fa in labelled_steps(cfg, flights):
+        h = float(np.median(np.diff(fl.t)))
+        lc = label_cfg(cfg, fl.types[i], h_s=h)
+        nn = fl.fa_onboard_g[:, i] if fl.fa_onboard_g is not None else np.zeros(len(fl.t))
+        out.append((lc, host.ticks(fl.v[:, i, 2], fl.p[:, i, 2], fl.q[:, i], fl.pwm[:, i], fl.battery_V[:, i],
+                                   np.nan_to_num(nn)), fa[:, 2]))
+    assert len(out) >= 4 and sum(len(t) for _, t, _ in out) > 4000
+    return out
+
+
+@needs(REAL_DATA)
+def test_label_on_real_flights_equals_the_pipeline(exported, real_robots):
+    """Real 16 June 2020 flights through the host C: bit for bit the float32 reference,
+    and within REAL_LABEL_TOLERANCE_G of the float64 pipeline's labels
+    (labels.residual_force), two samples late."""
+    worst = 0.0
+    for lc, t, fa_N in real_robots:
+        c, r = host.run_host(exported.gen_dir, lc, t), reference(lc, t)
+        assert_bits(c, r)
+        d = ob.LABEL_DELAY
+        ok = (c["label_status"][d:] & (ob.LABEL_BAD_INPUT | ob.LABEL_WARMUP)) == 0
+        pipe_g = fa_N[:-d] * 1000.0 / G
+        assert np.array_equal(ok, np.isfinite(pipe_g))                 # labelled where the pipeline labels
+        diff = np.abs(c["label_g"][d:][ok].astype(float) - pipe_g[ok])
+        worst = max(worst, float(diff.max()))
+        assert (c["adapt_status"] & ob.ADAPT_UPDATED).any()
+    assert worst < REAL_LABEL_TOLERANCE_G, worst
+
+
+@needs(ARM, QEMU)
+def test_qemu_stm32f405_bit_exact(cfg, exported):
+    lc, t = wild_ticks(cfg, 11, 4000)
+    elf = host.build_image(exported.gen_dir)
+    assert_bits(host.run_qemu(exported.gen_dir, elf, lc, t), reference(lc, t))
+
+
+@needs(ARM, QEMU, REAL_DATA)
+def test_qemu_real_flights_bit_exact(exported, real_robots):
+    elf = host.build_image(exported.gen_dir)
+    for lc, t, _ in real_robots[:2]:
+        assert_bits(host.run_qemu(exported.gen_dir, elf, lc, t), host.run_host(exported.gen_dir, lc, t))
