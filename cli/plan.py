@@ -1,4 +1,6 @@
-"""`ns2 plan`: interaction-aware motion planning (AO-RRT + SCP) and its experiments."""
+"""`ns2 plan`: interaction-aware motion planning (AO-RRT + SCP) of one problem file (the
+product: ns2plan.problemfile, the planning model of ns2host.sim.planmodel); without
+--problem the paper's experiments, which cli/planexp.py runs."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -58,17 +60,18 @@ def plan_cmd(checkpoint, model_dir, config_path, problem_path, baseline, out_dir
     The config is the checkpoint's; --config only without a checkpoint."""
     from dataclasses import replace
 
-    from ns2exp import planning as ex
     from ns2plan.problem import PlanningError, RRTParams, SCPParams, SearchParams
+    from ns2plan.problemfile import load_problem, plan_problem_file
 
     rrt = RRTParams(SearchParams(time_s=min(SearchParams.time_s, time_limit)), total_time_s=time_limit)
     if max_samples is not None:
         rrt = replace(rrt, search=replace(rrt.search, max_samples=max_samples))
     scp_params = SCPParams(time_limit_s=time_limit)
     names = [s.strip() for s in scenarios.split(",") if s.strip()]
-    unknown = [s for s in names if s not in ex.SCENARIOS]
-    if unknown:
-        raise click.UsageError(f"unknown scenarios {unknown}; choose from {list(ex.SCENARIOS)}")
+    if not problem_path:
+        from .planexp import check_scenarios        # the paper's experiments (ns2exp), never a problem file's
+
+        check_scenarios(names)
     try:
         margin = None if fa_margin in ("measured", "calibrated") else float(fa_margin)
     except ValueError:
@@ -81,45 +84,33 @@ def plan_cmd(checkpoint, model_dir, config_path, problem_path, baseline, out_dir
         raise PlanningError(f"problem file not found: {problem_path}")
     cfg = _plan_config(checkpoint, config_path)
     if problem_path:
-        ex.load_problem(cfg, problem_path)  # refuse a bad file before any training
-    if plan_data_rounds is None:
-        plan_data_rounds = ex.PLAN_DATA_ROUNDS if checkpoint is None else 0
-    if checkpoint is None and not (problem_path and baseline):
-        folder = Path(model_dir) if model_dir else Path(out_dir) / "model"
-        checkpoint = ex.default_checkpoint(cfg, folder, log=lambda msg: click.echo(msg, err=True))
+        load_problem(cfg, problem_path)              # refuse a bad file before any training
+    trained = checkpoint is None and not (problem_path and baseline)
+    if trained:
+        checkpoint = planning_model(cfg, model_dir, out_dir)
         cfg = _plan_config(checkpoint, None)
-    if problem_path:
-        with _progress(quiet, None, "stage", "plan"):
-            report = ex.plan_problem_file(cfg, problem_path, None if baseline else checkpoint, out_dir, rrt,
-                                          scp_params)
-        summary = {k: report[k] for k in ("valid", "timings", "robots")}
-        _emit(as_json, summary, f"wrote {out_dir}: plan " + ("valid" if report["valid"] else "INVALID")
-              + f", Stage 1 {report['timings']['stage1_s']:.1f} s, Stage 2 {report['timings']['stage2_s']:.1f} s")
-        if not report["valid"]:
-            raise click.ClickException(f"the plan violates a limit (see {out_dir}/plan.json)")
+    if not problem_path:
+        from .planexp import plan_experiments
+
+        plan_experiments(cfg, checkpoint, trained, out_dir, names, dims, trials, rrt, scp_params, margin,
+                         fa_margin == "calibrated", plan_data_rounds, workers, quiet, as_json)
         return
-    from ns2codegen.export import export as run_export
+    with _progress(quiet, None, "stage", "plan"):
+        report = plan_problem_file(cfg, problem_path, None if baseline else checkpoint, out_dir, rrt, scp_params)
+    summary = {k: report[k] for k in ("valid", "timings", "robots")}
+    _emit(as_json, summary, f"wrote {out_dir}: plan " + ("valid" if report["valid"] else "INVALID")
+          + f", Stage 1 {report['timings']['stage1_s']:.1f} s, Stage 2 {report['timings']['stage2_s']:.1f} s")
+    if not report["valid"]:
+        raise click.ClickException(f"the plan violates a limit (see {out_dir}/plan.json)")
 
-    if plan_data_rounds:
-        ex.training_data_files(checkpoint)            # refuse a checkpoint without its data before any flight
-    gen = Path(out_dir) / "gen"
-    run_export(checkpoint, gen)
-    dim_list = (2, 3) if dims == "both" else (int(dims),)
-    if plan_data_rounds:
-        from ns2exp.margin import held_out_flights
 
-        held = held_out_flights(cfg, gen, gap_max=ex.NEAR_GAP_MAX, cache=Path(out_dir) / "held_out_flights.npz",
-                                workers=workers)
-        checkpoint = ex.plan_trained_checkpoint(cfg, checkpoint, gen, held, names, dim_list, rounds=plan_data_rounds,
-                                                rrt=rrt, scp_params=scp_params, workers=workers,
-                                                log=lambda msg: None if quiet else click.echo(msg, err=True))
-        run_export(checkpoint, gen)
-    with _progress(quiet, len(dim_list) * len(names) * 2 * trials, "trial", "plan") as update:
-        res = ex.planning_experiments(cfg, checkpoint, gen, out_dir, names, dim_list, trials, rrt, scp_params,
-                                      log=lambda msg: None if quiet else click.echo(msg, err=True), progress=update,
-                                      fa_margin_g=margin, calibrate=fa_margin == "calibrated", workers=workers)
-    _emit(as_json, {k: {m: r["summary"] for m, r in v.items()} for k, v in res.items()},
-          (Path(out_dir) / "plan.md").read_text())
+def planning_model(cfg: Config, model_dir, out_dir) -> Path:
+    """The planning model trained on simulated flights into --model-dir (default OUT/model),
+    reused while its config matches (ns2host.sim.planmodel)."""
+    from ns2host.sim.planmodel import default_checkpoint
+
+    folder = Path(model_dir) if model_dir else Path(out_dir) / "model"
+    return default_checkpoint(cfg, folder, log=lambda msg: click.echo(msg, err=True))
 
 
 def _plan_config(checkpoint, config_path) -> Config:

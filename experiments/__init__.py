@@ -1,7 +1,14 @@
 """ns2exp: the paper's experiments on the simulator and the planner.
 
 swarm.py     swaps and rings with the C controller in the loop (Table "swap", Fig. rings)
-planning.py  the planning experiments (SL, SS, LL, SSL, SLL; NN vs BL), model check
+planning/    the planning experiments (SL, SS, LL, SSL, SLL; NN vs BL), model check
 margin.py    the planning margin from the model's error on held-out flights
 tracking.py  flying a plan in the simulator with the firmware controller
+replay.py    a real flight's logged setpoints flown by the same team in the simulator
+calibrate.py the simulator's roughness fitted to the real flights, the replays compared
+real.py, blind.py, realscore.py, onboard_faz.py  the 2020 collection: data, scores, the
+             on-board prediction reproduced
+
+The paper's reproduction lives here, apart from the product: no product module
+(ns2ground, the CLI's product commands) imports ns2exp (tests/test_layers.py).
 """

@@ -22,7 +22,7 @@
 3. replay the real swap flights in the clean and the rough simulator (VARIANTS:
    the project's controller or the authors', with its stored gains or the z law read
    off the logs, the authors' published network in the loop or the prediction the
-   real robots logged; host/sim/replay.py) and compare
+   real robots logged; experiments/replay.py) and compare
    every statistic of step 1, with the truth's lateral constant read off the labels
    on both sides (lateral_k_xy): the calibration table and the sim-to-real swap table.
 No swap or ring result of the paper is a fitting target."""
@@ -43,11 +43,12 @@ from ns2codegen.parallel import forked_map
 
 from ns2host.sim import flightstats as fs
 from ns2host.sim.cloop import CLoopSwarm
-from ns2host.sim.replay import pieces_by_flight, replay
 from ns2host.sim.paramfile import source_commit
 from ns2host.sim.roughness import EFFECTS, Roughness, dump_roughness, hp_share
 from ns2host.sim.scenarios import random_walk
 from ns2host.sim.vehicle import AUTHORS_GAINS, AUTHORS_TYPE, G, READ_LAW, dump_read_law
+
+from .replay import pieces_by_flight, replay
 
 # neural-swarm2.tex, flight tests: "in the L2S case [...] the median z-error is reduced
 # from 17 cm to 7 cm" (real flights, BL -> NN, the authors' controller on every robot)

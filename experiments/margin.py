@@ -391,33 +391,3 @@ def compare_table(reports: dict) -> str:
     lines.append("| margin by relative speed (g) | | | " + " | ".join(
         _margins(reports[n]["margin_g"], named=True) for n in names) + " |")
     return "\n".join(lines)
-
-
-def main(argv=None) -> None:
-    """python -m ns2exp.margin CHECKPOINT... --flights CACHE.npz...: the margin and the
-    error on the held-out flights per checkpoint (markdown on stdout; --json FILE too)."""
-    import argparse
-
-    from .planning import FA_MARGIN_G, LIMITS_3D
-    from ns2plan.forces import load_force_model
-
-    ap = argparse.ArgumentParser(prog="python -m ns2exp.margin", description=main.__doc__)
-    ap.add_argument("checkpoints", nargs="+")
-    ap.add_argument("--flights", action="append", required=True, help="held_out_flights cache (.npz), repeatable")
-    ap.add_argument("--json", default=None)
-    a = ap.parse_args(argv)
-    cfg = Config.load()
-    flights = [fl for path in a.flights for fl in load_flights(path)[0]]
-    names = [Path(c).parent.name or c for c in a.checkpoints]
-    names = names if len(set(names)) == len(names) else list(a.checkpoints)    # one folder: the paths
-    reports = {n: measure(cfg, load_force_model(cfg, c), flights, LIMITS_3D, FA_MARGIN_G)
-               for n, c in zip(names, a.checkpoints)}
-    for name, rep in reports.items():
-        print(f"## {name}\n\n{margin_table(rep)}\n")
-    print(compare_table(reports))
-    if a.json:
-        atomic_write_bytes(Path(a.json), (json.dumps(reports, indent=1, default=float) + "\n").encode())
-
-
-if __name__ == "__main__":
-    main()

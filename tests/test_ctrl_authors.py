@@ -149,7 +149,7 @@ def test_the_authors_motor_map_realizes_the_force_commanded(cfg, exported, monke
 
 
 def test_a_given_prediction_is_flown_as_the_law_says(cfg, exported):
-    """fa_given (a real flight's logged prediction, host/sim/replay.py): a given 0 g flies
+    """fa_given (a real flight's logged prediction, experiments/replay.py): a given 0 g flies
     bit for bit as no learned force; a given c g is subtracted from the law's force, so
     without the integral the robot settles where k (m (g + kp e) - k_fa c g0) = m g (k
     from the 0 g run, as above), below the setpoint, for k_fa 1 (the law as written) and

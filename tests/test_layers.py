@@ -1,7 +1,10 @@
-"""The packages import one way only: core <- host <- simulator / planner <- experiments <- ground <- CLI.
+"""The packages import one way only: core <- host <- simulator / planner <- experiments, ground <- CLI.
 
 Every import in every module, at module level and inside functions, is checked
-against the layer table (AST, so an import hidden in a function counts too)."""
+against the layer table (AST, so an import hidden in a function counts too).  The
+product never reaches the experiments (ns2exp): not the ground side, and not the
+CLI's product commands, only its experiment commands (EXPERIMENT_COMMANDS).  No two
+modules import each other, directly or round a longer cycle."""
 from __future__ import annotations
 
 import ast
@@ -16,10 +19,16 @@ LAYERS = {
     "ns2host.sim": ("host/sim", {"ns2codegen", "ns2host"}),
     "ns2plan": ("planner", {"ns2codegen"}),
     "ns2exp": ("experiments", {"ns2codegen", "ns2host", "ns2host.sim", "ns2plan"}),
-    "ns2ground": ("ground", {"ns2codegen", "ns2host", "ns2host.sim", "ns2plan", "ns2exp"}),
+    "ns2ground": ("ground", {"ns2codegen", "ns2host", "ns2host.sim", "ns2plan"}),
     "ns2cli": ("cli", {"ns2codegen", "ns2host", "ns2host.sim", "ns2plan", "ns2exp", "ns2ground"}),
 }
 ALL = set(LAYERS)
+# the CLI modules of the experiment commands, the only ones that may import ns2exp: `ns2 real ...`,
+# `ns2 sim swaps|rings|calibrate` and `ns2 plan` without --problem (the paper's planning experiments);
+# ns2cli (its __init__) imports them to register their commands
+EXPERIMENT_COMMANDS = {"ns2cli.real", "ns2cli.simexp", "ns2cli.planexp"}
+# the one way into them from a product command: `ns2 plan` hands the run without --problem to planexp
+EXPERIMENT_DISPATCH = {("ns2cli.plan", "ns2cli.planexp")}
 
 
 def _layer_of(module: str) -> str | None:
@@ -38,7 +47,9 @@ def _module_name(pkg: str, path: Path) -> str:
     return ".".join([pkg, *parts])
 
 
-def _imports(path: Path, module: str) -> list[tuple[int, str]]:
+def _imports(path: Path, module: str, submodules: bool = False) -> list[tuple[int, str]]:
+    """(line, module name) of every import; ``submodules``: `from pkg import name` as
+    pkg.name (a submodule, or a name that the caller resolves to its module)."""
     is_pkg = path.name == "__init__.py"
     out = []
     for node in ast.walk(ast.parse(path.read_text(), str(path))):
@@ -52,7 +63,8 @@ def _imports(path: Path, module: str) -> list[tuple[int, str]]:
                 name = ".".join(base + ([node.module] if node.module else []))
             else:
                 name = node.module or ""
-            out.append((node.lineno, name))
+            out += ([(node.lineno, f"{name}.{a.name}") for a in node.names] if submodules
+                    else [(node.lineno, name)])
     return out
 
 
@@ -79,6 +91,82 @@ def test_packages_import_one_way_only():
                     bad.append(f"{path.relative_to(REPO)}:{line} ({pkg}) imports {name} ({target})")
     assert n_files > 40, n_files
     assert not bad, "imports against the layer order:\n" + "\n".join(bad)
+
+
+def _all_modules():
+    """module name -> path, every module of every layer."""
+    return {_module_name(pkg, path): path for pkg in LAYERS for path in _files(pkg)}
+
+
+def test_product_commands_never_import_the_experiments():
+    """Every CLI module but the experiment commands' (and ns2cli, which registers them)
+    imports neither ns2exp nor an experiment command's module, at module level or in a
+    function; the one dispatch of EXPERIMENT_DISPATCH aside."""
+    modules = {m: p for m, p in _all_modules().items() if _layer_of(m) == "ns2cli"}
+    assert EXPERIMENT_COMMANDS <= set(modules), EXPERIMENT_COMMANDS - set(modules)
+    bad = []
+    for module, path in modules.items():
+        if module in EXPERIMENT_COMMANDS or module == "ns2cli":
+            continue
+        for line, name in _imports(path, module):
+            upward = _layer_of(name) == "ns2exp" or any(name == c or name.startswith(c + ".")
+                                                        for c in EXPERIMENT_COMMANDS)
+            if upward and (module, name) not in EXPERIMENT_DISPATCH:
+                bad.append(f"{path.relative_to(REPO)}:{line} imports {name}")
+    assert not bad, "a product command reaches the experiments:\n" + "\n".join(bad)
+
+
+def test_plan_with_a_problem_file_loads_no_experiment_module(tmp_path):
+    """`ns2 plan --problem` runs without ns2exp: a problem file planned (BL) in a fresh
+    process, whose modules are read after the command."""
+    import json
+    import subprocess
+    import sys
+
+    problem = tmp_path / "p.json"
+    problem.write_text(json.dumps({"robots": [{"type": "small", "start": [0, -0.3, 1.0], "goal": [0, 0.3, 1.0]}],
+                                   "axes": "yz"}))
+    code = ("import sys\nfrom click.testing import CliRunner\nfrom ns2cli import main\n"
+            f"r = CliRunner().invoke(main, ['plan', '--problem', {str(problem)!r}, '--baseline', '--quiet', "
+            f"'--max-samples', '2000', '--out', {str(tmp_path / 'out')!r}])\n"
+            "print(r.exit_code, sorted({m.split('.')[0] for m in sys.modules if m.startswith('ns2')}))\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600)
+    assert out.returncode == 0, out.stderr
+    status, packages = out.stdout.strip().splitlines()[-1].split(" ", 1)
+    assert status == "0" and (tmp_path / "out" / "plan.json").is_file(), out.stdout
+    assert "ns2plan" in packages and "ns2exp" not in packages, packages
+
+
+def test_no_import_cycles():
+    """No module imports another that imports it back, directly or round a longer cycle
+    (imports inside functions count: a cycle hidden in a function is still one)."""
+    modules = _all_modules()
+
+    def targets(module):
+        out = set()
+        for _, name in _imports(modules[module], module, submodules=True):
+            while name and name not in modules:          # a name inside a module: the module
+                name = name.rpartition(".")[0]
+            if name and name != module:
+                out.add(name)
+        return out
+
+    graph = {m: targets(m) for m in modules}
+    cycles, state = [], {}
+
+    def visit(m, stack):
+        state[m] = "open"
+        for n in sorted(graph[m]):
+            if state.get(n) == "open":
+                cycles.append(" -> ".join(stack[stack.index(n):] + [n]))
+            elif n not in state:
+                visit(n, stack + [n])
+        state[m] = "done"
+
+    for m in sorted(graph):
+        if m not in state:
+            visit(m, [m])
+    assert not cycles, "import cycles:\n" + "\n".join(cycles)
 
 
 def test_layer_check_catches_a_hidden_upward_import(tmp_path):
@@ -120,6 +208,6 @@ def test_gravity_has_one_value():
     assert float(re.search(r"#define NS2_G_MPS2 ([0-9.]+)\n", header).group(1)) == G
     literal = re.compile(r"(?<![\w.])9\.81(?![\d])")
     places = [p for p in [*REPO.glob("ns2codegen/**/*.py"), *REPO.glob("host/**/*.py"), *REPO.glob("planner/*.py"),
-                          *REPO.glob("experiments/*.py"), *REPO.glob("firmware/**/*.c"), *REPO.glob("host/*.c")]
+                          *REPO.glob("experiments/**/*.py"), *REPO.glob("firmware/**/*.c"), *REPO.glob("host/*.c")]
               if literal.search(p.read_text())]
     assert sorted(p.relative_to(REPO).as_posix() for p in places) == ["ns2codegen/vehicle.py"], places

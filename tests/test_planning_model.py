@@ -257,8 +257,8 @@ def test_lipschitz_bound_and_closest_gap(cfg, exported):
 def test_per_type_margin_in_limits_and_problem_files(cfg, tmp_path):
     import json
 
-    from ns2exp.planning import load_problem
     from ns2plan.problem import Limits, PlanningError, Problem, Robot
+    from ns2plan.problemfile import load_problem
 
     lim = Limits(fa_margin_g={"small": 1.2, "large": 2.5})
     pb = Problem(cfg, [Robot("small", (0, -0.4, 1.0), (0, 0.4, 1.0)), Robot("large", (0, 0.4, 1.0), (0, -0.4, 1.0))],
@@ -288,8 +288,8 @@ def test_margin_conditioned_on_the_relative_speed(cfg, tmp_path):
     import json
 
     from ns2exp.margin import margin_from_errors, speed_bins
-    from ns2exp.planning import load_problem
     from ns2plan.problem import Limits, PlanningError, Problem, Robot
+    from ns2plan.problemfile import load_problem
 
     fm = ForceModel(cfg, None)
     P = np.array([[[0, 0, 1.0], [0.3, 0, 1.5], [0, 0, 4.0], [0, 0, 0.5]]])   # 1 over 0, 2 far above, 3 0.5 m below
@@ -449,6 +449,7 @@ def test_calibrated_margin_adds_the_planners_own_flown_states_until_they_keep_it
     small robot to 6 g where the f_a = 0 model reads 0, which needs 5.1 g of margin; with
     it, the next round's plan keeps the robots apart."""
     from ns2exp import planning as ex
+    from ns2exp.planning import runs
 
     P = np.tile(np.array([[0.0, 0.0, 1.0], [0.0, 0.0, 1.6]]), (4, 1, 1))
     held = [_flight(P, np.zeros_like(P), np.array([[-4.0, 0.0]] * 4))]      # within the limits: no margin
@@ -464,7 +465,7 @@ def test_calibrated_margin_adds_the_planners_own_flown_states_until_they_keep_it
         fl.kind = f"plan {dims}D"
         return rec, fl, None
 
-    monkeypatch.setattr(ex, "_flown_plan", trial)
+    monkeypatch.setattr(runs, "_flown_plan", trial)
     rep = ex.calibrated_margin(cfg, ForceModel(cfg, None), exported.checkpoint, exported.gen_dir, held, ["SL"], (2,),
                                seeds=(1000,), rounds=3, workers=1, log=lambda m: None, cache=tmp_path / "cal.npz")
     assert seen == [("SL", 2, 1000, 0.0), ("SL", 2, 1000, pytest.approx(5.1))]
@@ -514,7 +515,7 @@ def test_calibration_plans_every_case_from_further_seeds_when_its_first_find_no_
     seeds in order: a case whose first seeds find no path (2-D SLL often does) gets the
     next ones, instead of being left out of the calibration; a case none of whose seeds
     plans is named in the report's source."""
-    from ns2exp import planning as ex
+    from ns2exp.planning import calibrated as ex, runs
 
     assert ex.calibration_wave([("SL", 2), ("SLL", 2)], range(1000, 1005), 2, {}) == [
         ("SL", 2, 1000), ("SL", 2, 1001), ("SLL", 2, 1000), ("SLL", 2, 1001)]
@@ -538,7 +539,7 @@ def test_calibration_plans_every_case_from_further_seeds_when_its_first_find_no_
         fl.kind = f"plan {dims}D"
         return {"error": None, "track": {"worst_fa_g": [1.0, 0.0], "over_limit_in_bound_states": [0, 0]}}, fl, None
 
-    monkeypatch.setattr(ex, "_flown_plan", trial)
+    monkeypatch.setattr(runs, "_flown_plan", trial)
     rep = ex.calibrated_margin(cfg, ForceModel(cfg, None), exported.checkpoint, exported.gen_dir, held,
                                ["SL", "SLL", "LL"], (2,), seeds=range(1000, 1006), plans=2, rounds=2, workers=1,
                                log=lambda m: None)
@@ -564,6 +565,7 @@ def test_plan_trained_checkpoint_adds_the_flown_plans_to_the_training_data(cfg, 
     from ns2codegen.data.from_logs import flights_to_dataset
     from ns2codegen.train import train
     from ns2exp import planning as ex
+    from ns2exp.planning import runs
     from ns2exp.margin import FlownStates
 
     base = flights_to_dataset(cfg, [fly(cfg, ("small", "large"), exported.gen_dir, "near", 2.0, seed=3)])
@@ -580,7 +582,7 @@ def test_plan_trained_checkpoint_adds_the_flown_plans_to_the_training_data(cfg, 
         truth = FlownStates(list(fl.types), fl.p, fl.v, np.zeros(fl.p.shape[:2]), f"plan {dims}D")
         return {"error": None, "track": {"worst_fa_g": [0.0, 0.0], "over_limit_in_bound_states": [0, 0]}}, truth, fl
 
-    monkeypatch.setattr(ex, "_flown_plan", trial)
+    monkeypatch.setattr(runs, "_flown_plan", trial)
     P = np.tile(np.array([[0.0, 0.0, 1.0], [0.0, 0.0, 1.6]]), (4, 1, 1))
     held = [_flight(P, np.zeros_like(P), np.array([[-4.0, 0.0]] * 4))]
     ck = ex.plan_trained_checkpoint(cfg, tmp_path / "model.pt", exported.gen_dir, held, ["SL"], (2,), seeds=(2000,),
@@ -653,18 +655,19 @@ def test_planning_experiments_resume_a_run_cut_short_from_its_kept_trials(cfg, e
     import json
 
     from ns2exp import planning as ex
+    from ns2exp.planning import runs, store
     from ns2plan.problem import RRTParams, SCPParams, SearchParams
 
     rrt = RRTParams(SearchParams(max_samples=6000), ao_iterations=1)
     scp = SCPParams(max_iterations=3)
     calls = []
-    real = ex._experiment_trial
+    real = runs._experiment_trial
 
     def counted(*a):
         calls.append(a[:4])
         return real(*a)
 
-    monkeypatch.setattr(ex, "_experiment_trial", counted)
+    monkeypatch.setattr(runs, "_experiment_trial", counted)
     run = lambda margin, modes=("NN", "BL"), trials=1: ex.planning_experiments(  # noqa: E731
         cfg, exported.checkpoint, exported.gen_dir, tmp_path, ["SL"], (3,), trials, rrt, scp,
         log=lambda m: None, fa_margin_g=margin, modes=modes, workers=1)
@@ -699,11 +702,11 @@ def test_planning_experiments_resume_a_run_cut_short_from_its_kept_trials(cfg, e
     assert len(calls) == 1
     # other code: nothing reused either
     calls.clear()
-    monkeypatch.setattr(ex, "code_tag", lambda root=None: "another version")
+    monkeypatch.setattr(store, "code_tag", lambda root=None: "another version")
     run(2.0, ("BL",))
     assert len(calls) == 1
     # in forked workers every trial is kept as it finishes
-    monkeypatch.setattr(ex, "_experiment_trial", real)
+    monkeypatch.setattr(runs, "_experiment_trial", real)
     kept = set((tmp_path / ex.RESUME_DIR).glob("trial_*.json"))
     ex.planning_experiments(cfg, exported.checkpoint, exported.gen_dir, tmp_path, ["SL"], (3,), 2, rrt, scp,
                             log=lambda m: None, fa_margin_g=3.0, modes=("BL",), workers=2)
@@ -737,7 +740,7 @@ def test_default_checkpoint_collects_who_flights_of_pairs_and_of_three_and_reuse
     import ns2host.sim.collect as collect_mod
     from ns2codegen.checkpoint import load_checkpoint
     from ns2codegen.data.analytic import downwash_dataset
-    from ns2exp import planning as ex
+    from ns2host.sim import planmodel as ex
 
     calls, trained = [], []
     real_train = training.train

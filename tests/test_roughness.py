@@ -17,7 +17,7 @@ from ns2exp.calibrate import MOMENT_KEY, _quadrature, lateral_k_xy, quadrature_f
 from ns2host.sim import flightstats as fs
 from ns2host.sim.aero import K_XY
 from ns2host.sim.cloop import CLoopSwarm, hover_setpoints
-from ns2host.sim.replay import logged_battery, logged_prediction, logged_setpoints, pieces_by_flight, replay
+from ns2exp.replay import logged_battery, logged_prediction, logged_setpoints, pieces_by_flight, replay
 from ns2host.sim import collect as collect_mod
 from ns2host.sim.roughness import LOW_BATTERY_V, MomentTurbulence, Roughness, Turbulence, hp_share
 from ns2host.sim.scenarios import swap

@@ -14,4 +14,5 @@ cloop.py      C-in-the-loop: every robot as a Crazyflie at 1 kHz (host/ns2_fly.c
 scenarios.py  swaps, random walks, the paper's intertwined rings, near-field passes
 collect.py    data collection: simulated flights -> uSD logs -> labelled data set
 usdlogs.py    the simulator's flight logs as Crazyflie uSD-card files
+planmodel.py  the planning model `ns2 plan` trains on simulated flights without a checkpoint
 """

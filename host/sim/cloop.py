@@ -83,9 +83,9 @@ class CLoopSwarm:
         rough: a real Crazyflie's unmodelled effects (host/sim/roughness.py; None: the
         clean simulator); fa_given: None, or ``fa_given(t)`` -> f_a,z-hat [N] in g that
         the "authors" robots fly instead of their network's (read at 100 Hz: a real
-        flight's logged prediction, replay.py); battery_given: None (battery_V, or the
+        flight's logged prediction, ns2exp.replay); battery_given: None (battery_V, or the
         rough simulator's sag), or ``battery_given(t)`` -> [N] each robot's supply
-        voltage (V; a real flight's logged one, replay.py; read every step, the
+        voltage (V; a real flight's logged one, ns2exp.replay; read every step, the
         settling reads t = 0); ids: per robot its radio id (default 1, 2, ...);
         type_tables: None (each robot knows its peers' true types), or per robot the
         words of its type table (the app's PARAM ns2type.t0..t15), in which it looks

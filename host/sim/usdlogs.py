@@ -3,7 +3,7 @@ ns2codegen.logs.usdlog), one per robot, each on its own on-board clock, so that
 simulated flights go through the real-flight path (logs -> alignment -> labels).
 
 What a drone would write: the ``fixedFrequency`` event at 100 Hz with the
-variables of ns2codegen.logs.align.VARIABLES (floats; motor PWM as uint16-range
+variables of ns2codegen.logs.timebase.VARIABLES (floats; motor PWM as uint16-range
 integers in a uint32, like ``motor.m1``), timestamps in microseconds of a clock
 that started at the robot's boot (a random 2-30 s before the synchronization
 broadcast, which is the simulator's t = 0), scheduling jitter of up to
@@ -18,7 +18,7 @@ import numpy as np
 
 from ns2codegen.config import dump_toml
 from ns2codegen.fileio import atomic_write_bytes
-from ns2codegen.logs.align import PWM_FULL, SYNC_EVENT, VARIABLES
+from ns2codegen.logs.timebase import PWM_FULL, SYNC_EVENT, VARIABLES
 from ns2codegen.logs.usdlog import FIXED_FREQUENCY_ID, FIXED_FREQUENCY_NAME, UsdLogWriter
 
 SYNC_ID = 7  # any id of the firmware's event-trigger table

@@ -24,7 +24,7 @@ that is not one JSON object, nested deeper than ``MAX_NESTING`` levels (checked
 before the JSON parser, which would recurse), a number beyond ``VALUE_MAX`` (or of
 more digits than Python converts), a robot name that is not printable or longer
 than ``NAME_MAX``, and values outside the physical range of the uSD reader
-(``align.PLAUSIBLE``, unit quaternions, clocks of at least 0).
+(``timebase.PLAUSIBLE``, unit quaternions, clocks of at least 0).
 """
 from __future__ import annotations
 
@@ -35,7 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from ..config import Config
-from .align import MIN_PIECE, PLAUSIBLE, PWM_FULL, QUAT_NORM, VARIABLES, LogError, RobotLog, align
+from .timebase import MIN_PIECE, PLAUSIBLE, PWM_FULL, QUAT_NORM, VARIABLES, LogError, RobotLog, align
 
 FA_ONBOARD = "ns2.faHat"   # the app's prediction in flight (g)
 BASE = VARIABLES["p"][0]   # the packets that carry it are a robot's samples
@@ -45,7 +45,7 @@ VALUE_MAX = 1e15           # |any number| (clocks in ms are exact in float64 far
 NAME_MAX = 64              # characters of a robot's name
 BOMS = ((b"\x00\x00\xfe\xff", "UTF-32"), (b"\xff\xfe\x00\x00", "UTF-32"), (b"\xfe\xff", "UTF-16"),
         (b"\xff\xfe", "UTF-16"))
-# each logged variable's physical range, as the uSD reader checks it (align.PLAUSIBLE)
+# each logged variable's physical range, as the uSD reader checks it (timebase.PLAUSIBLE)
 RANGE = {**{n: PLAUSIBLE[k] for k in ("p", "v", "battery_V") for n in VARIABLES[k]},
          **{n: (PLAUSIBLE["pwm"][0] * PWM_FULL, PLAUSIBLE["pwm"][1] * PWM_FULL) for n in VARIABLES["pwm"]},
          **{n: (-QUAT_NORM[1], QUAT_NORM[1]) for n in VARIABLES["q"]}}
@@ -223,7 +223,7 @@ def _robot_log(path: Path, name: str, samples: list) -> tuple[RobotLog, float]:
 
 
 def radiolog_to_flights(cfg: Config, path, z_min: float = 0.02) -> tuple[list, list[dict]]:
-    """Every flight of a radio log -> its usable pieces (ns2codegen.logs.align) and reports."""
+    """Every flight of a radio log -> its usable pieces (ns2codegen.logs.timebase) and reports."""
     path = Path(path)
     out, reports = [], []
     for k, fl in enumerate(read(path)):

@@ -1,6 +1,6 @@
 """Replay a real flight in the simulator: the same team flies the logged setpoints
 (``ctrltargetZ``: what the robots' high-level commanders sent to their controllers)
-from the logged start, every robot as a Crazyflie (cloop.py) with a learned f_a in
+from the logged start, every robot as a Crazyflie (host/sim/cloop.py) with a learned f_a in
 the loop (the collection of 16 June 2020 flew the authors' network: import it with
 ``ns2 real import-authors`` and export it; or fly the prediction the real robots
 logged, learned="logged"), each robot on the supply voltage its real robot logged.
@@ -21,10 +21,10 @@ import numpy as np
 from ns2codegen.config import Config
 from ns2codegen.data.from_logs import Flight
 
-from .cloop import CLoopSwarm, Setpoints
-from .flightstats import setpoint_derivatives
-from .roughness import Roughness
-from .vehicle import G, authors_gains, read_law_gains
+from ns2host.sim.cloop import CLoopSwarm, Setpoints
+from ns2host.sim.flightstats import setpoint_derivatives
+from ns2host.sim.roughness import Roughness
+from ns2host.sim.vehicle import G, authors_gains, read_law_gains
 
 
 def pieces_by_flight(flights: list[Flight]) -> dict[str, list[Flight]]:
