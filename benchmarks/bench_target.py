@@ -106,6 +106,18 @@ def measure_controller(gen: Path, cfg: Config) -> dict:
     return {name: _run(run) for name, run in budget.controller_runs(gen, cfg).items()}
 
 
+def measure_adaptation(gen: Path, cfg: Config) -> dict:
+    """The on-board label and adaptation per 100 Hz position tick (issue 53): the label,
+    the adaptation with its RLS update and in a wake; their sum per update."""
+    runs = budget.adapt_runs(gen, cfg)
+    out = {name: _run(run) for name, run in runs.items()}
+    total = runs["label_step"].memory_cycles + runs["adapt_step_update"].memory_cycles
+    out["per_update_memory_model_cycles"] = total
+    out["per_update_memory_model_us"] = round(total / cm4_count.CLOCK_HZ * 1e6, 2)
+    out["share_of_cpu_at_100Hz"] = round(total * 100 / cm4_count.CLOCK_HZ, 6)
+    return out
+
+
 def measure_stabilizer(gen: Path, cfg: Config, ctrl: dict, sliced: bool = True, n: int = 15) -> dict:
     """The prediction against the firmware's 1 kHz stabilizer loop on the modelled
     memory system, float and fixed point, weight tables in flash and the hot ones in
@@ -273,6 +285,7 @@ def main() -> None:
         elf = target.build_image(gen)
         lib = measure_library(elf, cfg)
         ctrl = measure_controller(gen, cfg)
+        adapt = measure_adaptation(gen, cfg)
         stab = measure_stabilizer(gen, cfg, ctrl)
         eml = measure_emlearn(cfg, work)
         mem = firmware_report.report(gen)
@@ -280,7 +293,8 @@ def main() -> None:
     result = {"cost_model": "ns2host/cm4_count.py: Cortex-M4 TRM cycle counts at zero wait states (cycles, "
                             "us_at_168MHz) and on the modelled memory system (memory_model_*): "
                             + cm4_count.STM32F405_168MHZ.name + "; docs/target.md",
-              "macs": {"phi": macs(cfg.phi_dims()), "rho": macs(cfg.rho_dims())}, **lib}
+              "macs": {"phi": macs(cfg.phi_dims()), "rho": macs(cfg.rho_dims())}, **lib,
+              "adaptation_per_position_tick": adapt}
     if eml:
         result["emlearn"] = eml
         result["emlearn_vs_ns2"] = {

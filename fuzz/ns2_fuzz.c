@@ -2,7 +2,7 @@
  * ns2_fuzz.c - structured fuzzing of the firmware library under ASan + UBSan
  * (built and run by host/fuzz.py; `make fuzz`, bounded run in the tests).
  *
- *   ns2_fuzz TARGET COUNT SEED     TARGET: infer sliced peers ctrl hil regress
+ *   ns2_fuzz TARGET COUNT SEED     TARGET: infer sliced peers ctrl adapt hil regress
  *
  * Every target draws structured inputs from a seeded generator: plausible values
  * mixed with NaN (both signs, payloads), +-Inf, +-FLT_MAX, huge finite values,
@@ -19,9 +19,11 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "ns2_adapt.h"
 #include "ns2_controller.h"
 #include "ns2_deepset.h"
 #include "ns2_hil.h"
+#include "ns2_label.h"
 #include "ns2_peers.h"
 #include "ns2_vehicles.h"
 
@@ -522,6 +524,128 @@ static void fuzz_ctrl(unsigned long long count)
 #endif
 }
 
+/* ------------------------------------------------- on-board label and adaptation */
+
+/* hover-like inputs of the label at position tick k */
+static void good_label_in(float *vz, float *z, float q[4], float pwm[4], float *bat, float *nn, uint32_t k)
+{
+    const float t = 0.01f * (float)k;
+    *vz = 0.2f * sinf(t);
+    *z = 1.0f + 0.2f * cosf(t);
+    q[0] = 1.0f;
+    q[1] = 0.02f * sinf(3.0f * t);
+    q[2] = q[3] = 0.0f;
+    for (int m = 0; m < 4; ++m) {
+        pwm[m] = 0.5f + 0.05f * sinf(t + (float)m);
+    }
+    *bat = 3.9f;
+    *nn = 2.0f * sinf(0.3f * t);
+}
+
+static void check_adapt(const ns2_adapt_t *a, const ns2_adapt_cfg_t *c, float nn, float out)
+{
+    check(isfinite(out) && isfinite(a->term_g), "adaptation output not finite");
+    for (int i = 0; i < 3; ++i) {
+        check(isfinite(a->P[i]), "P not finite");
+    }
+    if (!ns2_adapt_cfg_ok(c) || !c->enable) {
+        check(out == nn || !isfinite(nn) || fabsf(nn) > 1e30f, "adaptation off or bad parameters but f != NN");
+        return;
+    }
+    if (isfinite(nn) && fabsf(nn) <= 1e30f) {
+        check(fabsf(a->term_g) <= c->fa_max_g, "adapted term beyond fa_max_g");
+    }
+    if (a->status & NS2_ADAPT_UPDATED) {
+        check(fabsf(a->theta[0]) <= c->bias_max_g && fabsf(a->theta[1]) <= c->scale_max, "theta outside its set");
+        check(a->P[0] >= NS2_ADAPT_P_MIN && a->P[2] >= NS2_ADAPT_P_MIN, "P diagonal below NS2_ADAPT_P_MIN");
+        check(ns2_adapt_trace(a) <= c->p_max + 2.0f * NS2_ADAPT_P_MIN + 1e-6f * c->p_max, "trace P beyond p_max");
+        check(a->P[1] * a->P[1] <= a->P[0] * a->P[2] * 1.0001f, "P not positive semi-definite");
+    }
+}
+
+static void random_adapt_cfg(ns2_adapt_cfg_t *c, uint32_t p_bad)
+{
+    ns2_adapt_default_cfg(c);
+    c->forget = uniform(0.9f, 1.0f);
+    c->p_max = uniform(1.0f, 100.0f);
+    c->p0 = uniform(0.01f, 1.0f);
+    c->wake_g = uniform(0.0f, 20.0f);
+    c->enable = (uint8_t)(below(8) != 0u);
+    if (below(100) < p_bad) {
+        float *f[] = {&c->forget, &c->p0, &c->p_max, &c->bias_max_g, &c->scale_max, &c->fa_max_g,
+                      &c->label_max_g, &c->wake_g};
+        *f[below(8)] = below(2) ? special() : uniform(-10.0f, 10.0f);
+    }
+}
+
+static void fuzz_adapt(unsigned long long count)
+{
+#if NS2_HAVE_VEHICLES
+    static ns2_label_t l, fresh;
+    static ns2_adapt_t a;
+    unsigned long long done = 0;
+    for (input_index = 0; done < count; ++input_index) {
+        const uint8_t rt = (uint8_t)below(NS2_NUM_ROBOT_TYPES);
+        const float psi1[NS2_NUM_ROBOT_TYPES][5] = NS2_PSI1_INIT;
+        ns2_label_cfg_t lc = {fz_veh[rt].mass_kg, fz_veh[rt].lambda, {0}, 0.01f, 0.1f, 0.866f};
+        memcpy(lc.psi1, psi1[rt], sizeof lc.psi1);
+        const int bad_config = below(10) == 0u;
+        if (bad_config) {
+            float *f[] = {&lc.mass_kg, &lc.lambda, &lc.h_s, &lc.psi1[below(5)], &lc.min_z_m};
+            *f[below(5)] = special();
+        }
+        ns2_label_init(&l, &lc);
+        ns2_adapt_cfg_t c;
+        random_adapt_cfg(&c, 0u);
+        ns2_adapt_reset(&a, &c);
+        const uint32_t n_good = below(400), n_bad = 1u + below(20);
+        uint32_t k = 0;
+        float vz, z, q[4], pwm[4], bat, nn;
+        for (uint32_t j = 0; j < n_good + n_bad; ++j, ++k, ++done) {
+            good_label_in(&vz, &z, q, pwm, &bat, &nn, k);
+            if (j >= n_good) {
+                hostile(&vz, 1); hostile(&z, 1); hostile(q, 4); hostile(pwm, 4); hostile(&bat, 1); hostile(&nn, 1);
+                if (below(4) == 0u) {
+                    random_adapt_cfg(&c, 50u);
+                }
+                if (j + 1u == n_good + n_bad) {
+                    vz = NAN; /* the burst ends with a bad sample: the label restarts */
+                }
+            }
+            const uint32_t st = ns2_label_step(&l, vz, z, q, pwm, bat);
+            check(isfinite(l.label_N) && isfinite(l.label_g), "label not finite");
+            if (st & (NS2_LABEL_BAD_INPUT | NS2_LABEL_WARMUP | NS2_LABEL_BAD_CONFIG)) {
+                check(l.label_N == 0.0f, "no label but label_N != 0");
+            }
+            const float out = ns2_adapt_step(&a, &c, nn, (int)below(2), l.label_g, st);
+            check_adapt(&a, &c, nn, out);
+        }
+        /* good input and parameters again: the label equals a fresh one's on the same
+         * ticks, labels within NS2_LABEL_STENCIL ticks, the adaptation leaves BAD_PARAM */
+        random_adapt_cfg(&c, 0u);
+        ns2_label_init(&fresh, &lc);
+        for (uint32_t j = 0; j < 50u; ++j, ++k, ++done) {
+            good_label_in(&vz, &z, q, pwm, &bat, &nn, k);
+            const uint32_t st = ns2_label_step(&l, vz, z, q, pwm, bat);
+            (void)ns2_label_step(&fresh, vz, z, q, pwm, bat);
+            check(memcmp(&l.label_N, &fresh.label_N, sizeof l.label_N) == 0 && l.status == fresh.status,
+                  "after bad input the label differs from a fresh one on the same good input");
+            if (j + 1u >= NS2_LABEL_STENCIL) {
+                check(bad_config ? st == NS2_LABEL_BAD_CONFIG : (st & (NS2_LABEL_BAD_INPUT | NS2_LABEL_WARMUP)) == 0u,
+                      "no label NS2_LABEL_STENCIL ticks after good input returned");
+            }
+            const float out = ns2_adapt_step(&a, &c, nn, 0, l.label_g, st);
+            check_adapt(&a, &c, nn, out);
+            check((a.status & (NS2_ADAPT_BAD_PARAM | NS2_ADAPT_BAD_INPUT)) == 0u, "fault reported on good input");
+        }
+    }
+    input_index = done;
+#else
+    (void)count;
+    fail("the export has no vehicle parameters (NS2_HAVE_VEHICLES 0)");
+#endif
+}
+
 /* ------------------------------------------------------------------ HIL parser */
 static uint16_t last_pong_seq;
 static int got_pong;
@@ -719,7 +843,7 @@ static void regress(void)
 int main(int argc, char **argv)
 {
     if (argc != 4) {
-        fprintf(stderr, "usage: %s infer|sliced|peers|ctrl|hil|regress COUNT SEED\n", argv[0]);
+        fprintf(stderr, "usage: %s infer|sliced|peers|ctrl|adapt|hil|regress COUNT SEED\n", argv[0]);
         return 2;
     }
     target_name = argv[1];
@@ -733,6 +857,8 @@ int main(int argc, char **argv)
         fuzz_peers(count);
     } else if (strcmp(argv[1], "ctrl") == 0) {
         fuzz_ctrl(count);
+    } else if (strcmp(argv[1], "adapt") == 0) {
+        fuzz_adapt(count);
     } else if (strcmp(argv[1], "hil") == 0) {
         fuzz_hil(count);
     } else if (strcmp(argv[1], "regress") == 0) {

@@ -26,6 +26,9 @@ LOG_BLOCKS = (
     ("ns2c", ("stateEstimate.vz", "ns2.inferUs", "ns2.ctrlStatus", "pm.state", "motor.m1", "motor.m2", "motor.m3",
               "motor.m4")),
     ("ns2d", ("stateEstimate.qw", "stateEstimate.qx", "stateEstimate.qy", "stateEstimate.qz")),
+    # the on-board adaptation (docs/adaptation.md): theta, trace of P, the on-board label, statuses
+    ("ns2e", ("ns2adapt.bias", "ns2adapt.scale", "ns2adapt.trP", "ns2adapt.label", "ns2adapt.status",
+              "ns2adapt.lstatus")),
 )
 LOG_PERIOD_MS = 50
 TRAJECTORY_ID = 1

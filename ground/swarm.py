@@ -44,10 +44,15 @@ from pathlib import Path
 from ns2codegen.config import Config
 from ns2codegen.errors import Ns2Error
 from ns2codegen.fileio import atomic_write_bytes
+from ns2codegen.onboard import AdaptCfg, adapt_cfg_ok
 from ns2codegen.vehicle import default_gains, vehicle
 from ns2host.cbuild import TYPE_TABLE_MAX_TYPES, TYPE_TABLE_WORDS, type_table
 
-GROUPS = ("ns2", "ns2type", "ns2gain")   # the app's parameter groups (firmware/app/src/ns2_app.c)
+GROUPS = ("ns2", "ns2type", "ns2gain", "ns2adapt")   # the app's parameter groups (firmware/app/src/ns2_app.c)
+# ns2adapt.<name>: the on-board adaptation's parameters (ns2_adapt.h, docs/adaptation.md) -> AdaptCfg field
+ADAPT = {"enable": "enable", "forget": "forget", "p0": "p0", "pMax": "p_max", "biasMax": "bias_max_g",
+         "scaleMax": "scale_max", "faMax": "fa_max_g", "labelMax": "label_max_g", "wakeG": "wake_g"}
+ADAPT_ENABLE = 0   # off unless the swarm file says ns2adapt: {enable: 1}, as the app boots (not yet judged in flight)
 GAIN3 = ("Lp", "Kv", "Gv", "Lq", "Kw", "Gw", "Kwd")   # ns2gain.<name>x/y/z
 GAIN1 = {"intVMax": "int_v_max", "intWMax": "int_w_max", "faMaxN": "fa_max_N"}
 TYPE_PARAMS = tuple(f"t{k}" for k in range(TYPE_TABLE_WORDS))   # ns2type.t0..t15: the type table's words
@@ -340,19 +345,36 @@ def params(swarm: Swarm, cfg: Config, robot: Robot) -> dict[str, dict[str, float
     g = default_gains(vehicle(cfg, robot.ns2_type))
     gains = {f"{n}{ax}": round(float(g[n][i]), 9) for n in GAIN3 for i, ax in enumerate("xyz")}
     gains.update({p: round(float(g[k]), 9) for p, k in GAIN1.items()})
-    user = robot.firmware_params.get("ns2gain") or {}   # the user's own gains in the swarm file stay
-    where = f"{swarm.path}: robots.{robot.name}.firmware_params.ns2gain"
-    if not isinstance(user, dict):
-        raise SwarmFileError(f"{where}: not a mapping")
-    for k, v in user.items():
-        if k not in gains:
-            raise SwarmFileError(f"{where}.{k}: not a gain of the app ({', '.join(gains)})")
-        if not (isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)):
-            raise SwarmFileError(f"{where}.{k}: {v!r} is not a finite number")
-        gains[k] = float(v)
+    gains.update(_user_values(swarm, robot, "ns2gain", gains, "a gain"))
+    d = {**AdaptCfg().as_dict(), "enable": ADAPT_ENABLE}
+    adapt = {p: d[f] for p, f in ADAPT.items()}
+    adapt.update(_user_values(swarm, robot, "ns2adapt", adapt, "a parameter of the adaptation"))
+    adapt["enable"] = int(adapt["enable"])
+    if adapt["enable"] not in (0, 1) or not adapt_cfg_ok(AdaptCfg(**{f: adapt[p] for p, f in ADAPT.items()})):
+        raise SwarmFileError(f"{swarm.path}: robots.{robot.name}.firmware_params.ns2adapt: {adapt} out of range "
+                             f"(enable 0 or 1, forget in [0.5, 1], 0 < p0 <= pMax <= 1000, limits in [0, 1000]; "
+                             f"docs/adaptation.md)")
     return {"ns2": {"selfType": types.index(robot.ns2_type)},
             "ns2type": dict(zip(TYPE_PARAMS, table)),
-            "ns2gain": gains}
+            "ns2gain": gains,
+            "ns2adapt": adapt}
+
+
+def _user_values(swarm: Swarm, robot: Robot, group: str, known: dict, what: str) -> dict[str, float]:
+    """The values the swarm file sets in the robot's ``firmware_params.<group>`` (they stay):
+    each a finite number and one of ``known``."""
+    user = robot.firmware_params.get(group) or {}
+    where = f"{swarm.path}: robots.{robot.name}.firmware_params.{group}"
+    if not isinstance(user, dict):
+        raise SwarmFileError(f"{where}: not a mapping")
+    out = {}
+    for k, v in user.items():
+        if k not in known:
+            raise SwarmFileError(f"{where}.{k}: not {what} of the app ({', '.join(known)})")
+        if not (isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)):
+            raise SwarmFileError(f"{where}.{k}: {v!r} is not a finite number")
+        out[k] = float(v)
+    return out
 
 
 def _shared_nodes(doc) -> set[int]:

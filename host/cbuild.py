@@ -28,6 +28,9 @@ BUILD_ROOT = BUILD / "host"
 GENERATED = ("ns2_model_config.h", "ns2_model_float.h", "ns2_model_fixed.h")
 # host-only helpers, plus the controller and adaptation vector loops shared with the QEMU image
 HOST_SOURCES = ["host/ns2_host.c", "firmware/target/ns2_ctrl_vectors.c", "firmware/target/ns2_adapt_vectors.c"]
+# the headers of what CDEF declares
+HOST_HEADERS = ("ns2_deepset.h", "ns2_peers.h", "ns2_controller.h", "ns2_ctrl_vectors.h", "ns2_adapt_vectors.h",
+                "ns2_host.h")
 
 CDEF = """
 typedef struct { uint8_t type; float rel[6]; } ns2_neighbor_t;
@@ -233,9 +236,7 @@ def load(gen_dir: str | Path):
         objs = compile_objects(gen_dir, tmp, host_cc(), ["-fPIC"], f)
         ffi = FFI()
         ffi.cdef(CDEF)
-        ffi.set_source(name, "".join(f'#include "{h}"\n' for h in (
-                           "ns2_deepset.h", "ns2_peers.h", "ns2_controller.h", "ns2_ctrl_vectors.h", "ns2_adapt_vectors.h",
-                           "ns2_host.h")),
+        ffi.set_source(name, "".join(f'#include "{h}"\n' for h in HOST_HEADERS),
                        include_dirs=[str(REPO / i) for i in f["NS2_INCLUDES"]] + [str(gen_dir), str(REPO / "host"),
                                      str(REPO / "firmware" / "target")],
                        extra_objects=[str(o) for o in objs],

@@ -28,7 +28,7 @@ import subprocess
 from functools import lru_cache
 from pathlib import Path
 
-from .cbuild import (CDEF, REPO, _key, _module, compile_error, compile_objects, flags,
+from .cbuild import (CDEF, HOST_HEADERS, REPO, _key, _module, compile_error, compile_objects, flags,
                      host_cc, require_export)
 from .cfapp import app_config, stock_config
 from .crazyflie import extract_function, firmware_dir
@@ -145,8 +145,7 @@ def load_fly(gen_dir: str | Path):
         ffi = FFI()
         ffi.cdef(FLY_CDEF)
         ffi.set_source(name, '#include "autoconf.h"\n' + "".join(f'#include "{x}"\n' for x in (
-                           "ns2_deepset.h", "ns2_peers.h", "ns2_controller.h", "ns2_ctrl_vectors.h", "ns2_host.h",
-                           "ns2_fly.h")),
+                           *HOST_HEADERS, "ns2_fly.h")),
                        include_dirs=[str(fw / i) for i in FW_INCLUDES] + [str(auto)]
                        + [str(REPO / i) for i in f["NS2_INCLUDES"]] + [str(gen_dir), str(REPO / "host"),
                                                                         str(REPO / "firmware" / "target")],

@@ -24,7 +24,7 @@ from pathlib import Path
 from .cbuild import BUILD_ROOT, GENERATED, REPO, BuildError, compile_error, flags, host_cc
 
 DRIVER = REPO / "fuzz" / "ns2_fuzz.c"
-TARGETS = ("infer", "sliced", "peers", "ctrl", "hil")
+TARGETS = ("infer", "sliced", "peers", "ctrl", "adapt", "hil")
 # share of the inputs of `--count` per target (cheap targets get more)
 SHARE = {"infer": 0.25, "sliced": 0.10, "peers": 0.25, "ctrl": 0.30, "hil": 0.10}
 SANITIZE = ["-fsanitize=address,undefined,float-cast-overflow", "-fno-sanitize-recover=all",

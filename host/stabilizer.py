@@ -99,7 +99,7 @@ def _share(cycles: float) -> float:
     return round(cycles / CLOCK_HZ * 1e6 / TICK_US, 4)
 
 
-def iteration(gen_dir: Path, n_peers: int = 15, infer: str = "fixed") -> dict:
+def iteration(gen_dir: Path, n_peers: int = 15, infer: str = "fixed", adapt: bool = False) -> dict:
     """Each part's worst 1 ms tick, the worst iteration of the estimator with each
     controller, and the mean CPU load, over 20 ticks (two 100 Hz periods) after a
     warm-up period (Kalman filter and app running, prediction jobs under way), at zero
@@ -113,11 +113,15 @@ def iteration(gen_dir: Path, n_peers: int = 15, infer: str = "fixed") -> dict:
     tick against the controllers' 100 Hz period (the stock PID's worst tick, the app's
     position tick, lands on it in one of them).  The estimator runs in its own, lower
     priority task, so its worst tick may spill into the next millisecond; the mean
-    load says whether the CPU keeps up."""
+    load says whether the CPU keeps up.  ``adapt``: with the on-board adaptation on
+    (PARAM ns2adapt.enable = 1 written into the app's adaptCfg after boot; the label is
+    computed either way)."""
     cm = cm4_count.Cm4(build_image(gen_dir, infer))
     a = 2.0 * np.pi * np.arange(n_peers) / n_peers  # a ring 0.3 m around and 0.3 m above (inside V)
     ring = np.stack([0.3 * np.cos(a), 0.3 * np.sin(a), np.full(n_peers, 1.3)], 1).astype("<f4")
     cm.call("bench_init", n_peers, cm.write(ring.tobytes()))
+    if adapt:
+        cm.mu.mem_write(cm.addr("adaptCfg"), b"\x01")   # ns2_adapt_cfg_t.enable, its first byte
     runs: dict[str, list] = {"estimator": [], "estimator_other": [], "pid": [], "app": []}
     period = 10  # PREDICT_RATE = 100 Hz, mocap at 100 Hz; the controllers' 100 Hz period
     for tick in range(1, 3 * period + 1):
@@ -152,7 +156,7 @@ def iteration(gen_dir: Path, n_peers: int = 15, infer: str = "fixed") -> dict:
 
     stock, app = worst_tick("pid"), worst_tick("app")
     return {"tick_us": TICK_US, "clock_hz": CLOCK_HZ, "peers_broadcast": n_peers, "app_neighbors_used": n_used,
-            "infer": infer, "estimator_kalman_predict_and_position": w["estimator"],
+            "infer": infer, "adaptation": adapt, "estimator_kalman_predict_and_position": w["estimator"],
             "estimator_kalman_other_ticks": w["estimator_other"],
             "stock_controller_pid": w["pid"], "app_controller_oot": w["app"],
             # the app's cycles in each tick of a period, tick % 10 = 0..9

@@ -268,3 +268,14 @@ def test_qemu_real_flights_bit_exact(exported, real_robots):
     elf = host.build_image(exported.gen_dir)
     for lc, t, _ in real_robots[:2]:
         assert_bits(host.run_qemu(exported.gen_dir, elf, lc, t), host.run_host(exported.gen_dir, lc, t))
+
+
+@needs(ARM)
+def test_cycle_counts_of_one_update_on_the_cortex_m4(cfg, exported):
+    """The benchmark's counts (budget.adapt_runs) exist: an RLS update costs more than
+    a tick in a wake (no update), and label + update stay a small part of 10 ms."""
+    from ns2host import budget
+
+    runs = budget.adapt_runs(exported.gen_dir, cfg)
+    assert runs["adapt_step_update"].cycles > runs["adapt_step_wake"].cycles > 0
+    assert 0 < runs["label_step"].memory_cycles + runs["adapt_step_update"].memory_cycles < 10_000

@@ -86,6 +86,11 @@ def test_param_and_log_groups_in_the_elf(app):
         gains = params["ns2gain"]
         assert [n for n, _, _ in gains[:3]] == ["Lpx", "Lpy", "Lpz"] and len(gains) == 7 * 3 + 3
         assert all(t == PARAM_FLOAT and where(a) == "gains" for _, t, a in gains)
+        adapt = {n: (t, where(a)) for n, t, a in params["ns2adapt"]}
+        assert adapt == {"enable": (PARAM_UINT8, "adaptCfg"), "reset": (PARAM_UINT8, "adaptReset"),
+                         **{n: (PARAM_FLOAT, "adaptCfg") for n in ("forget", "p0", "pMax", "biasMax", "scaleMax",
+                                                                   "faMax", "labelMax", "wakeG")}}
+        assert [n for n, _, _ in logs["ns2adapt"]] == ["bias", "scale", "trP", "label", "term", "status", "lstatus"]
         log = {n: (t, where(a)) for n, t, a in logs["ns2"]}
         assert log == {"faHat": (LOG_FLOAT, "faHat"), "inferUs": (LOG_UINT32, "inferUs"),
                        "nUsed": (LOG_UINT8, "nUsed"), "status": (LOG_INT32, "status"),
@@ -270,6 +275,35 @@ def _peers(harness, *steps):
 # a lab's numbering: ids from 0 to 255, large robots above 31 (issue 56)
 SWARM_IDS = (0, 2, 31, 32, 40, 77, 100, 128, 150, 180, 200, 220, 240, 250, 254, 255)
 SWARM_LARGE = (0, 32, 40, 128, 200, 255)
+
+
+def _adapt(harness, *steps) -> list[dict]:
+    """The harness's adaptation run (app_harness.c, mode adapt): one dict per show."""
+    r = subprocess.run([str(harness), "adapt", *map(str, steps)], capture_output=True, text=True, check=True)
+    return [json.loads(line) for line in r.stdout.splitlines()]
+
+
+def test_app_adaptation_params_log_bad_writes_and_resets(harness):
+    """Issue 53: PARAM ns2adapt switches the adaptation on (off at boot: f = NN bit for
+    bit), LOG ns2adapt shows what the pilot holds; an absurd forgetting factor gives
+    f = NN with NS2_ADAPT_BAD_PARAM and theta held, a good one resumes; ns2adapt.reset
+    and a stay on the ground reset theta and P."""
+    BAD_PARAM, UPDATED = 4, 1
+    off, on, bad, good, reset, ground = _adapt(
+        harness, "tick:2000", "show", "ns2adapt.enable=1", "ns2adapt.biasMax=3", "tick:3000", "show",
+        "ns2adapt.forget=7", "tick:500", "show", "ns2adapt.forget=0.99", "tick:500", "show",
+        "ns2adapt.reset=1", "tick:1", "show", "tick:1000", "ground:10", "show")
+    assert off["enable"] == 0 and off["updates"] == 0 and off["fa_used_g"] == off["fa_hat_g"]
+    assert off["log"]["status"] == 2 and off["log"]["lstatus"] == 0        # NS2_ADAPT_OFF, the label sane
+    assert on["enable"] == 1 and on["updates"] > 250 and on["log"]["status"] & UPDATED
+    assert on["log"]["bias"] == on["theta"][0] != 0 and on["log"]["scale"] == on["theta"][1]
+    assert abs(on["theta"][0]) <= 3.0 and on["log"]["trP"] == on["trP"] <= 10.0 + 2e-6
+    assert on["fa_used_g"] == pytest.approx(on["fa_hat_g"] + on["log"]["term"], abs=1e-6)
+    assert bad["forget"] == 7.0 and bad["log"]["status"] == BAD_PARAM and bad["theta"] == on["theta"]
+    assert bad["fa_used_g"] == bad["fa_hat_g"] and bad["log"]["term"] == 0 and bad["updates"] == on["updates"]
+    assert good["log"]["status"] & UPDATED and good["updates"] > bad["updates"]
+    assert reset["reset"] == 0 and reset["updates"] <= 1
+    assert ground["theta"] == [0.0, 0.0] and ground["updates"] == 0 and ground["trP"] == 2.0      # p0 I
 
 
 def test_app_peer_bookkeeping_of_a_full_swarm_with_any_radio_ids(harness):

@@ -281,3 +281,25 @@ def test_shared_firmware_params_stay_each_robots_own(tmp_path, exported):
     assert [r.firmware_params["ns2gain"]["Kvz"] for r in s.robots] == pytest.approx(g)
     doc = sw._read(f)
     assert doc["all"]["firmware_params"] == {"stabilizer": {"controller": 5}}
+
+
+def test_adaptation_params_defaults_user_values_and_absurd_ones(swarm_file, cfg):
+    """Issue 53: ns2adapt is one of the app's groups; its defaults are the C's (off), a
+    robot's own values stay, an absurd forgetting factor is refused in one line."""
+    from ns2codegen.onboard import AdaptCfg
+
+    s = sw.load(swarm_file, cfg)
+    p = sw.params(s, cfg, s.robots[0])["ns2adapt"]
+    d = {**AdaptCfg().as_dict(), "enable": 0}
+    assert p == {k: d[f] for k, f in sw.ADAPT.items()} and p["enable"] == 0 and p["forget"] == 0.995
+    swarm_file.write_text(SWARM.replace("stabilizer: {estimator: 2, controller: 5}",
+                                        "ns2adapt: {enable: 1, forget: 0.99}"))
+    s = sw.load(swarm_file, cfg)
+    p = sw.params(s, cfg, s.robots[0])["ns2adapt"]
+    assert p["enable"] == 1 and p["forget"] == 0.99 and sw.params(s, cfg, s.robots[1])["ns2adapt"]["forget"] == 0.995
+    for bad, msg in (("{forget: 7.0}", "out of range"), ("{enable: 3}", "out of range"),
+                     ("{forget: .nan}", "not a finite number"), ("{gain: 1.0}", "not a parameter of the adaptation")):
+        swarm_file.write_text(SWARM.replace("stabilizer: {estimator: 2, controller: 5}", f"ns2adapt: {bad}"))
+        s = sw.load(swarm_file, cfg)
+        with pytest.raises(sw.SwarmFileError, match=f"robots.cf1.firmware_params.ns2adapt.*{msg}"):
+            sw.params(s, cfg, s.robots[0])

@@ -16,14 +16,26 @@
  *    then ns2_ctrl_attitude (delay compensation, mixing, psi_2 PWM).
  * So the learned force used at a position tick was begun one period (10 ms)
  * earlier, from the state and neighbours of then: the on-board latency.
+ *
+ * On-board adaptation (ns2_label.h, ns2_adapt.h, docs/adaptation.md): at every
+ * position tick, before the position loop, the robot's own label f_a,z of two
+ * ticks back is computed from the state, the motor PWM of the last attitude tick
+ * and the battery voltage of the last attitude tick, and ns2_adapt_step turns the
+ * network's fa_hat_g into fa_used_g = NN + theta^T [1, NN] (in a wake, i.e. with a
+ * robot neighbour used by the prediction, it never learns).  adapt_cfg.enable = 0
+ * (the default) gives fa_used_g = fa_hat_g bit for bit: the paper's controller.
+ * The label needs psi_1 of the vehicle (ns2_pilot_set_psi1; NS2_PSI1_INIT of the
+ * generated ns2_vehicles.h); a reset (on the ground) restarts label and adaptation.
  */
 #ifndef NS2_PILOT_H
 #define NS2_PILOT_H
 
 #include <stdint.h>
 
+#include "ns2_adapt.h"
 #include "ns2_controller.h"
 #include "ns2_deepset.h"
+#include "ns2_label.h"
 #include "ns2_peers.h"
 
 #ifdef __cplusplus
@@ -33,6 +45,8 @@ extern "C" {
 #define NS2_PILOT_POS_HZ 100u /* position loop and prediction period */
 #define NS2_PILOT_ATT_HZ 500u /* attitude loop and prediction slices */
 #define NS2_PILOT_STEP_HZ 1000u /* ns2_pilot_step: the stabilizer loop (RATE_MAIN_LOOP) */
+#define NS2_PILOT_LABEL_MIN_Z_M 0.1f   /* below: the label's NS2_LABEL_GROUND (never learned from) */
+#define NS2_PILOT_LABEL_MIN_R33 0.866f /* tilt beyond 30 degrees: NS2_LABEL_TILTED */
 
 /* Inference paths compiled in (the app's NS2_INFER: ns2_app_config.h); with both,
  * cfg.fixed picks one at run time. */
@@ -64,6 +78,12 @@ typedef struct {
     uint16_t n_used;      /* neighbours it used */
     float e[3];           /* position error p - p_d at the last position tick, m */
     ns2_neighbor_t nbrs[NS2_PEERS_MAX];
+    ns2_adapt_cfg_t adapt_cfg; /* the adaptation's parameters (enable = 0 by default) */
+    ns2_label_t label;    /* the on-board label of two position ticks back */
+    ns2_adapt_t adapt;
+    float psi1[5];        /* the vehicle's psi_1 for the label (ns2_pilot_set_psi1) */
+    float battery_V;      /* of the last attitude tick */
+    float fa_used_g;      /* f_a,z given to the position loop, g (fa_hat_g adapted) */
 } ns2_pilot_t;
 
 /* Defaults of the app's PARAM group ns2 (enable, fixed, type, 4 phi per tick, 100 ms, 20 g). */
@@ -72,12 +92,15 @@ void ns2_pilot_default_cfg(ns2_pilot_cfg_t *cfg, uint8_t self_type);
 void ns2_pilot_init(ns2_pilot_t *pl, const ns2_pilot_cfg_t *cfg, const ns2_vehicle_t *veh, const ns2_gains_t *g);
 /* Controller state (integrators, filters) and the running prediction reset, as on the ground. */
 void ns2_pilot_reset(ns2_pilot_t *pl, const ns2_vehicle_t *veh);
+/* psi_1 of the vehicle for the on-board label (kept over resets; the label restarts). */
+void ns2_pilot_set_psi1(ns2_pilot_t *pl, const float psi1[5]);
 /* A position of robot `id` (robot type `type`) received at t_ms: ns2_peers_update. */
 int32_t ns2_pilot_peer(ns2_pilot_t *pl, uint8_t id, uint8_t type, uint32_t t_ms, const float p[3]);
 /* The parts of a tick:
  * finish: the running prediction (its phi left, rho) into fa_hat_g; begin: the
  * next one from the peer table and the state; period: finish, then begin (100 Hz);
- * position: ns2_ctrl_position with f_a = [0, 0, fa_hat_g] (100 Hz, after period);
+ * position: the label and adaptation step, then ns2_ctrl_position with
+ * f_a = [0, 0, fa_used_g] (100 Hz, after period);
  * slice: phi_per_tick phi evaluations; attitude: ns2_ctrl_attitude (500 Hz). */
 void ns2_pilot_finish(ns2_pilot_t *pl);
 void ns2_pilot_begin(ns2_pilot_t *pl, const ns2_ctrl_state_t *s, uint8_t self_id, uint32_t now_ms);

@@ -2,14 +2,14 @@
  * float32 reference (ns2codegen/onboard.py); -ffp-contract=off keeps it so. */
 #include "ns2_adapt.h"
 
-#define MEM_MAX 1.0e30f
+#define ADAPT_MEM_MAX 1.0e30f
 
-static int in_range(float x, float lo, float hi)
+static int adapt_in(float x, float lo, float hi)
 {
     return x >= lo && x <= hi; /* false for NaN */
 }
 
-static float clampf(float x, float lim, uint32_t *st)
+static float adapt_clamp(float x, float lim, uint32_t *st)
 {
     if (x > lim) {
         *st |= NS2_ADAPT_CLAMPED;
@@ -37,10 +37,10 @@ void ns2_adapt_default_cfg(ns2_adapt_cfg_t *cfg)
 
 int ns2_adapt_cfg_ok(const ns2_adapt_cfg_t *c)
 {
-    return in_range(c->forget, NS2_ADAPT_FORGET_MIN, 1.0f) && in_range(c->p_max, NS2_ADAPT_P_MIN, NS2_ADAPT_LIMIT_MAX)
-        && in_range(c->p0, NS2_ADAPT_P_MIN, c->p_max) && in_range(c->bias_max_g, 0.0f, NS2_ADAPT_LIMIT_MAX)
-        && in_range(c->scale_max, 0.0f, NS2_ADAPT_LIMIT_MAX) && in_range(c->fa_max_g, 0.0f, NS2_ADAPT_LIMIT_MAX)
-        && in_range(c->label_max_g, 0.0f, NS2_ADAPT_LIMIT_MAX) && in_range(c->wake_g, 0.0f, NS2_ADAPT_LIMIT_MAX);
+    return adapt_in(c->forget, NS2_ADAPT_FORGET_MIN, 1.0f) && adapt_in(c->p_max, NS2_ADAPT_P_MIN, NS2_ADAPT_LIMIT_MAX)
+        && adapt_in(c->p0, NS2_ADAPT_P_MIN, c->p_max) && adapt_in(c->bias_max_g, 0.0f, NS2_ADAPT_LIMIT_MAX)
+        && adapt_in(c->scale_max, 0.0f, NS2_ADAPT_LIMIT_MAX) && adapt_in(c->fa_max_g, 0.0f, NS2_ADAPT_LIMIT_MAX)
+        && adapt_in(c->label_max_g, 0.0f, NS2_ADAPT_LIMIT_MAX) && adapt_in(c->wake_g, 0.0f, NS2_ADAPT_LIMIT_MAX);
 }
 
 void ns2_adapt_reset(ns2_adapt_t *a, const ns2_adapt_cfg_t *cfg)
@@ -66,15 +66,15 @@ float ns2_adapt_trace(const ns2_adapt_t *a)
     return a->P[0] + a->P[2];
 }
 
-static int memory_ok(const ns2_adapt_t *a)
+static int adapt_memory_ok(const ns2_adapt_t *a)
 {
-    return in_range(a->theta[0], -MEM_MAX, MEM_MAX) && in_range(a->theta[1], -MEM_MAX, MEM_MAX)
-        && in_range(a->P[0], -MEM_MAX, MEM_MAX) && in_range(a->P[1], -MEM_MAX, MEM_MAX)
-        && in_range(a->P[2], -MEM_MAX, MEM_MAX);
+    return adapt_in(a->theta[0], -ADAPT_MEM_MAX, ADAPT_MEM_MAX) && adapt_in(a->theta[1], -ADAPT_MEM_MAX, ADAPT_MEM_MAX)
+        && adapt_in(a->P[0], -ADAPT_MEM_MAX, ADAPT_MEM_MAX) && adapt_in(a->P[1], -ADAPT_MEM_MAX, ADAPT_MEM_MAX)
+        && adapt_in(a->P[2], -ADAPT_MEM_MAX, ADAPT_MEM_MAX);
 }
 
 /* the recursive least-squares step with forgetting on (psi = [1, n], y) */
-static void rls_update(ns2_adapt_t *a, const ns2_adapt_cfg_t *c, float n, float y, uint32_t *st)
+static void adapt_rls(ns2_adapt_t *a, const ns2_adapt_cfg_t *c, float n, float y, uint32_t *st)
 {
     float *P = a->P;
     const float Pp0 = P[0] + P[1] * n;
@@ -83,8 +83,8 @@ static void rls_update(ns2_adapt_t *a, const ns2_adapt_cfg_t *c, float n, float 
     const float k0 = Pp0 / den;
     const float k1 = Pp1 / den;
     const float e = y - n - (a->theta[0] + a->theta[1] * n);
-    a->theta[0] = clampf(a->theta[0] + k0 * e, c->bias_max_g, st);
-    a->theta[1] = clampf(a->theta[1] + k1 * e, c->scale_max, st);
+    a->theta[0] = adapt_clamp(a->theta[0] + k0 * e, c->bias_max_g, st);
+    a->theta[1] = adapt_clamp(a->theta[1] + k1 * e, c->scale_max, st);
     P[0] = (P[0] - k0 * Pp0) / c->forget;
     P[1] = (P[1] - k0 * Pp1) / c->forget;
     P[2] = (P[2] - k1 * Pp1) / c->forget;
@@ -108,7 +108,7 @@ float ns2_adapt_step(ns2_adapt_t *a, const ns2_adapt_cfg_t *c, float nn_g, int w
                      uint32_t label_status)
 {
     uint32_t st = 0u;
-    if (!in_range(nn_g, -MEM_MAX, MEM_MAX)) {
+    if (!adapt_in(nn_g, -ADAPT_MEM_MAX, ADAPT_MEM_MAX)) {
         a->n_nn = 0u;
         a->term_g = a->out_g = 0.0f;
         a->status = NS2_ADAPT_BAD_INPUT;
@@ -128,7 +128,7 @@ float ns2_adapt_step(ns2_adapt_t *a, const ns2_adapt_cfg_t *c, float nn_g, int w
         a->status = ns2_adapt_cfg_ok(c) ? NS2_ADAPT_OFF : NS2_ADAPT_BAD_PARAM;
         return nn_g;
     }
-    if (!memory_ok(a)) {
+    if (!adapt_memory_ok(a)) {
         ns2_adapt_reset(a, c);
         a->nn[NS2_ADAPT_NN_DELAY] = nn_g;
         a->wake = (uint8_t)(wake != 0);
@@ -138,14 +138,14 @@ float ns2_adapt_step(ns2_adapt_t *a, const ns2_adapt_cfg_t *c, float nn_g, int w
     const float n = a->nn[0];
     if (label_status != 0u || a->n_nn <= NS2_ADAPT_NN_DELAY) {
         st |= NS2_ADAPT_LABEL;
-    } else if (!in_range(label_g, -c->label_max_g, c->label_max_g)) {
+    } else if (!adapt_in(label_g, -c->label_max_g, c->label_max_g)) {
         st |= NS2_ADAPT_LABEL_BOUND;
-    } else if ((a->wake >> NS2_ADAPT_NN_DELAY) & 1u || !in_range(n, -c->wake_g, c->wake_g)) {
+    } else if ((a->wake >> NS2_ADAPT_NN_DELAY) & 1u || !adapt_in(n, -c->wake_g, c->wake_g)) {
         st |= NS2_ADAPT_WAKE;
     } else {
-        rls_update(a, c, n, label_g, &st);
+        adapt_rls(a, c, n, label_g, &st);
     }
-    a->term_g = clampf(a->theta[0] + a->theta[1] * nn_g, c->fa_max_g, &st);
+    a->term_g = adapt_clamp(a->theta[0] + a->theta[1] * nn_g, c->fa_max_g, &st);
     a->out_g = nn_g + a->term_g;
     a->status = st;
     return a->out_g;

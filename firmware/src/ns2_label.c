@@ -7,7 +7,7 @@
 #define LABEL_G ((float)NS2_G_MPS2)
 #define LABEL_V_NORM 4.2f
 
-static int finite_in(float x, float lo, float hi)
+static int label_in(float x, float lo, float hi)
 {
     return x >= lo && x <= hi; /* false for NaN */
 }
@@ -40,13 +40,13 @@ float ns2_label_exp_neg(float x)
     return y;
 }
 
-static int config_ok(const ns2_label_cfg_t *c)
+static int label_config_ok(const ns2_label_cfg_t *c)
 {
-    int ok = finite_in(c->mass_kg, 1.0e-6f, 100.0f) && finite_in(c->lambda, 0.0f, 1.0e4f)
-        && finite_in(c->h_s, 1.0e-4f, 1.0f) && finite_in(c->min_z_m, -1.0e3f, 1.0e3f)
-        && finite_in(c->min_r33, -2.0f, 2.0f);
+    int ok = label_in(c->mass_kg, 1.0e-6f, 100.0f) && label_in(c->lambda, 0.0f, 1.0e4f)
+        && label_in(c->h_s, 1.0e-4f, 1.0f) && label_in(c->min_z_m, -1.0e3f, 1.0e3f)
+        && label_in(c->min_r33, -2.0f, 2.0f);
     for (int i = 0; i < 5; ++i) {
-        ok = ok && finite_in(c->psi1[i], -1.0e6f, 1.0e6f);
+        ok = ok && label_in(c->psi1[i], -1.0e6f, 1.0e6f);
     }
     return ok;
 }
@@ -70,14 +70,14 @@ void ns2_label_restart(ns2_label_t *l)
 void ns2_label_init(ns2_label_t *l, const ns2_label_cfg_t *cfg)
 {
     l->cfg = *cfg;
-    l->config_ok = (uint8_t)config_ok(cfg);
+    l->config_ok = (uint8_t)label_config_ok(cfg);
     l->a = l->config_ok ? ns2_label_exp_neg(cfg->lambda * cfg->h_s) : 0.0f;
     l->status = l->config_ok ? NS2_LABEL_WARMUP : NS2_LABEL_BAD_CONFIG;
     ns2_label_restart(l);
 }
 
 /* psi_1 of one motor in newtons (labels.psi1_newtons): 0 for a stopped motor */
-static float motor_force_N(const float k[5], float p, float v)
+static float label_motor_N(const float k[5], float p, float v)
 {
     if (!(p > 0.0f)) {
         return 0.0f;
@@ -87,18 +87,18 @@ static float motor_force_N(const float k[5], float p, float v)
     return f * LABEL_G / 1000.0f;
 }
 
-static int input_ok(float vz, float z, const float q[4], const float pwm[4], float battery_V)
+static int label_input_ok(float vz, float z, const float q[4], const float pwm[4], float battery_V)
 {
     const float n2 = q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3];
-    int ok = finite_in(vz, -NS2_CTRL_V_MAX_MS, NS2_CTRL_V_MAX_MS) && finite_in(z, -NS2_CTRL_P_MAX_M, NS2_CTRL_P_MAX_M)
-        && finite_in(n2, 0.25f, 4.0f) && finite_in(battery_V, 0.0f, NS2_CTRL_BAT_MAX_V);
+    int ok = label_in(vz, -NS2_CTRL_V_MAX_MS, NS2_CTRL_V_MAX_MS) && label_in(z, -NS2_CTRL_P_MAX_M, NS2_CTRL_P_MAX_M)
+        && label_in(n2, 0.25f, 4.0f) && label_in(battery_V, 0.0f, NS2_CTRL_BAT_MAX_V);
     for (int m = 0; m < 4; ++m) {
-        ok = ok && finite_in(pwm[m], 0.0f, 1.0f);
+        ok = ok && label_in(pwm[m], 0.0f, 1.0f);
     }
     return ok;
 }
 
-static void shift_in(float *h, unsigned n, float x)
+static void label_shift(float *h, unsigned n, float x)
 {
     for (unsigned i = 0; i + 1u < n; ++i) {
         h[i] = h[i + 1u];
@@ -112,7 +112,7 @@ uint32_t ns2_label_step(ns2_label_t *l, float vz, float z, const float q[4], con
         l->label_N = l->label_g = 0.0f;
         return l->status = NS2_LABEL_BAD_CONFIG;
     }
-    if (!input_ok(vz, z, q, pwm, battery_V)) {
+    if (!label_input_ok(vz, z, q, pwm, battery_V)) {
         ns2_label_restart(l);
         return l->status = NS2_LABEL_BAD_INPUT;
     }
@@ -120,7 +120,7 @@ uint32_t ns2_label_step(ns2_label_t *l, float vz, float z, const float q[4], con
     float uc[4];
     uint8_t sat = 0u;
     for (int m = 0; m < 4; ++m) {
-        uc[m] = motor_force_N(l->cfg.psi1, pwm[m], v);
+        uc[m] = label_motor_N(l->cfg.psi1, pwm[m], v);
         sat = (uint8_t)(sat | (pwm[m] <= 0.0f || pwm[m] >= 1.0f));
     }
     for (int m = 0; m < 4; ++m) { /* u of this sample from the last one's u and command */
@@ -129,10 +129,10 @@ uint32_t ns2_label_step(ns2_label_t *l, float vz, float z, const float q[4], con
     }
     const float T = l->u[0] + l->u[1] + l->u[2] + l->u[3];
     const float r33 = 1.0f - 2.0f * (q[1] * q[1] + q[2] * q[2]);
-    shift_in(l->vz, NS2_LABEL_STENCIL, vz);
-    shift_in(l->ft, NS2_LABEL_DELAY + 1u, r33 * T);
-    shift_in(l->z, NS2_LABEL_DELAY + 1u, z);
-    shift_in(l->r33, NS2_LABEL_DELAY + 1u, r33);
+    label_shift(l->vz, NS2_LABEL_STENCIL, vz);
+    label_shift(l->ft, NS2_LABEL_DELAY + 1u, r33 * T);
+    label_shift(l->z, NS2_LABEL_DELAY + 1u, z);
+    label_shift(l->r33, NS2_LABEL_DELAY + 1u, r33);
     l->sat = (uint8_t)(((unsigned)l->sat << 1u | sat) & ((1u << NS2_LABEL_STENCIL) - 1u));
     if (l->n_good < NS2_LABEL_STENCIL) {
         ++l->n_good;

@@ -14,11 +14,38 @@ void ns2_pilot_default_cfg(ns2_pilot_cfg_t *cfg, uint8_t self_type)
     cfg->fa_limit_g = 20.0f;
 }
 
+/* the label's configuration for the vehicle of the controller and pl->psi1 */
+static void pilot_label_init(ns2_pilot_t *pl)
+{
+    ns2_label_cfg_t lc;
+    lc.mass_kg = pl->ctrl.veh.mass_kg;
+    lc.lambda = pl->ctrl.veh.lambda;
+    for (int i = 0; i < 5; ++i) {
+        lc.psi1[i] = pl->psi1[i];
+    }
+    lc.h_s = 1.0f / (float)NS2_PILOT_POS_HZ;
+    lc.min_z_m = NS2_PILOT_LABEL_MIN_Z_M;
+    lc.min_r33 = NS2_PILOT_LABEL_MIN_R33;
+    ns2_label_init(&pl->label, &lc);
+}
+
 void ns2_pilot_reset(ns2_pilot_t *pl, const ns2_vehicle_t *veh)
 {
     ns2_ctrl_init(&pl->ctrl, veh, &pl->gains);
     pl->job_begun = 0u;
     pl->fa_hat_g = 0.0f;
+    pl->fa_used_g = 0.0f;
+    pl->battery_V = 0.0f;
+    pilot_label_init(pl);
+    ns2_adapt_reset(&pl->adapt, &pl->adapt_cfg);
+}
+
+void ns2_pilot_set_psi1(ns2_pilot_t *pl, const float psi1[5])
+{
+    for (int i = 0; i < 5; ++i) {
+        pl->psi1[i] = psi1[i];
+    }
+    pilot_label_init(pl);
 }
 
 void ns2_pilot_init(ns2_pilot_t *pl, const ns2_pilot_cfg_t *cfg, const ns2_vehicle_t *veh, const ns2_gains_t *g)
@@ -29,6 +56,11 @@ void ns2_pilot_init(ns2_pilot_t *pl, const ns2_pilot_cfg_t *cfg, const ns2_vehic
     pl->status = 0;
     pl->n_used = 0u;
     pl->e[0] = pl->e[1] = pl->e[2] = 0.0f;
+    ns2_adapt_default_cfg(&pl->adapt_cfg);
+    pl->adapt_cfg.enable = 0u;
+    for (int i = 0; i < 5; ++i) {
+        pl->psi1[i] = 0.0f;
+    }
     ns2_pilot_reset(pl, veh);
 }
 
@@ -88,7 +120,9 @@ void ns2_pilot_period(ns2_pilot_t *pl, const ns2_ctrl_state_t *s, uint8_t self_i
 
 void ns2_pilot_position(ns2_pilot_t *pl, const ns2_ctrl_state_t *s, const ns2_setpoint_t *sp)
 {
-    const float fa[3] = {0.0f, 0.0f, pl->cfg.enable ? pl->fa_hat_g * 1e-3f * (float)NS2_G_MPS2 : 0.0f}; /* g -> N */
+    const uint32_t lst = ns2_label_step(&pl->label, s->v[2], s->p[2], s->q, pl->ctrl.pwm, pl->battery_V);
+    pl->fa_used_g = ns2_adapt_step(&pl->adapt, &pl->adapt_cfg, pl->fa_hat_g, pl->n_used > 0u, pl->label.label_g, lst);
+    const float fa[3] = {0.0f, 0.0f, pl->cfg.enable ? pl->fa_used_g * 1e-3f * (float)NS2_G_MPS2 : 0.0f}; /* g -> N */
     pl->ctrl.g = pl->gains;
     ns2_ctrl_position(&pl->ctrl, s, sp, fa, 1.0f / (float)NS2_PILOT_POS_HZ);
     for (int a = 0; a < 3; ++a) {
@@ -117,6 +151,7 @@ void ns2_pilot_slice(ns2_pilot_t *pl)
 void ns2_pilot_attitude(ns2_pilot_t *pl, const ns2_ctrl_state_t *s, float battery_V)
 {
     ns2_ctrl_attitude(&pl->ctrl, s, 1.0f / (float)NS2_PILOT_ATT_HZ, battery_V);
+    pl->battery_V = battery_V;
 }
 
 void ns2_pilot_tick(ns2_pilot_t *pl, const ns2_ctrl_state_t *s, const ns2_setpoint_t *sp, int do_pos,

@@ -36,9 +36,13 @@
  * event ns2Sync with the written value as seq; ns2codegen.logs.align aligns the
  * robots' clocks on it.
  * PARAM: ns2 (switches, limits, sync, modelId), ns2type (t0..t15: the robot type of every
- * radio id, ns2_type_table_get), ns2gain.
+ * radio id, ns2_type_table_get), ns2gain, ns2adapt (the on-board adaptation on top of
+ * the network: enable (0 by default), forget, p0, pMax, biasMax, scaleMax, faMax,
+ * labelMax, wakeG, reset; docs/adaptation.md).
  * LOG ns2: faHat (g), inferUs (the app's longest 1 ms step in the last period, us),
- * nUsed, status, ctrlStatus, ex/ey/ez (position error, m).
+ * nUsed, status, ctrlStatus, ex/ey/ez (position error, m).  LOG ns2adapt: bias (g), scale,
+ * trP (trace of P), label (the on-board f_a,z of 20 ms ago, g), term (the adapted term
+ * in use, g), status (NS2_ADAPT_*), lstatus (NS2_LABEL_*).
  */
 #include <math.h>
 #include <stdbool.h>
@@ -81,6 +85,7 @@
 
 static const ns2_vehicle_t vehicles[NS2_NUM_ROBOT_TYPES] = NS2_VEHICLES_INIT;
 static const ns2_gains_t default_gains[NS2_NUM_ROBOT_TYPES] = NS2_DEFAULT_GAINS_INIT;
+static const float psi1[NS2_NUM_ROBOT_TYPES][5] = NS2_PSI1_INIT;
 
 /* PARAM ns2: switches and limits of ns2_pilot (enable, fixed, self_type,
  * phi_per_tick, max_age_ms, fa_limit_g), copied into the pilot at every tick */
@@ -112,6 +117,16 @@ static int32_t status;
 static uint32_t ctrlStatus;
 static float ex, ey, ez;   /* m */
 
+/* PARAM ns2adapt: the on-board adaptation (ns2_adapt.h, docs/adaptation.md), copied
+ * into the pilot at every tick; off by default.  ns2adapt.reset = 1 resets theta and
+ * P at the next tick (and reads back 0); a take-off resets them too. */
+static ns2_adapt_cfg_t adaptCfg = {0, 0.995f, 1.0f, 10.0f, 10.0f, 0.5f, 10.0f, 40.0f, 15.0f};
+static uint8_t adaptReset;
+/* LOG ns2adapt, at the position tick */
+static float adBias, adScale, adTrP, adLabel, adTerm; /* g, 1, -, g, g */
+static uint16_t adStatus;  /* NS2_ADAPT_* */
+static uint8_t lbStatus;   /* NS2_LABEL_* */
+
 void appMain(void)
 {
     DEBUG_PRINT("ns2 model " NS2_MODEL_HASH "\n");
@@ -142,7 +157,9 @@ static void reset_controller(void)
 {
     ctrlType = self_type();
     pilot.gains = gains;
+    pilot.adapt_cfg = adaptCfg;
     ns2_pilot_reset(&pilot, &vehicles[ctrlType]);
+    ns2_pilot_set_psi1(&pilot, psi1[ctrlType]);
     faHat = 0.0f;
 }
 
@@ -213,6 +230,9 @@ void controllerOutOfTreeInit(void)
         gains = default_gains[ctrlType];
     }
     ns2_pilot_init(&pilot, &cfg, &vehicles[ctrlType], &gains); /* peers emptied, controller reset */
+    pilot.adapt_cfg = adaptCfg;
+    ns2_pilot_reset(&pilot, &vehicles[ctrlType]);
+    ns2_pilot_set_psi1(&pilot, psi1[ctrlType]);
     faHat = 0.0f;
 }
 
@@ -245,6 +265,11 @@ void controllerOutOfTree(control_t *control, const setpoint_t *setpoint, const s
     pilot.cfg = cfg; /* live parameters */
     pilot.cfg.self_type = ctrlType;
     pilot.gains = gains;
+    pilot.adapt_cfg = adaptCfg;
+    if (adaptReset) {
+        adaptReset = 0u;
+        ns2_adapt_reset(&pilot.adapt, &pilot.adapt_cfg);
+    }
     const uint64_t t0 = usecTimestamp();
     ns2_pilot_step(&pilot, &s, &sp, tick, (uint8_t)(configblockGetRadioAddress() & 0xFFu),
                    (uint32_t)T2M(xTaskGetTickCount()), pmGetBatteryVoltage());
@@ -259,6 +284,13 @@ void controllerOutOfTree(control_t *control, const setpoint_t *setpoint, const s
         ex = pilot.e[0];
         ey = pilot.e[1];
         ez = pilot.e[2];
+        adBias = pilot.adapt.theta[0];
+        adScale = pilot.adapt.theta[1];
+        adTrP = ns2_adapt_trace(&pilot.adapt);
+        adLabel = pilot.label.label_g;
+        adTerm = pilot.adapt.term_g;
+        adStatus = (uint16_t)pilot.adapt.status;
+        lbStatus = (uint8_t)pilot.label.status;
     }
     ctrlStatus = pilot.ctrl.status;
     for (int m = 0; m < STABILIZER_NR_OF_MOTORS; ++m) {
@@ -315,6 +347,29 @@ PARAM_ADD(PARAM_FLOAT, intVMax, &gains.int_v_max)
 PARAM_ADD(PARAM_FLOAT, intWMax, &gains.int_w_max)
 PARAM_ADD(PARAM_FLOAT, faMaxN, &gains.fa_max_N)
 PARAM_GROUP_STOP(ns2gain)
+
+PARAM_GROUP_START(ns2adapt)
+PARAM_ADD(PARAM_UINT8, enable, &adaptCfg.enable)
+PARAM_ADD(PARAM_FLOAT, forget, &adaptCfg.forget)
+PARAM_ADD(PARAM_FLOAT, p0, &adaptCfg.p0)
+PARAM_ADD(PARAM_FLOAT, pMax, &adaptCfg.p_max)
+PARAM_ADD(PARAM_FLOAT, biasMax, &adaptCfg.bias_max_g)
+PARAM_ADD(PARAM_FLOAT, scaleMax, &adaptCfg.scale_max)
+PARAM_ADD(PARAM_FLOAT, faMax, &adaptCfg.fa_max_g)
+PARAM_ADD(PARAM_FLOAT, labelMax, &adaptCfg.label_max_g)
+PARAM_ADD(PARAM_FLOAT, wakeG, &adaptCfg.wake_g)
+PARAM_ADD(PARAM_UINT8, reset, &adaptReset)
+PARAM_GROUP_STOP(ns2adapt)
+
+LOG_GROUP_START(ns2adapt)
+LOG_ADD(LOG_FLOAT, bias, &adBias)
+LOG_ADD(LOG_FLOAT, scale, &adScale)
+LOG_ADD(LOG_FLOAT, trP, &adTrP)
+LOG_ADD(LOG_FLOAT, label, &adLabel)
+LOG_ADD(LOG_FLOAT, term, &adTerm)
+LOG_ADD(LOG_UINT16, status, &adStatus)
+LOG_ADD(LOG_UINT8, lstatus, &lbStatus)
+LOG_GROUP_STOP(ns2adapt)
 
 LOG_GROUP_START(ns2)
 LOG_ADD(LOG_FLOAT, faHat, &faHat)

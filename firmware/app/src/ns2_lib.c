@@ -14,3 +14,5 @@
 #include "../../src/ns2_peers.c"
 #include "../../src/ns2_controller.c"
 #include "../../src/ns2_pilot.c"
+#include "../../src/ns2_label.c"
+#include "../../src/ns2_adapt.c"

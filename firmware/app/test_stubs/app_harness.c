@@ -44,6 +44,12 @@
  *       of 4 positions per millisecond, so at most 40 robots) or show (prints one JSON
  *       line: the time, the app's peer table in slot order as [id, type, samples,
  *       t_ms], the neighbours the last prediction used, the type table's words).
+ *   harness adapt STEP...
+ *       the on-board adaptation of the app (PARAM and LOG ns2adapt), from boot,
+ *       hovering; each STEP is GROUP.NAME=VALUE (a parameter write, as above),
+ *       tick:N (N stabilizer ticks), ground:N (N ticks without a position setpoint)
+ *       or show (one JSON line: the LOG ns2adapt values, the pilot's theta, trace of
+ *       P, updates and parameters in use, PARAM ns2adapt.reset as read back).
  */
 #include <stdio.h>
 #include <stdlib.h>
@@ -310,6 +316,7 @@ static int write_step(const char *arg)
     struct param_s *table = strcmp(group, "ns2") == 0       ? __params_ns2
                             : strcmp(group, "ns2type") == 0 ? __params_ns2type
                             : strcmp(group, "ns2gain") == 0 ? __params_ns2gain
+                            : strcmp(group, "ns2adapt") == 0 ? __params_ns2adapt
                                                             : NULL;
     const struct param_s *e = table != NULL ? param_find(table, name) : NULL;
     if (e == NULL) {
@@ -427,10 +434,49 @@ static int peers(int argc, char **argv)
     return 0;
 }
 
+static void show_adapt(void)
+{
+    printf("{\"log\": {\"bias\": %.9g, \"scale\": %.9g, \"trP\": %.9g, \"label\": %.9g, \"term\": %.9g, "
+           "\"status\": %u, \"lstatus\": %u}, ",
+           (double)adBias, (double)adScale, (double)adTrP, (double)adLabel, (double)adTerm, (unsigned)adStatus,
+           (unsigned)lbStatus);
+    printf("\"theta\": [%.9g, %.9g], \"trP\": %.9g, \"updates\": %u, \"enable\": %u, \"forget\": %.9g, "
+           "\"reset\": %u, \"fa_hat_g\": %.9g, \"fa_used_g\": %.9g, \"pwm\": [%.9g, %.9g, %.9g, %.9g]}\n",
+           (double)pilot.adapt.theta[0], (double)pilot.adapt.theta[1], (double)ns2_adapt_trace(&pilot.adapt),
+           (unsigned)pilot.adapt.updates, (unsigned)pilot.adapt_cfg.enable, (double)pilot.adapt_cfg.forget,
+           (unsigned)adaptReset, (double)pilot.fa_hat_g, (double)pilot.fa_used_g, (double)pilot.ctrl.pwm[0],
+           (double)pilot.ctrl.pwm[1], (double)pilot.ctrl.pwm[2], (double)pilot.ctrl.pwm[3]);
+}
+
+static int adapt(int argc, char **argv)
+{
+    rig_t r;
+    rig_boot(&r);
+    uint32_t tick = 0;
+    for (int a = 2; a < argc; ++a) {
+        unsigned n;
+        if (sscanf(argv[a], "tick:%u", &n) == 1 || sscanf(argv[a], "ground:%u", &n) == 1) {
+            r.sp.mode.z = argv[a][0] == 'g' ? modeDisable : modeAbs;
+            for (unsigned k = 0; k < n; ++k, ++tick) {
+                rig_tick(&r, tick);
+            }
+            r.sp.mode.z = modeAbs;
+        } else if (strcmp(argv[a], "show") == 0) {
+            show_adapt();
+        } else if (write_step(argv[a]) != 0) {
+            return 1;
+        }
+    }
+    return 0;
+}
+
 int main(int argc, char **argv)
 {
     if (argc > 1 && strcmp(argv[1], "params") == 0) {
         return params(argc, argv);
+    }
+    if (argc > 1 && strcmp(argv[1], "adapt") == 0) {
+        return adapt(argc, argv);
     }
     if (argc > 1 && strcmp(argv[1], "peers") == 0) {
         return peers(argc, argv);
