@@ -17,4 +17,5 @@ scp.py          Stage 2: sequential convex programming, eq. (scp), one parametri
 verify.py       independent check of a team solution (box, collisions, force bounds)
 planner.py      Algorithm "planning": Stage 1, post-processing, Stage 2, timings
 output.py       Crazyflie piecewise polynomials (high-level commander upload), CSV
+problemfile.py  problem files (`ns2 plan --problem`): JSON -> a validated Problem, planned
 """
