@@ -558,7 +558,7 @@ static void check_adapt(const ns2_adapt_t *a, const ns2_adapt_cfg_t *c, float nn
     if (a->status & NS2_ADAPT_UPDATED) {
         check(fabsf(a->theta[0]) <= c->bias_max_g && fabsf(a->theta[1]) <= c->scale_max, "theta outside its set");
         check(a->P[0] >= NS2_ADAPT_P_MIN && a->P[2] >= NS2_ADAPT_P_MIN, "P diagonal below NS2_ADAPT_P_MIN");
-        check(ns2_adapt_trace(a) <= c->p_max + 2.0f * NS2_ADAPT_P_MIN + 1e-6f * c->p_max, "trace P beyond p_max");
+        check(a->P[0] <= c->p_max + NS2_ADAPT_P_MIN && a->P[2] <= c->p_max + NS2_ADAPT_P_MIN, "P beyond p_max");
         check(a->P[1] * a->P[1] <= a->P[0] * a->P[2] * 1.0001f, "P not positive semi-definite");
     }
 }
@@ -570,6 +570,7 @@ static void random_adapt_cfg(ns2_adapt_cfg_t *c, uint32_t p_bad)
     c->p_max = uniform(1.0f, 100.0f);
     c->p0 = uniform(0.01f, 1.0f);
     c->wake_g = uniform(0.0f, 20.0f);
+    c->scale_max = below(2) ? 0.0f : uniform(0.0f, 1.0f);
     c->enable = (uint8_t)(below(8) != 0u);
     if (below(100) < p_bad) {
         float *f[] = {&c->forget, &c->p0, &c->p_max, &c->bias_max_g, &c->scale_max, &c->fa_max_g,

@@ -48,7 +48,7 @@ class AdaptCfg:
     p0: float = 1.0
     p_max: float = 10.0
     bias_max_g: float = 10.0
-    scale_max: float = 0.5
+    scale_max: float = 0.0
     fa_max_g: float = 10.0
     label_max_g: float = 40.0
     wake_g: float = 15.0
@@ -181,9 +181,10 @@ class AdaptF32:
 
     def _rls(self, c: AdaptCfg, n, y, st):
         P, th, lam = self.P, self.theta, F(c.forget)
-        Pp0 = P[0] + P[1] * n
-        Pp1 = P[1] + P[2] * n
-        den = lam + (Pp0 + n * Pp1)
+        x = n if F(c.scale_max) > 0 else F(0.0)         # psi_1: the bias alone when scale_max = 0
+        Pp0 = P[0] + P[1] * x
+        Pp1 = P[1] + P[2] * x
+        den = lam + (Pp0 + x * Pp1)
         k0, k1 = Pp0 / den, Pp1 / den
         e = y - n - (th[0] + th[1] * n)
         th[0], st = self._clamp(th[0] + k0 * e, F(c.bias_max_g), st)
@@ -191,10 +192,8 @@ class AdaptF32:
         P[0] = (P[0] - k0 * Pp0) / lam
         P[1] = (P[1] - k0 * Pp1) / lam
         P[2] = (P[2] - k1 * Pp1) / lam
-        tr = P[0] + P[2]
-        if tr > F(c.p_max):
-            s = F(c.p_max) / tr
-            P[0], P[1], P[2] = P[0] * s, P[1] * s, P[2] * s
+        P[0] = P[0] if P[0] < F(c.p_max) else F(c.p_max)
+        P[2] = P[2] if P[2] < F(c.p_max) else F(c.p_max)
         P[0] = P[0] if P[0] > P_MIN else P_MIN
         P[2] = P[2] if P[2] > P_MIN else P_MIN
         if P[1] * P[1] > P[0] * P[2]:

@@ -82,7 +82,8 @@ def wild_ticks(cfg, seed: int, n: int) -> tuple[LabelCfg, host.Ticks]:
             cur = AdaptCfg(**{**cur.as_dict(), field: value})
         elif r < 0.02:
             cur = AdaptCfg(**{**base.as_dict(), "forget": float(rng.uniform(0.9, 1.0)),
-                              "p_max": float(rng.uniform(1, 100)), "wake_g": float(rng.uniform(0, 5))})
+                              "p_max": float(rng.uniform(1, 100)), "wake_g": float(rng.uniform(0, 5)),
+                              "scale_max": float(rng.choice([0.0, rng.uniform(0, 1)]))})
         cfgs.append(cur)
     lc = label_cfg(cfg, min_z_m=0.2)
     return lc, host.ticks(vz, z, q, pwm, bat, nn, cfgs, rng.random(n) < 0.002, rng.random(n) < 0.1)

@@ -297,7 +297,7 @@ def test_app_adaptation_params_log_bad_writes_and_resets(harness):
     assert off["log"]["status"] == 2 and off["log"]["lstatus"] == 0        # NS2_ADAPT_OFF, the label sane
     assert on["enable"] == 1 and on["updates"] > 250 and on["log"]["status"] & UPDATED
     assert on["log"]["bias"] == on["theta"][0] != 0 and on["log"]["scale"] == on["theta"][1]
-    assert abs(on["theta"][0]) <= 3.0 and on["log"]["trP"] == on["trP"] <= 10.0 + 2e-6
+    assert abs(on["theta"][0]) <= 3.0 and on["log"]["trP"] == on["trP"] <= 2 * 10.0 + 2e-6 and on["theta"][1] == 0
     assert on["fa_used_g"] == pytest.approx(on["fa_hat_g"] + on["log"]["term"], abs=1e-6)
     assert bad["forget"] == 7.0 and bad["log"]["status"] == BAD_PARAM and bad["theta"] == on["theta"]
     assert bad["fa_used_g"] == bad["fa_hat_g"] and bad["log"]["term"] == 0 and bad["updates"] == on["updates"]

@@ -11,9 +11,10 @@
  *   e = y - NN - theta^T psi,  k = P psi / (lambda + psi^T P psi),
  *   theta <- proj(theta + k e),  P <- (P - k psi^T P) / lambda,
  *
- * proj clamps theta to |theta_0| <= bias_max_g, |theta_1| <= scale_max; P stays
- * symmetric positive semi-definite, its trace capped at p_max (no covariance
- * wind-up while nothing excites it) and its diagonal kept >= NS2_ADAPT_P_MIN;
+ * proj clamps theta to |theta_0| <= bias_max_g, |theta_1| <= scale_max (scale_max = 0,
+ * the default: psi = [1, 0], the bias alone); P stays symmetric positive
+ * semi-definite, its diagonal in [NS2_ADAPT_P_MIN, p_max] (no covariance wind-up of
+ * a direction nothing excites);
  * sat limits the adapted term to +-fa_max_g.  float32, no dynamic memory, no
  * libm; bit for bit the reference ns2codegen.onboard.adapt_f32.
  *
@@ -59,9 +60,9 @@ typedef struct {
     uint8_t enable;
     float forget;       /* lambda in [NS2_ADAPT_FORGET_MIN, 1]: 0.995 = a 2 s memory at 100 Hz */
     float p0;           /* initial P = p0 I, (0, p_max] */
-    float p_max;        /* trace of P at most this */
+    float p_max;        /* each diagonal element of P at most this */
     float bias_max_g;   /* |theta_0| */
-    float scale_max;    /* |theta_1| */
+    float scale_max;    /* |theta_1|; 0: the bias alone */
     float fa_max_g;     /* |theta^T psi| */
     float label_max_g;  /* |label| beyond: no update */
     float wake_g;       /* |NN| beyond: a wake, no update */

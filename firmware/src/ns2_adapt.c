@@ -29,7 +29,7 @@ void ns2_adapt_default_cfg(ns2_adapt_cfg_t *cfg)
     cfg->p0 = 1.0f;
     cfg->p_max = 10.0f;
     cfg->bias_max_g = 10.0f;
-    cfg->scale_max = 0.5f;
+    cfg->scale_max = 0.0f;
     cfg->fa_max_g = 10.0f;
     cfg->label_max_g = 40.0f;
     cfg->wake_g = 15.0f;
@@ -73,13 +73,15 @@ static int adapt_memory_ok(const ns2_adapt_t *a)
         && adapt_in(a->P[2], -ADAPT_MEM_MAX, ADAPT_MEM_MAX);
 }
 
-/* the recursive least-squares step with forgetting on (psi = [1, n], y) */
+/* the recursive least-squares step with forgetting on (psi = [1, n], y); psi = [1, 0]
+ * (the bias alone) when scale_max = 0 */
 static void adapt_rls(ns2_adapt_t *a, const ns2_adapt_cfg_t *c, float n, float y, uint32_t *st)
 {
     float *P = a->P;
-    const float Pp0 = P[0] + P[1] * n;
-    const float Pp1 = P[1] + P[2] * n;
-    const float den = c->forget + (Pp0 + n * Pp1);
+    const float x = c->scale_max > 0.0f ? n : 0.0f; /* psi_1 */
+    const float Pp0 = P[0] + P[1] * x;
+    const float Pp1 = P[1] + P[2] * x;
+    const float den = c->forget + (Pp0 + x * Pp1);
     const float k0 = Pp0 / den;
     const float k1 = Pp1 / den;
     const float e = y - n - (a->theta[0] + a->theta[1] * n);
@@ -88,13 +90,8 @@ static void adapt_rls(ns2_adapt_t *a, const ns2_adapt_cfg_t *c, float n, float y
     P[0] = (P[0] - k0 * Pp0) / c->forget;
     P[1] = (P[1] - k0 * Pp1) / c->forget;
     P[2] = (P[2] - k1 * Pp1) / c->forget;
-    const float tr = P[0] + P[2];
-    if (tr > c->p_max) {
-        const float s = c->p_max / tr;
-        P[0] = P[0] * s;
-        P[1] = P[1] * s;
-        P[2] = P[2] * s;
-    }
+    P[0] = P[0] < c->p_max ? P[0] : c->p_max; /* no wind-up of an unexcited direction */
+    P[2] = P[2] < c->p_max ? P[2] : c->p_max;
     P[0] = P[0] > NS2_ADAPT_P_MIN ? P[0] : NS2_ADAPT_P_MIN;
     P[2] = P[2] > NS2_ADAPT_P_MIN ? P[2] : NS2_ADAPT_P_MIN;
     if (P[1] * P[1] > P[0] * P[2]) {

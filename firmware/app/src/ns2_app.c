@@ -120,7 +120,7 @@ static float ex, ey, ez;   /* m */
 /* PARAM ns2adapt: the on-board adaptation (ns2_adapt.h, docs/adaptation.md), copied
  * into the pilot at every tick; off by default.  ns2adapt.reset = 1 resets theta and
  * P at the next tick (and reads back 0); a take-off resets them too. */
-static ns2_adapt_cfg_t adaptCfg = {0, 0.995f, 1.0f, 10.0f, 10.0f, 0.5f, 10.0f, 40.0f, 15.0f};
+static ns2_adapt_cfg_t adaptCfg = {0, 0.995f, 1.0f, 10.0f, 10.0f, 0.0f, 10.0f, 40.0f, 15.0f};
 static uint8_t adaptReset;
 /* LOG ns2adapt, at the position tick */
 static float adBias, adScale, adTrP, adLabel, adTerm; /* g, 1, -, g, g */
