@@ -115,7 +115,8 @@ def blind(data_dir: str | Path, authors: str | Path | None = None, seeds: int = 
     d = Path(data_dir)
     cfg = Config.load(d / "real.toml")
     masses = {t: cfg.vehicle(t)["mass_g"] for t in cfg.robot_types}
-    out = {"masses_g": masses, "other_masses_g": AUTHORS_MASSES_G, "leave_one_collection_out": {}}
+    out = {"masses_g": masses, "other_masses_g": AUTHORS_MASSES_G, "robot_types": cfg.robot_types,
+           "leave_one_collection_out": {}}
 
     def models(ds, ckpts: list[Path]) -> dict:
         m = {"ours": [predictions(c, ds) for c in ckpts]} if ckpts else {}
@@ -149,14 +150,26 @@ def blind(data_dir: str | Path, authors: str | Path | None = None, seeds: int = 
     return out
 
 
+def splits(res: dict) -> dict:
+    """The blind splits of a ``blind`` result by their names in the tables."""
+    out = {f"collection {k} left out": v for k, v in res["leave_one_collection_out"].items()}
+    if "held_out_flights" in res:
+        out["whole held-out flights"] = res["held_out_flights"]
+    return out
+
+
+def _fmt(x) -> str:
+    """mean +- std over seeds, or a single number."""
+    return f"{x['mean']:.2f} +- {x['std']:.2f}" if isinstance(x, dict) else f"{x:.2f}"
+
+
 def table(res: dict) -> str:
     """Markdown: one row per split and model, the four headline MSEs under the labels'
     masses and (in brackets) relabelled with the other convention."""
+    first = next(iter(splits(res).values()))["models"]
+    types = res.get("robot_types") or list(next(iter(first.values()))["labels"]["wake_by_type"])
     lines = ["| split: scored on | model | samples | overall plain | overall mass-neutral | wake plain | "
-             "wake mass-neutral | wake small / large, mass-neutral |", "|---|---|---|---|---|---|---|---|"]
-    splits = [(f"collection {k} left out", v) for k, v in res["leave_one_collection_out"].items()]
-    if "held_out_flights" in res:
-        splits.append(("whole held-out flights", res["held_out_flights"]))
+             f"wake mass-neutral | wake {' / '.join(types)}, mass-neutral |", "|---|---|---|---|---|---|---|---|"]
     label = {"ours": "ours (blind)", "onboard": "flown on board (blind)",
              "authors": "authors' published (training score)", "zero": "zero"}
 
@@ -164,11 +177,10 @@ def table(res: dict) -> str:
         a, b = m["labels"], m["other_masses"]
         for p in path:
             a, b = a[p], b[p]
-        f = lambda x: "-" if x is None else (f"{x['mean']:.2f} +- {x['std']:.2f}" if isinstance(x, dict)  # noqa: E731
-                                             else f"{x:.2f}")
+        f = lambda x: "-" if x is None else _fmt(x)  # noqa: E731
         return f"{f(a)} ({f(b)})"
 
-    for name, s in splits:
+    for name, s in splits(res).items():
         for mname, m in s["models"].items():
             wt = m["labels"]["wake_by_type"]
             lines.append(f"| {name} | {label.get(mname, mname)} | {s['scored']} "
@@ -176,7 +188,7 @@ def table(res: dict) -> str:
                          f"{cell(m, 'plain')} | {cell(m, 'neutral')} | {cell(m, 'wake', 'plain')} | "
                          f"{cell(m, 'wake', 'neutral')} | " + " / ".join(
                              "-" if wt[t]["neutral"] is None else
-                             (f"{_mean(wt[t]['neutral']):.2f}") for t in wt) + " |")
+                             (f"{_mean(wt[t]['neutral']):.2f}") for t in types) + " |")
     return "\n".join(lines)
 
 
@@ -193,12 +205,6 @@ def memory(now: dict, past: dict) -> dict:
     (``now``), per blind split: the mass-neutral and plain MSE in the wake and overall,
     and whether the past lowers the wake MSE beyond the seed-to-seed spread (mean + std
     of one below mean - std of the other)."""
-    def splits(res):
-        out = {f"collection {k} left out": v for k, v in res["leave_one_collection_out"].items()}
-        if "held_out_flights" in res:
-            out["whole held-out flights"] = res["held_out_flights"]
-        return out
-
     rows = {}
     a, b = splits(now), splits(past)
     for name in a:
@@ -218,7 +224,7 @@ def memory(now: dict, past: dict) -> dict:
 
 
 def memory_table(rows: dict, lags: list) -> str:
-    f = lambda r: f"{r['mean']:.2f} +- {r['std']:.2f}" if isinstance(r, dict) else f"{r:.2f}"  # noqa: E731
+    f = _fmt
     lines = [f"| blind split | wake, mass-neutral: now / with the past {lags} ms | wake, plain | overall, mass-neutral "
              "| lower in the wake beyond the seeds' spread |", "|---|---|---|---|---|"]
     for name, r in rows.items():

@@ -100,6 +100,26 @@ def merit(pb: Problem, fm: ForceModel, trajs: list, par: SCPParams) -> tuple[flo
     return parts["effort"] + parts["goal"] + parts["violation"] + parts["defect"], parts
 
 
+def _timed_solve(problem: cp.Problem, solver: str, time_limit: float, t0: float, profile: dict) -> bool:
+    """Solve ``problem`` (Clarabel within ``time_limit``); add the solve and its seconds to
+    ``profile``: build_s since ``t0``, the solver's own time and cvxpy's canonicalization
+    (the rest).  True when it found a solution."""
+    t1 = time.perf_counter()
+    try:
+        kw = {"time_limit": max(time_limit, 0.1)} if solver == "CLARABEL" else {}
+        problem.solve(solver=solver, **kw)
+    except cp.error.SolverError:
+        return False
+    finally:
+        t2 = time.perf_counter()
+        stats = getattr(problem, "_solver_stats", None)
+        solver_s = float(stats.solve_time or 0.0) if stats is not None and stats.solve_time is not None else 0.0
+        for key, val in (("solves", 1), ("build_s", t1 - t0), ("solver_s", solver_s),
+                         ("canon_s", max(t2 - t1 - solver_s, 0.0))):
+            profile[key] = profile.get(key, 0) + val
+    return problem.status in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE)
+
+
 def solve_cp(pb: Problem, fm: ForceModel, trajs: list, i: int, par: SCPParams, rho: float,
              time_limit: float, profile: dict | None = None) -> Trajectory | None:
     """SolveCP: eq. (scp) for robot i around the current team solution, with a program
@@ -117,20 +137,8 @@ def solve_cp(pb: Problem, fm: ForceModel, trajs: list, i: int, par: SCPParams, r
     goal = cp.hstack([prog.p[T] - pb.goals()[i, ax], prog.v[T]])
     obj = cp.sum_squares(prog.u) + par.lambda_goal * cp.norm(goal, "inf") + par.lambda_box * prog.delta
     problem = cp.Problem(cp.Minimize(obj), cons)
-    t1 = time.perf_counter()
-    try:
-        kw = {"time_limit": max(time_limit, 0.1)} if par.solver == "CLARABEL" else {}
-        problem.solve(solver=par.solver, **kw)
-    except cp.error.SolverError:
-        return None
-    finally:
-        t2 = time.perf_counter()
-        stats = getattr(problem, "_solver_stats", None)
-        solver_s = float(stats.solve_time or 0.0) if stats is not None and stats.solve_time is not None else 0.0
-        for key, val in (("solves", 1), ("linearizations", 1), ("build_s", t1 - t0), ("solver_s", solver_s),
-                         ("canon_s", max(t2 - t1 - solver_s, 0.0))):
-            profile[key] = profile.get(key, 0) + val
-    if problem.status not in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE) or prog.p.value is None:
+    profile["linearizations"] = profile.get("linearizations", 0) + 1
+    if not _timed_solve(problem, par.solver, time_limit, t0, profile) or prog.p.value is None:
         return None
     out = trajs[i].copy()
     out.p[:, ax], out.v[:, ax], out.u[:, ax] = prog.p.value, prog.v.value, prog.u.value
@@ -460,21 +468,7 @@ class _Stage2:
                 prm.value = val
             self.current = i
         self.rho.value = rho
-        t1 = time.perf_counter()
-        problem = self.problem
-        try:
-            kw = {"time_limit": max(time_limit, 0.1)} if self.par.solver == "CLARABEL" else {}
-            problem.solve(solver=self.par.solver, **kw)
-        except cp.error.SolverError:
-            return None
-        finally:
-            t2 = time.perf_counter()
-            stats = getattr(problem, "_solver_stats", None)
-            solver_s = float(stats.solve_time or 0.0) if stats is not None and stats.solve_time is not None else 0.0
-            for key, val in (("solves", 1), ("build_s", t1 - t0), ("solver_s", solver_s),
-                             ("canon_s", max(t2 - t1 - solver_s, 0.0))):
-                profile[key] = profile.get(key, 0) + val
-        if problem.status not in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE) or self.dp.value is None:
+        if not _timed_solve(self.problem, self.par.solver, time_limit, t0, profile) or self.dp.value is None:
             return None
         out = trajs[i].copy()
         ax = self.ax
