@@ -31,7 +31,7 @@ from __future__ import annotations
 import json
 import math
 import time
-from dataclasses import asdict, replace
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -548,16 +548,33 @@ def fit(cfg: Config, gen_dir, flights: list[Flight], hover_by_robot: dict, robot
                    "lateral": lateral_rows}
 
 
-# label -> (rough, controller, learned, the z law read off the logs, the wakes' moments on)
-# of the replays (replay.replay)
-VARIANTS = {"clean": (False, "ns2", "float", False, False), "rough": (True, "ns2", "float", False, False),
-            "rough, the authors' controller": (True, "authors", "float", False, False),
-            "rough, the authors' controller, the prediction flown": (True, "authors", "logged", False, False),
-            "rough, the z law read off the logs, the prediction flown": (True, "authors", "logged", True, False),
-            "rough with the wakes' moments, the authors' controller, the prediction flown":
-                (True, "authors", "logged", False, True),
-            "rough with the wakes' moments, the z law read off the logs, the prediction flown":
-                (True, "authors", "logged", True, True)}
+@dataclass(frozen=True)
+class ReplayVariant:
+    """One simulator of compare's table: how the real swaps are replayed (replay.replay)."""
+    label: str              # its column in calibration.md and key in the JSON
+    rough: bool             # the rough simulator (else the clean one)
+    controller: str         # "ns2" (the project's) or "authors" (host/ctrl_authors.c)
+    learned: str            # "float" (the network of gen_dir) or "logged" (the prediction flown)
+    read_law: bool = False  # the z law read off the logs (fit_read_law) instead of the vehicle's
+    moments: bool = False   # the wakes' moments on
+
+    @property
+    def free_air_key(self) -> tuple:
+        """Variants with the same key share their free-air replays (the moments need a wake)."""
+        return self.rough, self.controller, self.learned, self.read_law
+
+
+VARIANTS = {v.label: v for v in (
+    ReplayVariant("clean", False, "ns2", "float"),
+    ReplayVariant("rough", True, "ns2", "float"),
+    ReplayVariant("rough, the authors' controller", True, "authors", "float"),
+    ReplayVariant("rough, the authors' controller, the prediction flown", True, "authors", "logged"),
+    ReplayVariant("rough, the z law read off the logs, the prediction flown", True, "authors", "logged",
+                  read_law=True),
+    ReplayVariant("rough with the wakes' moments, the authors' controller, the prediction flown",
+                  True, "authors", "logged", moments=True),
+    ReplayVariant("rough with the wakes' moments, the z law read off the logs, the prediction flown",
+                  True, "authors", "logged", read_law=True, moments=True))}
 
 
 def compare(cfg: Config, gen_dir, flights: list[Flight], rough: Roughness, names: list[str] | None = None,
@@ -592,20 +609,20 @@ def compare(cfg: Config, gen_dir, flights: list[Flight], rough: Roughness, names
                     "unpredicted": fs.unpredicted(cfg, real_sw), "lateral_k_xy": lateral_k_xy(cfg, real_sw)}}
     walks: dict = {}
     probed: dict = {}
-    for label, (is_rough, ctrl, learned, read, moments) in VARIANTS.items():
-        r, zl = (rough if is_rough else None), (law if read else None)
-        if moments:
+    for label, v in VARIANTS.items():
+        r, zl = (rough if v.rough else None), (law if v.read_law else None)
+        if v.moments:
             r = r.plus("moment", "moment_turbulence")
-        if (is_rough, ctrl, learned, read) not in walks:   # free air: the moments need a wake
-            walks[is_rough, ctrl, learned, read] = replay_all(cfg, gen_dir, free, r, workers, controller=ctrl,
-                                                              learned=learned, law=zl)
-        if is_rough not in probed:   # the simulator's own battery (the replays fly the logged one)
-            probed[is_rough] = [probe_flight(cfg, gen_dir, ty, r) for ty in cfg.robot_types]
-        w = walks[is_rough, ctrl, learned, read]
-        sims = replay_all(cfg, gen_dir, by, r, workers, controller=ctrl, learned=learned, law=zl)
+        if v.free_air_key not in walks:
+            walks[v.free_air_key] = replay_all(cfg, gen_dir, free, r, workers, controller=v.controller,
+                                               learned=v.learned, law=zl)
+        if v.rough not in probed:   # the simulator's own battery (the replays fly the logged one)
+            probed[v.rough] = [probe_flight(cfg, gen_dir, ty, r) for ty in cfg.robot_types]
+        w = walks[v.free_air_key]
+        sims = replay_all(cfg, gen_dir, by, r, workers, controller=v.controller, learned=v.learned, law=zl)
         out["simulators"][label] = {
             "free_air": fs.free_air(cfg, w), "z_loop": fs.z_loop(cfg, w), "z_law": fs.z_law(cfg, sims),
-            "battery": fs.battery(probed[is_rough]),
+            "battery": fs.battery(probed[v.rough]),
             "wake_scatter": fs.wake_scatter(cfg, sims), "wake_lateral": fs.wake_lateral(cfg, sims),
             "swaps": fs.swap_errors(sims),
             "attitude": fs.swap_attitude(sims), "lateral_k_xy": lateral_k_xy(cfg, sims),
