@@ -23,7 +23,10 @@
  *          configuration's battery compensation, host/cfhost.py);
  *   plant  PWM -> motor force through psi_1, RK4 of eq. (dynamics) (ns2_sim.c).
  * The true state x stays here and in Python; the controllers see only the EKF
- * state and the filtered gyro.
+ * state and the filtered gyro.  ns2_fly_run runs, every tick and robot, one function
+ * per firmware task in the firmware's order: sensors_task, controller_task (the one
+ * dispatch on the robot's kind), estimator_task, peers_task, motors_task; then
+ * integration_task advances every robot's true state.
  */
 #include "ns2_fly.h"
 
@@ -192,6 +195,7 @@ static float pwm_psi1_inverse(const double k[5], float u_N, float battery_V)
     return p < 1.0 ? (float)p : 1.0f;
 }
 
+/* The inputs and outputs of one 500 Hz run of the app's path, and the peer updates it read. */
 static void trace(ns2_fly_trace_t *t, const ns2_fly_robot_t *r, const ns2_ctrl_state_t *s,
                   const ns2_setpoint_t *sp, int do_pos, uint32_t now_ms, float battery_V)
 {
@@ -202,6 +206,174 @@ static void trace(ns2_fly_trace_t *t, const ns2_fly_robot_t *r, const ns2_ctrl_s
     t->battery_V = battery_V;
     memcpy(t->pwm, r->pwm, sizeof(t->pwm));
     t->fa_hat_g = r->pilot.fa_hat_g;
+    t->n_peers = do_pos ? r->n_peers : 0u;
+    for (uint32_t j = 0; j < t->n_peers; ++j) {
+        t->peer_id[j] = r->peer_id[j];
+        t->peer_type[j] = r->peer_type[j];
+        t->peer_t[j] = r->peer_t[j];
+        memcpy(t->peer_p[j], r->peer_p[j], sizeof(t->peer_p[j]));
+    }
+}
+
+/* sensorsTask: one IMU sample of the true state xi under f_a (world), noise nz [6] standard
+ * normal (gyro, acc): bias, white noise, the BMI088's LSBs, the firmware's lpf2p. */
+static void sensors_task(ns2_fly_robot_t *r, const double *xi, const double *f_a, const float *nz)
+{
+    float acc[3], gyro[3];
+    imu_truth(xi, r->par, f_a, acc, gyro);
+    float gf[3], af[3];
+    for (int a = 0; a < 3; ++a) {
+        gf[a] = lpf2pApply(&r->gyro_lpf[a],
+                           quantize(gyro[a] + r->bias_gyro_dps[a] + r->sd_gyro_dps * nz[a], DEG_PER_LSB));
+        af[a] = lpf2pApply(&r->acc_lpf[a],
+                           quantize(acc[a] + r->bias_acc_g[a] + r->sd_acc_g * nz[3 + a], G_PER_LSB) / r->acc_scale);
+    }
+    r->sensors.gyro.x = gf[0];
+    r->sensors.gyro.y = gf[1];
+    r->sensors.gyro.z = gf[2];
+    r->sensors.acc.x = af[0];
+    r->sensors.acc.y = af[1];
+    r->sensors.acc.z = af[2];
+}
+
+/* ns2_pilot_tick with the position law of ctrl_authors.c (NS2_FLY_AUTHORS): the pilot's
+ * prediction (or the one given from outside) flown by the authors' law at 100 Hz, the
+ * pilot's attitude loop at 500 Hz. */
+static void authors_tick(ns2_fly_robot_t *r, const ns2_ctrl_state_t *s, const ns2_setpoint_t *sp, int do_pos,
+                         uint32_t tick, float battery_V)
+{
+    if (do_pos) {
+        ns2_pilot_period(&r->pilot, s, r->id, tick);
+        const float fa_g = r->fa_given ? r->fa_given_g : (r->pilot.cfg.enable ? r->pilot.fa_hat_g : 0.0f);
+        const float fa_z_N = fa_g * 1e-3f * (float)G_SIM;
+        ns2_authors_position(&r->authors, &r->pilot.ctrl, s, sp, fa_z_N, 1.0f / (float)NS2_PILOT_POS_HZ);
+    }
+    ns2_pilot_slice(&r->pilot);
+    ns2_pilot_attitude(&r->pilot, s, battery_V);
+}
+
+/* The app's path at 500/100 Hz (NS2_FLY_PILOT, NS2_FLY_AUTHORS): the peer table at 100 Hz,
+ * the position law of the robot's kind, psi_2 PWM (or the exact psi_1 inverse); writes one trace record to t
+ * (NULL: none) when it runs.  Returns 1 when it wrote one. */
+static uint32_t pilot_controller(ns2_fly_robot_t *r, const ns2_setpoint_t *sp, uint32_t tick, float battery_V,
+                                 ns2_fly_trace_t *t)
+{
+    if (!RATE_DO_EXECUTE(RATE_500_HZ, tick)) {
+        return 0u;
+    }
+    ns2_ctrl_state_t s;
+    to_ctrl_state(&r->est, &r->sensors, &s);
+    const int do_pos = RATE_DO_EXECUTE(RATE_100_HZ, tick);
+    if (do_pos) { /* ns2_app.c predict_period: the peer-localization table */
+        for (uint32_t j = 0; j < r->n_peers; ++j) {
+            (void)ns2_pilot_peer(&r->pilot, r->peer_id[j], r->peer_type[j], r->peer_t[j], r->peer_p[j]);
+        }
+    }
+    if (r->kind == NS2_FLY_AUTHORS) {
+        authors_tick(r, &s, sp, do_pos, tick, battery_V);
+    } else {
+        ns2_pilot_tick(&r->pilot, &s, sp, do_pos, r->id, tick, battery_V);
+    }
+    memcpy(r->pwm, r->pilot.ctrl.pwm, sizeof(r->pwm));
+    if (r->pwm_exact) { /* the motor forces commanded, realized through psi_1 */
+        for (int m = 0; m < 4; ++m) {
+            r->pwm[m] = r->pilot.ctrl.pwm[m] > 0.0f ? pwm_psi1_inverse(r->psi1_nominal, r->pilot.ctrl.u[m], battery_V)
+                                                    : 0.0f;
+        }
+    }
+    if (t == NULL) {
+        return 0u;
+    }
+    trace(t, r, &s, sp, do_pos, tick, battery_V);
+    return 1u;
+}
+
+/* stabilizer: the controller of the robot's kind on the state of the last estimator run
+ * (the one dispatch of NS2_FLY_PILOT, NS2_FLY_AUTHORS and NS2_FLY_MELLINGER).  Returns the
+ * trace records written to t (NULL: none). */
+static uint32_t controller_task(ns2_fly_robot_t *r, const ns2_setpoint_t *sp, uint32_t tick, float battery_V,
+                                ns2_fly_trace_t *t)
+{
+    if (r->kind == NS2_FLY_MELLINGER) {
+        mellinger_tick(r, sp, tick, battery_V);
+        return 0u;
+    }
+    return pilot_controller(r, sp, tick, battery_V, t); /* NS2_FLY_AUTHORS, else NS2_FLY_PILOT */
+}
+
+/* kalmanTask (estimator_kalman.c), after the stabilizer in the same tick: the IMU
+ * subsampled, predict at 100 Hz, process noise every tick, the mocap position of a frame
+ * robot i receives (rx[i]) this tick, finalize, externalize. */
+static void estimator_task(ns2_fly_robot_t *r, uint32_t i, uint32_t tick, const ns2_fly_frame_t *frame)
+{
+    axis3fSubSamplerAccumulate(&r->gyro_ss, &r->sensors.gyro);
+    axis3fSubSamplerAccumulate(&r->acc_ss, &r->sensors.acc);
+    r->acc_latest = r->sensors.acc;
+    if (tick >= r->next_predict_ms) {
+        axis3fSubSamplerFinalize(&r->acc_ss);
+        axis3fSubSamplerFinalize(&r->gyro_ss);
+        kalmanCorePredict(&r->kc, &kparams, &r->acc_ss.subSample, &r->gyro_ss.subSample, tick, true);
+        r->next_predict_ms = tick + PREDICT_MS;
+    }
+    kalmanCoreAddProcessNoise(&r->kc, &kparams, tick);
+    if (frame != NULL && frame->tick == tick && frame->rx[i]) {
+        positionMeasurement_t m;
+        memset(&m, 0, sizeof(m));
+        m.x = frame->p[3 * i];
+        m.y = frame->p[3 * i + 1];
+        m.z = frame->p[3 * i + 2];
+        m.stdDev = r->ext_pos_std_m;
+        kalmanCoreUpdateWithPosition(&r->kc, &m);
+    }
+    (void)kalmanCoreFinalize(&r->kc);
+    kalmanCoreExternalizeState(&r->kc, &r->est, &r->acc_latest);
+}
+
+/* peer localization: the other robots' positions of the broadcast robot i receives this
+ * tick (timestamp: the reception tick, as peer_localization.c), each peer's type its true
+ * one or looked up by its radio id in the robot's type table. */
+static void peers_task(ns2_fly_robot_t *rob, uint32_t n, uint32_t i, uint32_t tick, const ns2_fly_frame_t *frame)
+{
+    ns2_fly_robot_t *r = &rob[i];
+    if (frame == NULL || frame->tick != tick || !frame->rx[i]) {
+        return;
+    }
+    r->n_peers = 0u;
+    for (uint32_t j = 0; j < n && r->n_peers < NS2_FLY_MAX_PEERS; ++j) {
+        if (j != i) {
+            const uint32_t e = r->n_peers++;
+            r->peer_id[e] = rob[j].id;
+            r->peer_type[e] = r->use_type_table ? ns2_type_table_get(r->type_table, rob[j].id, NS2_NUM_ROBOT_TYPES)
+                                                : rob[j].type;
+            r->peer_t[e] = tick;
+            memcpy(r->peer_p[e], &frame->p[3 * j], sizeof(r->peer_p[e]));
+        }
+    }
+}
+
+/* motors: PWM -> force (N) of each motor through psi_1 (Table cfprops;
+ * ns2codegen.data.labels.psi1_newtons) at this supply voltage. */
+static void motors_task(const ns2_fly_robot_t *r, float battery_V, double u_c[4])
+{
+    const double v = (double)battery_V / 4.2;
+    for (int m = 0; m < 4; ++m) {
+        const double p = (double)r->pwm[m];
+        const double *c = r->psi1;
+        const double f_g = c[0] + c[1] * p + c[2] * v + c[3] * p * p + c[4] * p * v;
+        u_c[m] = p > 0.0 ? (f_g > 0.0 ? f_g : 0.0) * G_SIM / 1000.0 : 0.0;
+    }
+}
+
+/* integration: one RK4 step (1 ms) of every robot's true state under its motor forces. */
+static void integration_task(const ns2_fly_robot_t *rob, uint32_t n, double *x, const double *u_c,
+                             const double *f_a, const double *tau_a)
+{
+    static const double zeros[3 * NS2_FLY_MAX_ROBOTS] = {0.0};
+    double par[FLY_PAR * NS2_FLY_MAX_ROBOTS];
+    for (uint32_t i = 0; i < n; ++i) {
+        memcpy(&par[FLY_PAR * i], rob[i].par, sizeof(rob[i].par));
+    }
+    ns2_sim_rk4(n, x, par, u_c, f_a, tau_a != NULL ? tau_a : zeros, 1e-3);
 }
 
 uint32_t ns2_fly_run(ns2_fly_robot_t *rob, uint32_t n, double *x, const double *f_a, const double *tau_a,
@@ -210,7 +382,6 @@ uint32_t ns2_fly_run(ns2_fly_robot_t *rob, uint32_t n, double *x, const double *
                      ns2_fly_trace_t *tr, uint32_t tr_robot, uint32_t tr_max)
 {
     double u_c[4 * NS2_FLY_MAX_ROBOTS];
-    const double zeros[3 * NS2_FLY_MAX_ROBOTS] = {0.0};
     uint32_t n_tr = 0u;
     if (n > NS2_FLY_MAX_ROBOTS) {
         return 0u;
@@ -219,119 +390,14 @@ uint32_t ns2_fly_run(ns2_fly_robot_t *rob, uint32_t n, double *x, const double *
         const uint32_t tick = ms0 + k;
         for (uint32_t i = 0; i < n; ++i) {
             ns2_fly_robot_t *r = &rob[i];
-            const float bat_V = battery_V[i];
-            const double *xi = &x[FLY_X * i];
-            const float *nz = &noise[6u * (n * k + i)];
-            /* sensorsTask: one IMU sample */
-            float acc[3], gyro[3];
-            imu_truth(xi, r->par, &f_a[3 * i], acc, gyro);
-            float gf[3], af[3];
-            for (int a = 0; a < 3; ++a) {
-                gf[a] = lpf2pApply(&r->gyro_lpf[a],
-                                   quantize(gyro[a] + r->bias_gyro_dps[a] + r->sd_gyro_dps * nz[a], DEG_PER_LSB));
-                af[a] = lpf2pApply(&r->acc_lpf[a],
-                                   quantize(acc[a] + r->bias_acc_g[a] + r->sd_acc_g * nz[3 + a], G_PER_LSB) / r->acc_scale);
-            }
-            r->sensors.gyro.x = gf[0];
-            r->sensors.gyro.y = gf[1];
-            r->sensors.gyro.z = gf[2];
-            r->sensors.acc.x = af[0];
-            r->sensors.acc.y = af[1];
-            r->sensors.acc.z = af[2];
-            /* stabilizer: state of the last estimator run, then the controller */
-            if (r->kind == NS2_FLY_MELLINGER) {
-                mellinger_tick(r, &sp[i], tick, bat_V);
-            } else if (RATE_DO_EXECUTE(RATE_500_HZ, tick)) {
-                ns2_ctrl_state_t s;
-                to_ctrl_state(&r->est, &r->sensors, &s);
-                const int do_pos = RATE_DO_EXECUTE(RATE_100_HZ, tick);
-                if (do_pos) { /* ns2_app.c predict_period: the peer-localization table */
-                    for (uint32_t j = 0; j < r->n_peers; ++j) {
-                        (void)ns2_pilot_peer(&r->pilot, r->peer_id[j], r->peer_type[j], r->peer_t[j], r->peer_p[j]);
-                    }
-                }
-                if (r->kind == NS2_FLY_AUTHORS) { /* ns2_pilot_tick with the authors' position law */
-                    if (do_pos) {
-                        ns2_pilot_period(&r->pilot, &s, r->id, tick);
-                        const float fa_g = r->fa_given ? r->fa_given_g : (r->pilot.cfg.enable ? r->pilot.fa_hat_g : 0.0f);
-                        const float fa_z_N = fa_g * 1e-3f * (float)G_SIM;
-                        ns2_authors_position(&r->authors, &r->pilot.ctrl, &s, &sp[i], fa_z_N,
-                                             1.0f / (float)NS2_PILOT_POS_HZ);
-                    }
-                    ns2_pilot_slice(&r->pilot);
-                    ns2_pilot_attitude(&r->pilot, &s, bat_V);
-                } else {
-                    ns2_pilot_tick(&r->pilot, &s, &sp[i], do_pos, r->id, tick, bat_V);
-                }
-                memcpy(r->pwm, r->pilot.ctrl.pwm, sizeof(r->pwm));
-                if (r->pwm_exact) { /* the motor forces commanded, realized through psi_1 */
-                    for (int m = 0; m < 4; ++m) {
-                        r->pwm[m] = r->pilot.ctrl.pwm[m] > 0.0f
-                                        ? pwm_psi1_inverse(r->psi1_nominal, r->pilot.ctrl.u[m], bat_V)
-                                        : 0.0f;
-                    }
-                }
-                if (tr != NULL && i == tr_robot && n_tr < tr_max) {
-                    ns2_fly_trace_t *t = &tr[n_tr++];
-                    trace(t, r, &s, &sp[i], do_pos, tick, bat_V);
-                    t->n_peers = do_pos ? r->n_peers : 0u;
-                    for (uint32_t j = 0; j < t->n_peers; ++j) {
-                        t->peer_id[j] = r->peer_id[j];
-                        t->peer_type[j] = r->peer_type[j];
-                        t->peer_t[j] = r->peer_t[j];
-                        memcpy(t->peer_p[j], r->peer_p[j], sizeof(t->peer_p[j]));
-                    }
-                }
-            }
-            /* kalmanTask (estimator_kalman.c), after the stabilizer in the same tick */
-            axis3fSubSamplerAccumulate(&r->gyro_ss, &r->sensors.gyro);
-            axis3fSubSamplerAccumulate(&r->acc_ss, &r->sensors.acc);
-            r->acc_latest = r->sensors.acc;
-            if (tick >= r->next_predict_ms) {
-                axis3fSubSamplerFinalize(&r->acc_ss);
-                axis3fSubSamplerFinalize(&r->gyro_ss);
-                kalmanCorePredict(&r->kc, &kparams, &r->acc_ss.subSample, &r->gyro_ss.subSample, tick, true);
-                r->next_predict_ms = tick + PREDICT_MS;
-            }
-            kalmanCoreAddProcessNoise(&r->kc, &kparams, tick);
-            if (frame != NULL && frame->tick == tick && frame->rx[i]) {
-                positionMeasurement_t m;
-                memset(&m, 0, sizeof(m));
-                m.x = frame->p[3 * i];
-                m.y = frame->p[3 * i + 1];
-                m.z = frame->p[3 * i + 2];
-                m.stdDev = r->ext_pos_std_m;
-                kalmanCoreUpdateWithPosition(&r->kc, &m);
-                /* the other robots' positions of the same broadcast: peer localization */
-                r->n_peers = 0u;
-                for (uint32_t j = 0; j < n && r->n_peers < NS2_FLY_MAX_PEERS; ++j) {
-                    if (j != i) {
-                        const uint32_t e = r->n_peers++;
-                        r->peer_id[e] = rob[j].id;
-                        r->peer_type[e] = r->use_type_table
-                                              ? ns2_type_table_get(r->type_table, rob[j].id, NS2_NUM_ROBOT_TYPES)
-                                              : rob[j].type;
-                        r->peer_t[e] = tick;
-                        memcpy(r->peer_p[e], &frame->p[3 * j], sizeof(r->peer_p[e]));
-                    }
-                }
-            }
-            (void)kalmanCoreFinalize(&r->kc);
-            kalmanCoreExternalizeState(&r->kc, &r->est, &r->acc_latest);
-            /* motors: PWM -> force through psi_1 (Table cfprops; ns2codegen.data.labels.psi1_newtons) */
-            const double v = (double)bat_V / 4.2;
-            for (int m = 0; m < 4; ++m) {
-                const double p = (double)r->pwm[m];
-                const double *c = r->psi1;
-                const double f_g = c[0] + c[1] * p + c[2] * v + c[3] * p * p + c[4] * p * v;
-                u_c[4 * i + (uint32_t)m] = p > 0.0 ? (f_g > 0.0 ? f_g : 0.0) * G_SIM / 1000.0 : 0.0;
-            }
+            ns2_fly_trace_t *t = tr != NULL && i == tr_robot && n_tr < tr_max ? &tr[n_tr] : NULL;
+            sensors_task(r, &x[FLY_X * i], &f_a[3 * i], &noise[6u * (n * k + i)]);
+            n_tr += controller_task(r, &sp[i], tick, battery_V[i], t);
+            estimator_task(r, i, tick, frame);
+            peers_task(rob, n, i, tick, frame);
+            motors_task(r, battery_V[i], &u_c[4 * i]);
         }
-        double par[FLY_PAR * NS2_FLY_MAX_ROBOTS];
-        for (uint32_t i = 0; i < n; ++i) {
-            memcpy(&par[FLY_PAR * i], rob[i].par, sizeof(rob[i].par));
-        }
-        ns2_sim_rk4(n, x, par, u_c, f_a, tau_a != NULL ? tau_a : zeros, 1e-3);
+        integration_task(rob, n, x, u_c, f_a, tau_a);
     }
     return n_tr;
 }
