@@ -1,0 +1,470 @@
+"""On-board adaptation judged on real flights, causally, on the blind splits (issue 53
+item 4; docs/adaptation.md, "Judged on real flights").
+
+Every robot of every flight of a blind split (the held-out flights with the networks
+trained without them; each collection left out with the networks trained without it)
+is replayed in time order through the **host C build** of the on-board label and
+adaptation (``ns2host.onboard.run_host``: ``ns2_label_step`` then ``ns2_adapt_step``
+at every 100 Hz tick, exactly the app's calls), from its logged sensors (vertical
+velocity and position, attitude, motor PWM, battery: the label and its sanity flags
+as the app computes them, with the vehicle file's mass of the labels' convention,
+``real.toml``).  The law's other inputs at each tick:
+
+* **NN**: the split's checkpoint's prediction for that sample in float32 (torch, the
+  very predictions of ``ns2 real blind``; the export equals it within float32
+  rounding, docs/real-flights.md section 8);
+* **wake flag**: the app's ``n_used > 0`` (a robot neighbour inside the interaction
+  volume: the data set's robot neighbour rows of the sample).
+
+A robot's flight is one sequence from its first sample (the take-off reset: the app
+resets the adaptation on the ground).  The cuts of the data set (ground touches,
+impacts, log gaps: docs/real-flights.md section 4) split a flight into pieces; between
+two pieces one tick with non-finite inputs is replayed: the label's history and the NN
+history restart (label BAD_INPUT, NN BAD_INPUT), theta and P are held, as the app holds
+them through a stretch it cannot learn from.  Ticks of a piece that are not samples
+(the label stencil's two ticks at either end) carry a non-finite NN (no pairing, no
+update).
+
+Scores (``realscore.score``, the blind tables' yardsticks, on the samples the blind
+tables score): static (NN alone) and adapted (the C's output f = NN + term), plain and
+mass-neutral, overall, in the wake (``realscore.WAKE``), per receiving type and per
+scenario, with the labels' masses (``real.toml``, 32.1 / 62.5 g).
+
+Variants: the default law (bias alone), bias + scale (the C with ``scale_max``
+``SCALE_MAX``), and Neural-Fly's last-layer basis psi = [1, rho's last hidden layer]
+(``rls_last_layer``: float64 RLS in Python only, the same gating as the C: it updates
+exactly at the ticks where the C updates), the forgetting factor swept on the held-out
+flights (``FORGETS``) and the one chosen there judged on the collections left out.
+
+The mass test (``mass_offset``): each robot's config 3 g lighter than the robot (the
+label cfg's mass - 3 g: every on-board label moves by -3 g times the load factor, the
+scores' labels relabelled exactly alike), from take-off (C) and as a step in the middle
+of each robot's flight (the float32 reference, bit for bit the C): the time until the
+adapted term differs from the unperturbed run's by -3 +- ``RECOVER_G`` g for good.
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from ns2codegen.logs.collection import COLLECTIONS
+from ns2codegen.onboard import ADAPT_UPDATED, AdaptCfg, LabelCfg, adapt_f32
+
+from .blind import ONBOARD_COLLECTION, load_samples, predictions
+from .real import RealDataError
+from .realscore import relabel, score
+
+SCALE_MAX = 0.5
+FORGETS = (0.98, 0.99, 0.995, 0.998, 0.999)
+OFFSET_G, RECOVER_G = 3.0, 0.5
+GOAL = {"held_out_flights": 0.15, "collection_left_out": 0.30}
+
+
+@dataclass
+class Track:
+    """One robot of one flight, its pieces joined in time order with one separator tick
+    of non-finite inputs between pieces: the raw tick arrays, which tick each of its
+    samples is (``tick``) and their indices in the data set (``samples``)."""
+    name: str
+    robot_type: str
+    h_s: float
+    vz: np.ndarray
+    z: np.ndarray
+    q: np.ndarray
+    pwm: np.ndarray
+    battery_V: np.ndarray
+    tick: np.ndarray
+    samples: np.ndarray
+    t_s: np.ndarray        # flight clock of each tick (NaN on separators)
+
+    def __len__(self) -> int:
+        return len(self.vz)
+
+
+def tracks(cfg, flights: list, info: dict) -> list[Track]:
+    """Every robot track of ``flights`` (the data set's flights, in its order); the samples'
+    times must equal ``info``'s (else the flights are not the data set's)."""
+    from ns2codegen.data.from_logs import labelled_steps
+
+    parts: dict = {}
+    n = 0
+    for fl, i, steps, _ in labelled_steps(cfg, flights):
+        rid = f"{fl.name}#{fl.robots[i] if fl.robots else i}"
+        k = len(steps)
+        if not np.allclose(fl.t[steps], info["t_s"][n:n + k]):
+            raise RealDataError(f"{fl.name}: the flights read are not those of the data set (times differ)")
+        parts.setdefault(rid, []).append((fl, i, steps, np.arange(n, n + k)))
+        n += k
+    if n != len(info["t_s"]):
+        raise RealDataError(f"{n} samples in the flights read, {len(info['t_s'])} in the data set")
+    out = []
+    nan4 = np.full((1, 4), np.nan)
+    for rid, ps in parts.items():
+        ps.sort(key=lambda p: p[0].t[0])
+        cols: dict = {k: [] for k in ("vz", "z", "q", "pwm", "battery_V", "t_s")}
+        tick, samples, base = [], [], 0
+        for j, (fl, i, steps, idx) in enumerate(ps):
+            if j:
+                for k, v in (("vz", [np.nan]), ("z", [np.nan]), ("q", nan4), ("pwm", nan4), ("battery_V", [np.nan]),
+                             ("t_s", [np.nan])):
+                    cols[k].append(np.asarray(v))
+                base += 1
+            for k, v in (("vz", fl.v[:, i, 2]), ("z", fl.p[:, i, 2]), ("q", fl.q[:, i]), ("pwm", fl.pwm[:, i]),
+                         ("battery_V", fl.battery_V[:, i]), ("t_s", fl.t)):
+                cols[k].append(np.asarray(v, float))
+            tick.append(base + steps)
+            samples.append(idx)
+            base += len(fl.t)
+        fl0 = ps[0][0]
+        out.append(Track(rid, fl0.types[ps[0][1]], float(np.median(np.diff(fl0.t))),
+                         *(np.concatenate(cols[k]) for k in ("vz", "z", "q", "pwm", "battery_V")),
+                         np.concatenate(tick), np.concatenate(samples), np.concatenate(cols["t_s"])))
+    return out
+
+
+def robot_neighbours(ds) -> np.ndarray:
+    """Per sample, the robot neighbours the prediction uses (the app's ``n_used``)."""
+    robot = ds.nbr_type < len(ds.neighbor_types) - 1     # robot types first, the environment last (Config)
+    sample_of = np.repeat(np.arange(len(ds)), np.diff(ds.nbr_offsets))
+    return np.bincount(sample_of[robot], minlength=len(ds))
+
+
+def label_cfg(cfg, tr: Track, mass_delta_g: float = 0.0) -> LabelCfg:
+    veh = dict(cfg.vehicle(tr.robot_type))
+    veh["mass_g"] = veh["mass_g"] + mass_delta_g
+    return LabelCfg.of_vehicle(veh, h_s=tr.h_s)
+
+
+def replay(gen_dir, cfg, tr: Track, nn_g: np.ndarray, wake: np.ndarray, acfg: AdaptCfg,
+           mass_delta_g: float = 0.0) -> dict:
+    """One track through the host C (label and adaptation): ``nn_g``, ``wake`` per sample
+    of the data set; returns the C's outputs per tick (``ns2host.onboard.run_host``)."""
+    from ns2host import onboard as host
+
+    nn = np.full(len(tr), np.nan)
+    nn[tr.tick] = nn_g[tr.samples]
+    wk = np.zeros(len(tr), bool)
+    wk[tr.tick] = wake[tr.samples]
+    reset = np.zeros(len(tr), bool)
+    reset[0] = True
+    t = host.ticks(tr.vz, tr.z, tr.q, tr.pwm, tr.battery_V, nn, acfg, reset, wk)
+    return host.run_host(gen_dir, label_cfg(cfg, tr, mass_delta_g), t)
+
+
+def rls_last_layer(tr: Track, nn_g: np.ndarray, feats: np.ndarray, c: dict, acfg: AdaptCfg) -> np.ndarray:
+    """Neural-Fly's last-layer basis: f = NN + sat(theta^T [1, h]), h rho's last hidden
+    layer, theta by float64 RLS with forgetting ``acfg.forget`` on the C's label,
+    updated exactly where the C's run ``c`` updated (the same gating: sane label, no
+    wake, history), P = p0 I at take-off, its trace capped at p_max per parameter
+    (scaled down as a whole: P stays positive definite).  Returns f per sample of the
+    track (in ``tr.samples`` order)."""
+    T = len(tr)
+    n = feats.shape[1] + 1
+    psi = np.zeros((T, n))
+    psi[tr.tick, 0] = 1.0
+    psi[tr.tick, 1:] = feats[tr.samples]
+    nn = np.full(T, np.nan)
+    nn[tr.tick] = nn_g[tr.samples]
+    theta, P = np.zeros(n), np.eye(n) * acfg.p0
+    lam, cap = float(acfg.forget), acfg.p_max * n
+    upd = (c["adapt_status"] & ADAPT_UPDATED) != 0
+    term = np.zeros(T)
+    for t in range(T):
+        if upd[t]:
+            x = psi[t - 2]
+            Px = P @ x
+            k = Px / (lam + x @ Px)
+            theta += k * (float(c["label_g"][t]) - nn[t - 2] - theta @ x)
+            P = (P - np.outer(k, Px)) / lam
+            P = 0.5 * (P + P.T)
+            tr_p = np.trace(P)
+            if tr_p > cap:
+                P *= cap / tr_p
+        term[t] = theta @ psi[t]
+    term = np.clip(term, -acfg.fa_max_g, acfg.fa_max_g)
+    return (nn + term)[tr.tick]
+
+
+def last_hidden(checkpoint: Path, ds) -> np.ndarray:
+    """rho's last hidden layer (after its ReLU) of every sample, float32 [N, width]; its
+    last linear layer of these equals ``predictions`` (checked)."""
+    import torch
+
+    from ns2codegen.checkpoint import load_checkpoint
+    from ns2codegen.train import Batched
+
+    ck = load_checkpoint(checkpoint)
+    model = ck.model()
+    b = Batched.of(ds)
+    b.nbr_state = torch.from_numpy(np.ascontiguousarray(ds.nbr_state[:, :ck.cfg.input_dim]))
+    width = model.rho[0].layers[-1].in_features
+    out, pred = np.zeros((len(ds), width), np.float32), np.zeros(len(ds), np.float32)
+    with torch.no_grad():
+        for s in range(0, len(ds), 8192):
+            idx = torch.arange(s, min(s + 8192, len(ds)))
+            rt, so, nt, ns, _ = b.batch(idx)
+            h = ns.new_zeros((len(idx), model.hidden))
+            for k in range(model.num_neighbor_types):
+                rows = torch.nonzero(nt == k).squeeze(1)
+                if rows.numel():
+                    h = h.index_add(0, so[rows], model.phi[k](ns[rows]))
+            for r in range(model.num_robot_types):
+                rows = torch.nonzero(rt == r).squeeze(1)
+                x = h[rows]
+                for layer in model.rho[r].layers[:-1]:
+                    x = torch.relu(layer(x))
+                out[s + rows.numpy()] = x.numpy()
+                pred[s + rows.numpy()] = model.rho[r].layers[-1](x).squeeze(1).numpy()
+    ref = predictions(checkpoint, ds)
+    assert np.allclose(pred, ref, atol=1e-4), float(np.abs(pred - ref).max())
+    return out
+
+
+def recovery_times(tr: Track, d_term: np.ndarray, start_tick: int, target_g: float, tol_g: float) -> float | None:
+    """Seconds from ``start_tick`` until the difference of the adapted terms ``d_term``
+    (per tick) is within ``tol_g`` of ``target_g`` at every later sample tick of the
+    track; None if it never is for good."""
+    ticks = tr.tick[tr.tick >= start_tick]
+    bad = np.abs(d_term[ticks] - target_g) > tol_g
+    if bad[-1]:
+        return None
+    last_bad = np.flatnonzero(bad)
+    first_ok = ticks[last_bad[-1] + 1] if last_bad.size else ticks[0]
+    return round(float(tr.t_s[first_ok] - tr.t_s[start_tick]), 3)
+
+
+def _stats(xs: list) -> dict:
+    got = np.array([x for x in xs if x is not None], float)
+    return {"robots": len(xs), "never": int(sum(x is None for x in xs)),
+            **({"median_s": round(float(np.median(got)), 2), "p90_s": round(float(np.percentile(got, 90)), 2),
+                "max_s": round(float(got.max()), 2)} if got.size else {})}
+
+
+class Split:
+    """A blind split's data: the data set, its sample table, the scored samples (those
+    of ``ns2 real blind``), the robot tracks, the wake flag."""
+
+    def __init__(self, d: Path, key: str, cfg, flights: list, onboard: bool):
+        from ns2codegen.data.dataset import Dataset
+
+        self.ds = Dataset.load(d / f"{key}.npz")
+        self.info = load_samples(d / f"{key}_samples.npz")
+        names = set(self.info["flight_names"])
+        self.tracks = tracks(cfg, [f for f in flights if f.name in names], self.info)
+        self.wake = robot_neighbours(self.ds) > 0
+        ob = self.info["onboard_g"]
+        self.keep = np.isfinite(ob) & (ob != 0.0) if onboard else np.ones(len(self.ds), bool)
+
+    def score(self, pred: np.ndarray, label: np.ndarray | None = None, types=None) -> dict:
+        k = self.keep
+        lab = self.ds.label_g if label is None else label
+        sub = {n: (v[k] if isinstance(v, np.ndarray) and len(v) == len(k) else v) for n, v in self.info.items()}
+        return score(lab[k], pred[k], sub, self.ds.robot_type[k], types, self.ds.scenario[k],
+                     self.ds.scenario_names)
+
+    def run(self, gen_dir, cfg, nn: np.ndarray, acfg: AdaptCfg, feats=None, mass_delta_g: float = 0.0):
+        """The C's adapted prediction per sample (and the last-layer variant's with
+        ``feats``), the C's outputs per track."""
+        out, ll, runs = np.zeros(len(self.ds)), np.zeros(len(self.ds)), []
+        for tr in self.tracks:
+            c = replay(gen_dir, cfg, tr, nn, self.wake, acfg, mass_delta_g)
+            out[tr.samples] = c["out_g"][tr.tick]
+            if feats is not None:
+                ll[tr.samples] = rls_last_layer(tr, nn, feats, c, acfg)
+            runs.append(c)
+        return out, (ll if feats is not None else None), runs
+
+
+def _gain(adapted: dict, static: dict) -> dict:
+    def g(a, b):
+        return None if a is None or not b else round(1.0 - a / b, 4)
+    return {"overall_plain": g(adapted["plain"], static["plain"]),
+            "overall_neutral": g(adapted["neutral"], static["neutral"]),
+            "wake_plain": g(adapted["wake"]["plain"], static["wake"]["plain"]),
+            "wake_neutral": g(adapted["wake"]["neutral"], static["wake"]["neutral"])}
+
+
+def mass_offset(gen_dir, cfg, sp: Split, nn: np.ndarray, base_runs: list, acfg: AdaptCfg, types) -> dict:
+    """The 3 g test on a split (module docstring): scores with the offset, and recovery
+    times from take-off (C) and from a step in the middle of each robot's flight."""
+    masses = {t: cfg.vehicle(t)["mass_g"] for t in types}
+    lighter = {t: m - OFFSET_G for t, m in masses.items()}
+    label = relabel(sp.ds.label_g, sp.info, sp.ds.robot_type, masses, lighter, types)
+    adapted, _, runs = sp.run(gen_dir, cfg, nn, acfg, mass_delta_g=-OFFSET_G)
+    takeoff, step = [], []
+    for tr, c0, c1 in zip(sp.tracks, base_runs, runs):
+        takeoff.append(recovery_times(tr, c1["term_g"] - c0["term_g"], int(tr.tick[0]), -OFFSET_G, RECOVER_G))
+        mid = int(tr.tick[len(tr.tick) // 2])
+        lab = c0["label_g"].copy()
+        valid = np.flatnonzero(np.arange(len(tr)) >= mid + 2)       # labels of samples from the step on
+        lab[valid] = (lab[valid] - np.float32(OFFSET_G)).astype(np.float32)
+        nn_t = np.full(len(tr), np.nan, np.float32)
+        nn_t[tr.tick] = nn[tr.samples]
+        wk = np.zeros(len(tr), bool)
+        wk[tr.tick] = sp.wake[tr.samples]
+        reset = np.zeros(len(tr), bool)
+        reset[0] = True
+        r = adapt_f32(acfg, nn_t, wk, lab, c0["label_status"], reset)
+        if not np.array_equal(r["term_g"][:mid + 2].view(np.uint32), c0["term_g"][:mid + 2].view(np.uint32)):
+            raise AssertionError(f"{tr.name}: the float32 reference differs from the C before the step")
+        step.append(recovery_times(tr, r["term_g"] - c0["term_g"], mid, -OFFSET_G, RECOVER_G))
+    return {"offset_g": -OFFSET_G, "tolerance_g": RECOVER_G,
+            "static": sp.score(nn, label, types), "adapted": sp.score(adapted, label, types),
+            "recovery_from_takeoff": _stats(takeoff), "recovery_from_step_mid_flight": _stats(step),
+            "per_robot": {tr.name: {"from_takeoff_s": a, "from_step_s": b}
+                          for tr, a, b in zip(sp.tracks, takeoff, step)}}
+
+
+def adaptation(data_dir, gen_dir, root, seeds: int = 3, collections=None, held_out: bool = True,
+               last_layer: bool = True, progress=None) -> dict:
+    """The experiment (module docstring) on ``ns2 real data``'s folder ``data_dir`` with
+    the blind splits' networks, the logs unpacked under ``root`` and the host build of
+    the export ``gen_dir`` (any export: the adaptation's C does not depend on the network)."""
+    from ns2codegen.config import Config
+
+    from .real import read_collections
+
+    d = Path(data_dir)
+    cfg = Config.load(d / "real.toml")
+    types = cfg.robot_types
+    say = progress or (lambda s: None)
+    keys = [c.key for c in COLLECTIONS if collections is None or c.key in collections]
+    unknown = sorted(set(collections or ()) - {c.key for c in COLLECTIONS})
+    if unknown:
+        raise RealDataError(f"collection {unknown[0]}: not one of {', '.join(c.key for c in COLLECTIONS)}")
+    flights, _ = read_collections(cfg, root)
+    base = AdaptCfg()
+    out = {"masses_g": {t: cfg.vehicle(t)["mass_g"] for t in types}, "robot_types": types,
+           "law": base.as_dict(), "scale_max": SCALE_MAX, "forgets": list(FORGETS), "goal": GOAL,
+           "nn": "the checkpoint in float32 (torch), the predictions of ns2 real blind", "splits": {}}
+
+    def one_split(name, key, ckdir, forgets, onboard, mass_test):
+        ckpts = sorted((d / ckdir).glob("H-20-seed*.pt"))[:seeds]
+        if not ckpts:
+            raise RealDataError(f"{d / ckdir}: no trained network (make real trains them)")
+        sp = Split(d, key, cfg, flights, onboard)
+        res = {"samples": int(len(sp.ds)), "scored": int(sp.keep.sum()), "robots": len(sp.tracks),
+               "checkpoints": [str(c) for c in ckpts], "seeds": []}
+        for ck in ckpts:
+            say(f"{name}: {ck.name}")
+            nn = predictions(ck, sp.ds).astype(np.float32).astype(np.float64)
+            feats = last_hidden(ck, sp.ds) if last_layer else None
+            row = {"static": sp.score(nn, types=types)}
+            adapted, ll, runs = sp.run(gen_dir, cfg, nn, base, feats)
+            row["bias"] = sp.score(adapted, types=types)
+            upd = sum(int((c["adapt_status"] & ADAPT_UPDATED).astype(bool).sum()) for c in runs)
+            row["updates"] = upd
+            if ll is not None:
+                row["last_layer"] = sp.score(ll, types=types)
+            row["bias_scale"] = sp.score(sp.run(gen_dir, cfg, nn, replace(base, scale_max=SCALE_MAX))[0], types=types)
+            row["forget"] = {str(f): sp.score(sp.run(gen_dir, cfg, nn, replace(base, forget=f))[0], types=types)
+                             for f in forgets if f != base.forget}
+            if mass_test:
+                row["mass_offset"] = mass_offset(gen_dir, cfg, sp, nn, runs, base, types)
+            row["gain"] = {v: _gain(row[v], row["static"]) for v in ("bias", "bias_scale", "last_layer") if v in row}
+            row["gain"].update({f"forget {f}": _gain(s, row["static"]) for f, s in row["forget"].items()})
+            res["seeds"].append(row)
+        return res
+
+    if held_out:
+        info = load_samples(d / "heldout_samples.npz")
+        june = all(n.startswith(ONBOARD_COLLECTION) for n in info["flight_names"])
+        out["splits"]["held_out_flights"] = one_split("held-out flights", "heldout", "heldout", FORGETS, june, True)
+        out["chosen_forget"] = choose_forget(out["splits"]["held_out_flights"])
+    chosen = out.get("chosen_forget")
+    for key in keys:
+        fg = [chosen] if chosen is not None and chosen != base.forget else []
+        out["splits"][f"collection {key} left out"] = one_split(
+            f"{key} left out", f"c-{key}", f"loco-{key}", fg, key == ONBOARD_COLLECTION, False)
+    out["verdict"] = verdict(out)
+    return out
+
+
+def choose_forget(split: dict) -> float:
+    """The forgetting factor with the lowest mean plain overall MSE over the seeds on this
+    split (the held-out flights: never the split it is judged on)."""
+    def mean_of(f):
+        rows = [r["bias"] if f == AdaptCfg().forget else r["forget"][str(f)] for r in split["seeds"]]
+        return float(np.mean([r["plain"] for r in rows]))
+    return min(FORGETS, key=mean_of)
+
+
+def verdict(res: dict) -> dict:
+    """Per split and seed: the default law's gain on plain overall MSE against the goal,
+    and whether it is never worse in the wake (plain and mass-neutral)."""
+    out = {}
+    for name, s in res["splits"].items():
+        need = GOAL["held_out_flights"] if name == "held_out_flights" else GOAL["collection_left_out"]
+        rows = []
+        for r in s["seeds"]:
+            g = r["gain"]["bias"]
+            rows.append({"overall_plain_gain": g["overall_plain"], "goal": need,
+                         "met": bool(g["overall_plain"] >= need),
+                         "wake_not_worse": bool(g["wake_plain"] >= 0 and g["wake_neutral"] >= 0)})
+        out[name] = rows
+    return out
+
+
+def _m(xs) -> str:
+    a = np.array([x for x in xs if x is not None], float)
+    return "-" if not a.size else (f"{a.mean():.2f} +- {a.std():.2f}" if a.size > 1 else f"{a[0]:.2f}")
+
+
+def _pct(xs) -> str:
+    a = 100 * np.array(xs, float)
+    return f"{a.mean():+.0f} %" + (f" ({', '.join(f'{x:+.0f}' for x in a)})" if a.size > 1 else "")
+
+
+def table(res: dict) -> str:
+    """Markdown: per split, static and each variant's MSE (mean +- std over seeds) and
+    the gain of each seed."""
+    names = {"held_out_flights": "whole held-out flights"}
+    lines = ["| split | law | overall plain | overall mass-neutral | wake plain | wake mass-neutral | "
+             "lower than static, overall plain (per seed) | wake plain | wake mass-neutral |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    for name, s in res["splits"].items():
+        rows = s["seeds"]
+        variants = ["static", "bias", "bias_scale", "last_layer"] + [f"forget {f}" for f in rows[0]["forget"]]
+        for v in variants:
+            get = (lambda r: r["forget"][v.split()[1]]) if v.startswith("forget") else (lambda r: r.get(v))
+            if get(rows[0]) is None:
+                continue
+            sc = [get(r) for r in rows]
+            cells = [_m([x["plain"] for x in sc]), _m([x["neutral"] for x in sc]),
+                     _m([x["wake"]["plain"] for x in sc]), _m([x["wake"]["neutral"] for x in sc])]
+            gains = ["", "", ""] if v == "static" else \
+                [_pct([r["gain"][v][k] for r in rows]) for k in ("overall_plain", "wake_plain", "wake_neutral")]
+            label = {"static": "static (NN alone)", "bias": "bias (default)", "bias_scale": f"bias + scale "
+                     f"(scaleMax {res['scale_max']})", "last_layer": "last-layer basis (Python float64)"}.get(v, v)
+            lines.append(f"| {names.get(name, name)} | {label} | " + " | ".join(cells) + " | " + " | ".join(gains) + " |")
+    return "\n".join(lines)
+
+
+def by_type_table(res: dict) -> str:
+    """Markdown: static / adapted (default law) MSE plain, in the wake per receiving type
+    and per scenario, mean over seeds."""
+    types = res["robot_types"]
+    lines = ["| split | " + " | ".join(f"wake {t}: static / adapted" for t in types) +
+             " | per scenario (overall plain): static / adapted |", "|---" * (len(types) + 2) + "|"]
+    for name, s in res["splits"].items():
+        rows = s["seeds"]
+        cells = []
+        for t in types:
+            st = np.mean([r["static"]["wake_by_type"][t]["plain"] or np.nan for r in rows])
+            ad = np.mean([r["bias"]["wake_by_type"][t]["plain"] or np.nan for r in rows])
+            cells.append(f"{st:.2f} / {ad:.2f}")
+        sc = rows[0]["static"]["scenario"]
+        per = ", ".join(f"{k} {np.mean([r['static']['scenario'][k]['plain'] for r in rows]):.1f} / "
+                        f"{np.mean([r['bias']['scenario'][k]['plain'] for r in rows]):.1f}" for k in sc)
+        lines.append(f"| {name} | " + " | ".join(cells) + f" | {per} |")
+    return "\n".join(lines)
+
+
+def write(res: dict, out: Path) -> None:
+    from ns2codegen.fileio import atomic_write_bytes
+
+    atomic_write_bytes(out, json.dumps(res, indent=1, sort_keys=True).encode())
+    atomic_write_bytes(out.with_suffix(".md"), (table(res) + "\n\n" + by_type_table(res) + "\n").encode())
