@@ -33,7 +33,7 @@ HOST_HEADERS = ("ns2_deepset.h", "ns2_peers.h", "ns2_controller.h", "ns2_ctrl_ve
                 "ns2_host.h")
 
 CDEF = """
-typedef struct { uint8_t type; float rel[6]; } ns2_neighbor_t;
+typedef struct { uint8_t type; float rel[...]; } ns2_neighbor_t;
 typedef struct { int32_t status; uint16_t n_used; uint16_t n_invalid; uint16_t n_outside;
                  uint16_t n_truncated; } ns2_info_t;
 #define NS2_NUM_ROBOT_TYPES ...
@@ -41,6 +41,9 @@ typedef struct { int32_t status; uint16_t n_used; uint16_t n_invalid; uint16_t n
 #define NS2_ENV_TYPE ...
 #define NS2_MAX_NEIGHBORS ...
 #define NS2_HIDDEN ...
+#define NS2_INPUT_DIM ...
+#define NS2_HISTORY_LAGS ...
+#define NS2_HISTORY_MAX_MS ...
 #define NS2_Q_OUT_FRAC ...
 #define NS2_ERR_JOB ...
 float ns2_predict_f32(uint8_t robot_type, const float p[3], const float v[3],
@@ -49,11 +52,17 @@ int16_t ns2_predict_q15(uint8_t robot_type, const float p[3], const float v[3],
                         const ns2_neighbor_t *neighbors, uint16_t n_neighbors, ns2_info_t *info);
 float ns2_predict_q15_g(uint8_t robot_type, const float p[3], const float v[3],
                         const ns2_neighbor_t *neighbors, uint16_t n_neighbors, ns2_info_t *info);
+float ns2_predict_f32_hist(uint8_t robot_type, const float p[3], const float v[3], const float *own_past,
+                           const ns2_neighbor_t *neighbors, uint16_t n_neighbors, ns2_info_t *info);
+int16_t ns2_predict_q15_hist(uint8_t robot_type, const float p[3], const float v[3], const float *own_past,
+                             const ns2_neighbor_t *neighbors, uint16_t n_neighbors, ns2_info_t *info);
 uint16_t ns2_select_neighbors(uint8_t robot_type, const ns2_neighbor_t *neighbors,
                               uint16_t n_neighbors, uint16_t *idx, ns2_info_t *info);
 typedef struct { ns2_info_t info; uint8_t robot_type; uint8_t path; uint16_t n_inputs; uint16_t next; ...; } ns2_job_t;
 int32_t ns2_job_begin(ns2_job_t *job, uint8_t robot_type, const float p[3], const float v[3],
                       const ns2_neighbor_t *neighbors, uint16_t n_neighbors);
+int32_t ns2_job_begin_hist(ns2_job_t *job, uint8_t robot_type, const float p[3], const float v[3],
+                           const float *own_past, const ns2_neighbor_t *neighbors, uint16_t n_neighbors);
 uint16_t ns2_job_step_f32(ns2_job_t *job, uint16_t max_phi);
 uint16_t ns2_job_step_q15(ns2_job_t *job, uint16_t max_phi);
 float ns2_job_finish_f32(ns2_job_t *job, ns2_info_t *info);
@@ -110,7 +119,7 @@ float ns2_label_exp_neg(float x);
 void ns2_adapt_run_steps(ns2_label_t *l, ns2_adapt_t *a, const ns2_adapt_in_t *in, ns2_adapt_out_t *out,
                          uint32_t n);
 void ns2_host_predict_batch(int fixed, uint16_t slice, uint32_t n_queries, const uint8_t *robot_type,
-                            const float *p, const float *v, const uint32_t *offsets,
+                            const float *p, const float *v, const float *past, const uint32_t *offsets,
                             const ns2_neighbor_t *neighbors, float *out_f, int16_t *out_q,
                             ns2_info_t *infos);
 void ns2_host_ctrl_tick(ns2_ctrl_t *ctrls, uint32_t n, const ns2_ctrl_state_t *states,
@@ -322,9 +331,12 @@ class CModel:
     def __init__(self, gen_dir: str | Path):
         self.ffi, self.lib = load(gen_dir)
         ffi = self.ffi
-        assert ffi.sizeof("ns2_neighbor_t") == 28 and ffi.offsetof("ns2_neighbor_t", "rel") == 4
-        self.nbr_dtype = np.dtype({"names": ["type", "rel"], "formats": [np.uint8, (np.float32, 6)],
-                                   "offsets": [0, 4], "itemsize": 28})
+        self.input_dim = int(self.lib.NS2_INPUT_DIM)
+        self.lags = int(self.lib.NS2_HISTORY_LAGS)
+        size = 4 + 4 * self.input_dim
+        assert ffi.sizeof("ns2_neighbor_t") == size and ffi.offsetof("ns2_neighbor_t", "rel") == 4
+        self.nbr_dtype = np.dtype({"names": ["type", "rel"], "formats": [np.uint8, (np.float32, self.input_dim)],
+                                   "offsets": [0, 4], "itemsize": size})
         self.info_dtype = np.dtype({"names": ["status", "n_used", "n_invalid", "n_outside", "n_truncated"],
                                     "formats": [np.int32] + [np.uint16] * 4,
                                     "offsets": [0, 4, 6, 8, 10], "itemsize": ffi.sizeof("ns2_info_t")})
@@ -354,7 +366,11 @@ class CModel:
 
     def predict(self, q, fixed: bool, slice: int = 0) -> tuple[np.ndarray, np.ndarray]:
         """Run queries.Queries through the C; returns (outputs, info records).
-        slice > 0: through the sliced API (ns2_job_*), slice phi evaluations per step."""
+        slice > 0: through the sliced API (ns2_job_*), slice phi evaluations per step.
+        A model with wake memory gets q.past through the *_hist entry points."""
+        if q.lags != self.lags or q.nbr_rel.shape[-1] != self.input_dim:
+            raise ValueError(f"queries with {q.lags} history lags and {q.nbr_rel.shape[-1]} inputs per neighbour "
+                             f"for a C model with {self.lags} lags and NS2_INPUT_DIM {self.input_dim}")
         given = q.given()
         counts = given.sum(1)
         offsets = np.zeros(len(q) + 1, np.uint32)
@@ -365,11 +381,14 @@ class CModel:
         rt = np.ascontiguousarray(q.robot_type, np.uint8)
         p = np.ascontiguousarray(q.p, np.float32)
         v = np.ascontiguousarray(q.v, np.float32)
+        past = np.ascontiguousarray(q.past, np.float32) if self.lags else None
         out_f = np.zeros(len(q), np.float32)
         out_q = np.zeros(len(q), np.int16)
         infos = np.zeros(len(q), self.info_dtype)
         self.lib.ns2_host_predict_batch(int(fixed), slice, len(q), self._ptr("uint8_t *", rt), self._ptr("float *", p),
-                                        self._ptr("float *", v), self._ptr("uint32_t *", offsets),
+                                        self._ptr("float *", v),
+                                        self.ffi.NULL if past is None else self._ptr("float *", past),
+                                        self._ptr("uint32_t *", offsets),
                                         self._ptr("ns2_neighbor_t *", nb), self._ptr("float *", out_f),
                                         self._ptr("int16_t *", out_q), self._ptr("ns2_info_t *", infos))
         return (out_q if fixed else out_f), infos

@@ -6,11 +6,15 @@
 
 /* One query through the sliced API: begin, steps of `slice` phi evaluations, finish. */
 static void predict_sliced(int fixed, uint16_t slice, uint8_t robot_type, const float p[3], const float v[3],
-                           const ns2_neighbor_t *nb, uint16_t n, float *out_f, int16_t *out_q,
+                           const float *past, const ns2_neighbor_t *nb, uint16_t n, float *out_f, int16_t *out_q,
                            ns2_info_t *info)
 {
     ns2_job_t job;
-    (void)ns2_job_begin(&job, robot_type, p, v, nb, n);
+    if (past != (const float *)0) {
+        (void)ns2_job_begin_hist(&job, robot_type, p, v, past, nb, n);
+    } else {
+        (void)ns2_job_begin(&job, robot_type, p, v, nb, n);
+    }
     if (fixed) {
         while (ns2_job_step_q15(&job, slice) > 0u) {
         }
@@ -23,15 +27,21 @@ static void predict_sliced(int fixed, uint16_t slice, uint8_t robot_type, const 
 }
 
 void ns2_host_predict_batch(int fixed, uint16_t slice, uint32_t n_queries, const uint8_t *robot_type,
-                            const float *p, const float *v, const uint32_t *offsets,
+                            const float *p, const float *v, const float *past, const uint32_t *offsets,
                             const ns2_neighbor_t *neighbors, float *out_f, int16_t *out_q,
                             ns2_info_t *infos)
 {
     for (uint32_t q = 0; q < n_queries; ++q) {
         const uint16_t n = (uint16_t)(offsets[q + 1] - offsets[q]);
         const ns2_neighbor_t *nb = n ? &neighbors[offsets[q]] : (const ns2_neighbor_t *)0;
+        const float *pq = past != (const float *)0 ? &past[6u * NS2_HISTORY_LAGS * q] : (const float *)0;
         if (slice > 0u) {
-            predict_sliced(fixed, slice, robot_type[q], &p[3 * q], &v[3 * q], nb, n, &out_f[q], &out_q[q], &infos[q]);
+            predict_sliced(fixed, slice, robot_type[q], &p[3 * q], &v[3 * q], pq, nb, n, &out_f[q], &out_q[q],
+                           &infos[q]);
+        } else if (pq != (const float *)0 && fixed) {
+            out_q[q] = ns2_predict_q15_hist(robot_type[q], &p[3 * q], &v[3 * q], pq, nb, n, &infos[q]);
+        } else if (pq != (const float *)0) {
+            out_f[q] = ns2_predict_f32_hist(robot_type[q], &p[3 * q], &v[3 * q], pq, nb, n, &infos[q]);
         } else if (fixed) {
             out_q[q] = ns2_predict_q15(robot_type[q], &p[3 * q], &v[3 * q], nb, n, &infos[q]);
         } else {

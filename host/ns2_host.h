@@ -10,9 +10,11 @@
 
 /* Run n_queries predictions; query q uses neighbors[offsets[q] .. offsets[q+1]).
  * fixed = 0: float into out_f; fixed = 1: fixed point into out_q.  slice = 0:
- * ns2_predict_*; slice > 0: the sliced API (ns2_job_*), slice phi per step. */
+ * ns2_predict_*; slice > 0: the sliced API (ns2_job_*), slice phi per step.
+ * past NULL: the plain entry points; else the *_hist ones with own_past
+ * &past[6 NS2_HISTORY_LAGS q]. */
 void ns2_host_predict_batch(int fixed, uint16_t slice, uint32_t n_queries, const uint8_t *robot_type,
-                            const float *p, const float *v, const uint32_t *offsets,
+                            const float *p, const float *v, const float *past, const uint32_t *offsets,
                             const ns2_neighbor_t *neighbors, float *out_f, int16_t *out_q,
                             ns2_info_t *infos);
 

@@ -98,7 +98,7 @@ class Config:
     @property
     def history_ms(self) -> list[int]:
         """``model.history_ms``: each neighbour's relative state also this long ago (ms;
-        the wake-memory experiment of issue 52, Python only: not exported to C)."""
+        the wake memory of issue 52: exported to C as NS2_HISTORY_LAGS and ns2_history_ms)."""
         return list(self.model.get("history_ms", []))
 
     @property

@@ -180,6 +180,7 @@ def render(m: ExportModel) -> dict[str, str]:
     ctx = {"version": __version__, "model_hash": m.model_hash, "model_id": "0x" + m.model_hash[:15], "types": types,
            "num_robot_types": cfg.num_robot_types, "num_neighbor_types": len(types),
            "env_index": cfg.env_index, "max_neighbors": m.max_neighbors, "hidden": m.hidden,
+           "input_dim": cfg.input_dim, "history_ms": cfg.history_ms,
            "layers": cfg.model["layers"], "max_width": max(max(cfg.phi_dims()), max(cfg.rho_dims())),
            "lipschitz": lip["per_neighbor_input"], "volumes": m.volumes, "boxes": m.boxes,
            "nets": nets, "qnets": qnets, "q": q, "in_scale": q.in_scale,
@@ -209,7 +210,7 @@ def manifest(m: ExportModel, errors: dict) -> dict:
         "vehicles": {n: {k: v for k, v in cfg.vehicle(n).items() if k in VEHICLE_KEYS or k == "vehicle_file"}
                      for n in cfg.robot_types},  # the parameters the labels were made with (Table cfprops / sysid)
         "dims": {"phi": cfg.phi_dims(), "rho": cfg.rho_dims(), "hidden": m.hidden,
-                 "max_neighbors": m.max_neighbors},
+                 "max_neighbors": m.max_neighbors, **({"history_ms": cfg.history_ms} if cfg.history_ms else {})},
         "normalization": meta.get("normalization"),
         "lipschitz": m.lipschitz(),
         "interaction_volume": {f"{cfg.robot_types[r]}.{cfg.robot_types[t]}": m.volumes[r, t].tolist()

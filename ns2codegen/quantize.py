@@ -6,7 +6,9 @@ f fractional bits, int32 bias b = round(B 2^(f_in + f_w)) and accumulator,
 output y = sat16(round_half_up(acc / 2^shift)), f_out = f_in + f_w - shift.
 
 Format choice, per layer:
-  * f_in of each phi net from the declared input box (exact fit in int16);
+  * f_in of each phi net from the declared input box (exact fit in int16; with
+    ``model.history_ms`` the past states have the same box, so phi's first layer
+    has 6 (1 + lags) inputs in the proof, each bounded by its component's box);
   * f_out from the float activations of calibration queries spread over the
     whole input box with 0..max neighbours, with a headroom factor (larger
     values saturate, which the C handles);
@@ -105,6 +107,11 @@ class ExportModel:
     def max_neighbors(self) -> int:
         return self.cfg.model["max_neighbors"]
 
+    def phi_box(self, t: int) -> np.ndarray:
+        """[input_dim, 2] box of phi[t]'s input: the type's 6-box for now and again for
+        each ``model.history_ms`` lag (the C clamps past states to the same box)."""
+        return np.tile(self.boxes[t], (self.cfg.input_dim // 6, 1))
+
     def lipschitz(self) -> dict:
         phi = [lipschitz_bound([w for w, _ in net]) for net in self.phi]
         rho = [lipschitz_bound([w for w, _ in net]) for net in self.rho]
@@ -135,7 +142,7 @@ def float_activation_bound(m: ExportModel) -> float:
 
     worst, h_lo, h_hi = 0.0, 0.0, 0.0
     for t, net in enumerate(m.phi):
-        box = m.boxes[t].astype(np.float64)
+        box = m.phi_box(t).astype(np.float64)
         wt, lo, hi = run(net, box[:, 0], box[:, 1])
         count = 1 if t == m.env_index else m.max_neighbors
         worst = max(worst, wt)
@@ -148,9 +155,6 @@ def float_activation_bound(m: ExportModel) -> float:
 
 def from_checkpoint(ck: Checkpoint) -> ExportModel:
     cfg = ck.cfg
-    if cfg.history_ms:
-        raise QuantizationError(f"model.history_ms {cfg.history_ms}: a network that sees its neighbours' past "
-                                "states is an experiment (issue 52) and has no C export")
 
     def net(kind, i):
         return [(w.numpy().astype(np.float32), b.numpy().astype(np.float32))
@@ -286,7 +290,7 @@ def quantize(m: ExportModel, calibration: Queries | None = None) -> Q15Model:
     f_phi = min(_frac_for(cal["phi"][t][-1]) for t in range(n_types))
     f_out = min(_frac_for(cal["rho"][r][-1]) if cal["rho"][r] else 15 for r in range(m.num_robot_types))
     for _ in range(8):  # the shared output formats may have to shrink; a few passes settle
-        phi = [quantize_net(m.phi[t], in_frac[t], f_phi, *_input_interval(m.boxes[t], in_frac[t]),
+        phi = [quantize_net(m.phi[t], in_frac[t], f_phi, *_input_interval(m.phi_box(t), in_frac[t]),
                             cal["phi"][t], f"phi[{cfg.neighbor_types[t]}]") for t in range(n_types)]
         got = min(net.layers[-1].f_out for net in phi)
         if got < f_phi:

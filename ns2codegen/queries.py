@@ -3,7 +3,9 @@ the format calibration, the C-vs-reference tests and the benchmark.
 
 A query is one call of ns2_predict_*: robot type, own position p and velocity v
 (world frame), and a list of neighbours (robot type + x_ij) of length n[q].
-Slots beyond n[q] are padding and never read.
+Slots beyond n[q] are padding and never read.  With ``model.history_ms`` (L lags)
+x_ij has 6 (1 + L) values (now, then each lag) and ``past`` holds the robot's own
+[p; v] at each lag (ns2_predict_*_hist's own_past); without, ``past`` is [Q, 0, 6].
 """
 from __future__ import annotations
 
@@ -21,7 +23,16 @@ class Queries:
     v: np.ndarray           # float32 [Q, 3]
     n: np.ndarray           # int64 [Q], neighbours given
     nbr_type: np.ndarray    # uint8 [Q, S]
-    nbr_rel: np.ndarray     # float32 [Q, S, 6]
+    nbr_rel: np.ndarray     # float32 [Q, S, 6 (1 + L)]
+    past: np.ndarray | None = None  # float32 [Q, L, 6]: own [p; v] at each history lag
+
+    def __post_init__(self):
+        if self.past is None:
+            self.past = np.zeros((len(self.robot_type), 0, 6), np.float32)
+
+    @property
+    def lags(self) -> int:
+        return int(self.past.shape[1])
 
     def __len__(self) -> int:
         return int(self.robot_type.shape[0])
@@ -36,7 +47,7 @@ class Queries:
 
     def take(self, idx) -> "Queries":
         return Queries(self.robot_type[idx], self.p[idx], self.v[idx], self.n[idx],
-                       self.nbr_type[idx], self.nbr_rel[idx])
+                       self.nbr_type[idx], self.nbr_rel[idx], self.past[idx])
 
     @staticmethod
     def concat(parts: list["Queries"]) -> "Queries":
@@ -50,7 +61,8 @@ class Queries:
                        np.concatenate([q.p for q in parts]), np.concatenate([q.v for q in parts]),
                        np.concatenate([q.n for q in parts]),
                        np.concatenate([pad(q.nbr_type, 0) for q in parts]),
-                       np.concatenate([pad(q.nbr_rel, 0.0) for q in parts]))
+                       np.concatenate([pad(q.nbr_rel, 0.0) for q in parts]),
+                       np.concatenate([q.past for q in parts]))
 
 
 def _box_arrays(cfg: Config):
@@ -67,7 +79,10 @@ def random_queries(cfg: Config, n: int, seed: int, max_given: int | None = None,
     maximum + 4, to exercise truncation), all type mixes; a fraction ``inside`` of
     neighbours placed inside their interaction volume, the rest anywhere in the
     box; ``edge`` of all coordinates snapped to a box/volume edge; ``wild`` of all
-    coordinates replaced by out-of-box values, NaN or Inf (and invalid types)."""
+    coordinates replaced by out-of-box values, NaN or Inf (and invalid types).
+    With ``model.history_ms`` every neighbour's past states and the robot's own are
+    drawn anywhere in their boxes (edges and wild values alike); these draws come
+    after all others, so a config without history gets the same queries as before."""
     rng = np.random.default_rng(seed)
     k = cfg.num_robot_types
     max_given = cfg.model["max_neighbors"] + 4 if max_given is None else max_given
@@ -96,6 +111,15 @@ def random_queries(cfg: Config, n: int, seed: int, max_given: int | None = None,
     p = p.astype(np.float32)
     v = v.astype(np.float32)
     rel = rel.astype(np.float32)
+    lags = len(cfg.history_ms)
+    past = np.zeros((n, 0, 6), np.float32)
+    if lags:
+        nb_past = rng.uniform(np.tile(nb_box[:, 0], lags), np.tile(nb_box[:, 1], lags), (n, s, 6 * lags))
+        snap = rng.uniform(size=nb_past.shape) < edge
+        nb_past = np.where(snap, np.where(rng.uniform(size=nb_past.shape) < 0.5, np.tile(nb_box[:, 0], lags),
+                                          np.tile(nb_box[:, 1], lags)), nb_past)
+        rel = np.concatenate([rel, nb_past.astype(np.float32)], -1)
+        past = -rng.uniform(env_box[:, 0], env_box[:, 1], (n, lags, 6)).astype(np.float32)  # own [p; v]
     if wild > 0:
         specials = np.array([np.nan, np.inf, -np.inf, 1e30, -1e30, 50.0, -50.0, 1e-40], np.float32)
         m = rng.uniform(size=rel.shape) < wild
@@ -110,5 +134,8 @@ def random_queries(cfg: Config, n: int, seed: int, max_given: int | None = None,
         p, v = own_f[:, :3].copy(), own_f[:, 3:].copy()
         m = rng.uniform(size=n) < wild * 0.05
         robot_type[m] = rng.integers(k, 256, m.sum())
+        if lags:
+            m = rng.uniform(size=past.shape) < wild * 0.1
+            past[m] = specials[rng.integers(0, specials.size, m.sum())]
     return Queries(robot_type.astype(np.uint8), p, v, counts.astype(np.int64),
-                   nbr_type.astype(np.uint8), rel)
+                   nbr_type.astype(np.uint8), rel, past)

@@ -29,7 +29,7 @@ class Selection:
     n_invalid: np.ndarray
     n_outside: np.ndarray
     n_truncated: np.ndarray
-    x_env: np.ndarray      # float32 [Q, 6], clamped environment input
+    x_env: np.ndarray      # float32 [Q, 6 (1 + lags)], clamped environment input
 
 
 def select(m, q: Queries) -> Selection:
@@ -38,12 +38,12 @@ def select(m, q: Queries) -> Selection:
     k = m.num_robot_types
     given = q.given()
     with np.errstate(invalid="ignore"):
-        own_ok = np.isfinite(q.p).all(1) & np.isfinite(q.v).all(1)
+        own_ok = np.isfinite(q.p).all(1) & np.isfinite(q.v).all(1) & np.isfinite(q.past).all((1, 2))
     status = np.where(q.robot_type >= k, ERR_ROBOT_TYPE, np.where(own_ok, 0, ERR_STATE)).astype(np.int32)
     ok = status == 0
     valid, inside, accepted = membership(m.volumes, q.robot_type, q.nbr_type, q.nbr_rel, given & ok[:, None], k,
                                          m.max_neighbors)
-    x_env = clamp(env_state(q.p, q.v), m.boxes[m.env_index])
+    x_env = clamp(np.concatenate([env_state(q.p, q.v), -q.past.reshape(len(q), -1)], 1), m.boxes[m.env_index])
     cnt = lambda a: np.where(ok, a.sum(1), 0).astype(np.int64)  # noqa: E731
     return Selection(status, accepted, cnt(given & ok[:, None] & ~valid), cnt(valid & ~inside),
                      cnt(inside & ~accepted), x_env)

@@ -11,7 +11,11 @@ neighbours count, sample for sample.
   false for NaN), in the order the neighbours are given, until ``max_neighbors``
   are accepted (the rest are truncated);
 * every input is clamped to its declared box before phi (x < lo ? lo : x > hi ? hi : x);
-  the environment's input is [-p_i; -v_i] in float32, clamped likewise.
+  the environment's input is [-p_i; -v_i] in float32, clamped likewise;
+* with ``model.history_ms`` every input also holds the states at each lag (6 values
+  each, clamped to the same box; the environment's from the robot's own past); the
+  selection is decided on the present state, and a non-finite past value makes a
+  neighbour invalid (a non-finite own past fails the query, like its own state).
 """
 from __future__ import annotations
 
@@ -41,8 +45,12 @@ def env_state(p_i, v_i) -> np.ndarray:
 
 
 def clamp(x: np.ndarray, box: np.ndarray) -> np.ndarray:
-    """x < lo ? lo : (x > hi ? hi : x), elementwise with box [..., 6, 2] (float32)."""
+    """x < lo ? lo : (x > hi ? hi : x), elementwise with box [..., 6, 2] (float32); x of
+    6 (1 + lags) values (``model.history_ms``): every 6-block to the same box, as the C."""
     lo, hi = box[..., 0], box[..., 1]
+    reps = np.shape(x)[-1] // lo.shape[-1]
+    if reps > 1:
+        lo, hi = (np.tile(a, (1,) * (a.ndim - 1) + (reps,)) for a in (lo, hi))
     return np.where(x < lo, lo, np.where(x > hi, hi, x)).astype(np.float32)
 
 

@@ -6,6 +6,7 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from ns2codegen.checkpoint import load_checkpoint, save_checkpoint
@@ -102,7 +103,9 @@ class Exported:
 
 def train_and_export(cfg: Config, root: Path, samples: int = 1500, epochs: int = 8, seed: int = 0) -> Exported:
     root.mkdir(parents=True, exist_ok=True)
-    ds = downwash_dataset(cfg, samples, seed=seed)
+    ds = downwash_dataset(cfg.with_overrides(history_ms=[]) if cfg.history_ms else cfg, samples, seed=seed)
+    if cfg.history_ms:  # a stationary past: every row's present state again at each lag
+        ds.nbr_state = np.tile(ds.nbr_state, (1, 1 + len(cfg.history_ms)))
     model, report = train(cfg, ds, epochs=epochs, seed=seed)
     ck = root / "model.pt"
     save_checkpoint(ck, model, cfg, {"seed": seed, "data_hash": ds.content_hash(), "report": report})
@@ -118,6 +121,18 @@ def cfg() -> Config:
 @pytest.fixture(scope="session")
 def exported(tmp_path_factory, cfg) -> Exported:
     return train_and_export(cfg, tmp_path_factory.mktemp("default"))
+
+
+HISTORY_MS = [50, 100, 200]   # the wake memory of docs/real-flights.md section 10
+
+
+@pytest.fixture(scope="session")
+def history(tmp_path_factory, cfg) -> Exported:
+    """A small network with wake memory (model.history_ms): phi sees x_ij now and 50,
+    100 and 200 ms ago (24 inputs), trained briefly on the analytic data with a
+    stationary past."""
+    return train_and_export(cfg.with_overrides(history_ms=HISTORY_MS), tmp_path_factory.mktemp("history"),
+                            samples=500, epochs=2)
 
 
 @pytest.fixture(scope="session")

@@ -1,5 +1,6 @@
 """The firmware C (built for the host through cffi) against the Python references,
-bit for bit, and against the trained torch module."""
+bit for bit, and against the trained torch module: the default network and one with
+wake memory (model.history_ms, 24 inputs per neighbour and the robot's own past)."""
 import numpy as np
 import pytest
 import torch
@@ -25,17 +26,24 @@ def _queries(cfg, seed):
     return parts
 
 
-@pytest.fixture(scope="module")
-def cmodel(exported):
-    return exported.cmodel()
+@pytest.fixture(scope="module", params=["exported", "history"])
+def model(request):
+    """The default network, then the one with wake memory (conftest.history)."""
+    return request.getfixturevalue(request.param)
 
 
 @pytest.fixture(scope="module")
-def query_sets(exported):
-    return _queries(exported.cfg, seed=1000)
+def cmodel(model):
+    return model.cmodel()
 
 
-def test_coverage_of_query_sets(exported, query_sets):
+@pytest.fixture(scope="module")
+def query_sets(model):
+    return _queries(model.cfg, seed=1000)
+
+
+def test_coverage_of_query_sets(model, query_sets):
+    exported = model
     q = Queries.concat(query_sets)
     assert len(q) >= 100_000
     mx = exported.cfg.model["max_neighbors"]
@@ -56,9 +64,17 @@ def test_coverage_of_query_sets(exported, query_sets):
                 if ((q.robot_type == r) & (small == a) & (large == b)).any():
                     mixes.add((r, a, b))
     assert len(mixes) == 18
+    lags = len(exported.cfg.history_ms)
+    assert q.nbr_rel.shape[-1] == 6 * (1 + lags) and q.past.shape[1:] == (lags, 6)
+    if lags:  # past values alone make neighbours invalid and queries fail
+        present_ok = np.isfinite(q.nbr_rel[..., :6]).all(-1) & (q.nbr_type < 2) & q.given()
+        assert (present_ok & ~np.isfinite(q.nbr_rel).all(-1)).sum() > 1000
+        own_ok = np.isfinite(q.p).all(1) & np.isfinite(q.v).all(1) & (q.robot_type < 2)
+        assert (own_ok & (sel.status == ref.ERR_STATE)).sum() > 100
 
 
-def test_float_c_bit_exact_with_torch_reference(exported, cmodel, query_sets):
+def test_float_c_bit_exact_with_torch_reference(model, cmodel, query_sets):
+    exported = model
     total = 0
     for q in query_sets:
         c_out, info = cmodel.predict(q, fixed=False)
@@ -76,7 +92,8 @@ def test_float_c_bit_exact_with_torch_reference(exported, cmodel, query_sets):
     assert total >= 100_000
 
 
-def test_fixed_c_bit_exact_with_integer_reference(exported, cmodel, query_sets):
+def test_fixed_c_bit_exact_with_integer_reference(model, cmodel, query_sets):
+    exported = model
     total = 0
     for q in query_sets:
         c_out, info = cmodel.predict(q, fixed=True)
@@ -88,7 +105,8 @@ def test_fixed_c_bit_exact_with_integer_reference(exported, cmodel, query_sets):
     assert total >= 100_000
 
 
-def test_fixed_close_to_float_as_the_manifest_says(exported, cmodel, query_sets):
+def test_fixed_close_to_float_as_the_manifest_says(model, cmodel, query_sets):
+    exported = model
     man = exported.manifest["fixed_vs_float_error_g"]
     q = query_sets[1]
     f, _ = cmodel.predict(q, fixed=False)
@@ -120,7 +138,8 @@ def _torch_module_prediction(exported, q, sel):
     return ok, out.numpy()
 
 
-def test_float_c_matches_trained_torch_module(exported, cmodel):
+def test_float_c_matches_trained_torch_module(model, cmodel):
+    exported = model
     q = random_queries(exported.cfg, 3000, seed=77, wild=0.02)
     c_out, _ = cmodel.predict(q, fixed=False)
     sel = ref.select(exported.em, q)
@@ -140,7 +159,8 @@ def _permute_within_types(q, rng):
     return q2
 
 
-def test_permutation_invariance(exported, cmodel):
+def test_permutation_invariance(model, cmodel):
+    exported = model
     # at most max_neighbors given and all inside the volume: the same set is used
     mx = exported.cfg.model["max_neighbors"]
     q = random_queries(exported.cfg, 4000, seed=5, max_given=mx, inside=1.0, edge=0.0)
@@ -154,7 +174,13 @@ def test_permutation_invariance(exported, cmodel):
     assert (ff != ff2).any() or mx < 2  # float sums are order dependent, hence the tolerance
 
 
-def test_swapping_a_neighbour_type_changes_the_output(exported, cmodel):
+@pytest.fixture(scope="module")
+def default_cmodel(exported):
+    return exported.cmodel()
+
+
+def test_swapping_a_neighbour_type_changes_the_output(exported, default_cmodel):
+    cmodel = default_cmodel
     cfg = exported.cfg
     q = random_queries(cfg, 2000, seed=6, max_given=1, inside=1.0, edge=0.0)
     q = q.take(np.flatnonzero(q.n == 1))
@@ -176,7 +202,8 @@ def test_swapping_a_neighbour_type_changes_the_output(exported, cmodel):
     assert np.mean(b[sel] - a[sel]) < -3.0
 
 
-def test_c_api_guards(exported, cmodel):
+def test_c_api_guards(exported, default_cmodel):
+    cmodel = default_cmodel
     ffi, lib = cmodel.ffi, cmodel.lib
     info = ffi.new("ns2_info_t *")
     p = ffi.new("float[3]", [0.0, 0.0, 0.5])
@@ -207,7 +234,8 @@ def test_sliced_prediction_bit_exact_with_one_shot(cmodel, query_sets, fixed):
     assert (info1["status"] != 0).any() and (info1["n_used"] >= 4).any()
 
 
-def test_sliced_api_guards(cmodel):
+def test_sliced_api_guards(default_cmodel):
+    cmodel = default_cmodel
     ffi, lib = cmodel.ffi, cmodel.lib
     info = ffi.new("ns2_info_t *")
     p = ffi.new("float[3]", [0.0, 0.0, 0.5])
@@ -231,3 +259,34 @@ def test_sliced_api_guards(cmodel):
     assert lib.ns2_job_begin(job, 9, p, v, nb, 2) == -1
     assert lib.ns2_job_step_q15(job, 4) == 0
     assert lib.ns2_job_finish_q15(job, info) == 0 and info.status == -1
+
+
+def test_history_api_guards(history):
+    """A network with wake memory: the plain entry points (no own past) refuse with
+    NS2_ERR_STATE, as do a NULL or non-finite own past; a neighbour whose past alone
+    is not finite is invalid; the generated config carries the lags."""
+    cmodel = history.cmodel()
+    ffi, lib = cmodel.ffi, cmodel.lib
+    assert lib.NS2_HISTORY_LAGS == 3 and lib.NS2_INPUT_DIM == 24 and lib.NS2_HISTORY_MAX_MS == 200
+    assert "static const unsigned short ns2_history_ms[NS2_HISTORY_LAGS] = {50, 100, 200};" in \
+        (history.gen_dir / "ns2_model_config.h").read_text()
+    info = ffi.new("ns2_info_t *")
+    p = ffi.new("float[3]", [0.0, 0.0, 0.5])
+    v = ffi.new("float[3]", [0.0, 0.0, 0.0])
+    past = ffi.new("float[18]", [0.0, 0.0, 0.5, 0.0, 0.0, 0.0] * 3)
+    rel = [0.0, 0.0, 0.3, 0.0, 0.0, 0.0] * 4
+    nb = ffi.new("ns2_neighbor_t[2]", [{"type": 0, "rel": rel}, {"type": 1, "rel": rel}])
+    job = ffi.new("ns2_job_t *")
+    assert lib.ns2_predict_f32(0, p, v, nb, 2, info) == 0.0 and info.status == -2
+    assert lib.ns2_predict_q15(0, p, v, nb, 2, info) == 0 and info.status == -2
+    assert lib.ns2_job_begin(job, 0, p, v, nb, 2) == -2
+    assert lib.ns2_predict_f32_hist(0, p, v, ffi.NULL, nb, 2, info) == 0.0 and info.status == -2
+    y = lib.ns2_predict_f32_hist(0, p, v, past, nb, 2, info)
+    assert info.status == 0 and info.n_used == 2 and y != 0.0
+    assert lib.ns2_job_begin_hist(job, 0, p, v, past, nb, 2) == 0 and lib.ns2_job_finish_f32(job, info) == y
+    past[13] = float("nan")
+    assert lib.ns2_predict_q15_hist(0, p, v, past, nb, 2, info) == 0 and info.status == -2
+    past[13] = 0.0
+    nb[1].rel[20] = float("inf")
+    lib.ns2_predict_q15_hist(0, p, v, past, nb, 2, info)
+    assert info.status == 0 and info.n_used == 1 and info.n_invalid == 1

@@ -29,11 +29,35 @@ def _cli(*args, cwd=None):
                           capture_output=True, text=True, cwd=cwd)
 
 
-def test_export_is_byte_identical(exported, tmp_path):
+@pytest.fixture(params=["exported", "history"])
+def model(request):
+    """The default network, then the one with wake memory (conftest.history)."""
+    return request.getfixturevalue(request.param)
+
+
+def test_export_is_byte_identical(model, tmp_path):
+    exported = model
     r = _cli("export", exported.checkpoint, "--out", tmp_path / "again")
     assert r.returncode == 0, r.stderr
     for name in HEADERS + ("ns2_model_manifest.json",):
         assert filecmp.cmp(exported.gen_dir / name, tmp_path / "again" / name, shallow=False), name
+
+
+def test_history_lags_in_the_headers_and_the_proof(exported, history):
+    """Wake memory: NS2_INPUT_DIM 6 (1 + lags) and the lags (ms) in the generated
+    config, the proof over phi's 24 inputs (each within its component's box), the
+    manifest's dims; a network without history has none of it (its headers are
+    those of before, byte for byte: test_export_is_byte_identical keeps them)."""
+    text = (history.gen_dir / "ns2_model_config.h").read_text()
+    assert "#define NS2_INPUT_DIM 24\n" in text and "#define NS2_HISTORY_LAGS 3\n" in text
+    assert "#define NS2_HISTORY_MAX_MS 200\n" in text and "{50, 100, 200};" in text
+    plain = (exported.gen_dir / "ns2_model_config.h").read_text()
+    assert "#define NS2_INPUT_DIM 6\n" in plain and "HISTORY" not in plain and "history" not in plain
+    assert history.manifest["dims"]["history_ms"] == [50, 100, 200] and history.manifest["dims"]["phi"][0] == 24
+    assert "history_ms" not in exported.manifest["dims"]
+    first = history.manifest["overflow_proof"]["layers"][0]
+    assert first["layer"] == "phi[small].layer0" and len(first["max_abs_inputs"]) == 24
+    assert first["max_abs_inputs"][6:12] == first["max_abs_inputs"][:6] == first["max_abs_inputs"][18:]
 
 
 def test_float_weights_round_trip_exactly(exported):
@@ -66,7 +90,8 @@ def test_fixed_stream_layout(exported):
 
 
 @pytest.mark.parametrize("header", HEADERS)
-def test_headers_compile_stand_alone(exported, tmp_path, header):
+def test_headers_compile_stand_alone(model, tmp_path, header):
+    exported = model
     f = flags()
     src = tmp_path / "one.c"
     src.write_text(f'#include "{header}"\nint main(void) {{ return 0; }}\n')
@@ -127,10 +152,10 @@ def test_manifest_and_overflow_proof(exported):
     assert "C" not in man["q_formats"]["in_frac"] and set(man["q_formats"]["in_frac"]) == {"small", "large", "env"}
 
 
-def test_proof_holds_on_extreme_inputs(exported):
+def test_proof_holds_on_extreme_inputs(model):
     """Corners of the box with the maximum number of neighbours, all at the same
     extreme: the integer model checks every accumulator against int32."""
-    cfg, em = exported.cfg, exported.em
+    cfg, em = model.cfg, model.em
     q = random_queries(cfg, 4000, seed=11, max_given=cfg.model["max_neighbors"], inside=1.0, edge=1.0)
     q.n[:] = cfg.model["max_neighbors"]
     out, sel = ref.predict_q15(em, q)  # raises OverflowError if the proof were wrong
@@ -139,7 +164,8 @@ def test_proof_holds_on_extreme_inputs(exported):
 
 @needs(ARM)
 @pytest.mark.parametrize("opt", ["-O2", "-Os", "-O0"])  # -O0: Crazyflie debug builds (portable kernels)
-def test_cross_compiles_for_cortex_m4f_without_fma(exported, tmp_path, opt):
+def test_cross_compiles_for_cortex_m4f_without_fma(model, tmp_path, opt):
+    exported = model
     f = flags()
     inc = [f"-I{REPO / i}" for i in f["NS2_INCLUDES"]] + [f"-I{exported.gen_dir}"]
     for src in f["NS2_SOURCES"]:

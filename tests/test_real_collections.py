@@ -210,12 +210,12 @@ def test_history_inputs_are_the_same_neighbours_states_that_long_ago(cfg):
     assert ds.nbr_state[rows[0], 18] == np.float32(-1.0) and now.nbr_state[rows[0], 0] > -1.0
 
 
-def test_history_is_validated_trained_and_never_exported(cfg, tmp_path):
+def test_history_is_validated_trained_and_exported(cfg, tmp_path):
     from ns2codegen.checkpoint import load_checkpoint, save_checkpoint
     from ns2codegen.config import ConfigError
     from ns2codegen.data.dataset import DatasetError
     from ns2codegen.model import HeteroDeepSet
-    from ns2codegen.quantize import QuantizationError, from_checkpoint
+    from ns2codegen.quantize import from_checkpoint
     from ns2codegen.train import train
 
     for bad in ([100, 50], [0], [50, 50], "50", [3000], [1.5]):
@@ -227,8 +227,9 @@ def test_history_is_validated_trained_and_never_exported(cfg, tmp_path):
     model, rep = train(hcfg, flights_to_dataset(hcfg, [_flight()]), epochs=1)
     assert model.phi[0].layers[0].in_features == 12 and np.isfinite(rep["validation"]["mse"])
     save_checkpoint(tmp_path / "h.pt", model, hcfg, {"seed": 0, "data_hash": None})
-    with pytest.raises(QuantizationError, match="no C export"):
-        from_checkpoint(load_checkpoint(tmp_path / "h.pt"))
+    em = from_checkpoint(load_checkpoint(tmp_path / "h.pt"))   # the C export (tests/test_c_inference.py)
+    assert em.phi[0][0][0].shape[1] == 12 and em.q15.phi[0].layers[0].n_in == 12
+    assert em.phi_box(0).shape == (12, 2) and np.array_equal(em.phi_box(0)[6:], em.boxes[0])
     assert HeteroDeepSet(cfg).phi[0].layers[0].in_features == 6
 
 

@@ -7,6 +7,16 @@
  * x_ij = [p_j - p_i; v_j - v_i] (m, m/s, world frame); the environment is the
  * neighbour with p_j = v_j = 0, i.e. x_env = [-p_i; -v_i], and is always present.
  *
+ * Wake memory (model.history_ms, a model exported with NS2_HISTORY_LAGS > 0): phi
+ * also sees each neighbour's x_ij at the lags ns2_history_ms[] (ms) before now,
+ * NS2_INPUT_DIM = 6 (1 + NS2_HISTORY_LAGS) inputs: rel[] holds x_ij now, then
+ * x_ij at each lag in the order of ns2_history_ms[]; the environment likewise
+ * sees the robot's own past, given to the *_hist entry points as own_past[]
+ * ([p; v] at each lag, 6 floats per lag).  The selection (type, volume, order)
+ * is decided on the present state alone; a past value that is not finite makes
+ * the neighbour invalid (a non-finite own past: NS2_ERR_STATE).  Without history
+ * NS2_INPUT_DIM is 6 and the API is the plain one.
+ *
  * Neighbour handling (identical for both paths, see ns2_select_neighbors):
  *   - a neighbour with a type >= NS2_NUM_ROBOT_TYPES or a non-finite state is
  *     ignored (counted in n_invalid);
@@ -14,7 +24,8 @@
  *     a cuboid on p_j - p_i, is ignored (n_outside);
  *   - the first NS2_MAX_NEIGHBORS accepted neighbours in array order are used,
  *     later ones are ignored (n_truncated): pass them sorted by priority;
- *   - every phi input is clamped to the declared input box of its type.
+ *   - every phi input is clamped to the declared input box of its type (past
+ *     states to the same box as present ones).
  * Float sums run in a fixed order: environment first, then accepted neighbours
  * in array order.  Invalid robot type or non-finite own state: result 0.0 and
  * info->status < 0.
@@ -28,19 +39,26 @@
 
 #include "ns2_model_config.h"
 
+/* a model without wake memory: its generated config defines neither */
+#ifndef NS2_HISTORY_LAGS
+#define NS2_HISTORY_LAGS 0
+#define NS2_HISTORY_MAX_MS 0
+#endif
+
 #ifdef __cplusplus
 extern "C" {
 #endif
 
 #define NS2_OK 0
 #define NS2_ERR_ROBOT_TYPE (-1) /* robot_type >= NS2_NUM_ROBOT_TYPES */
-#define NS2_ERR_STATE (-2)      /* own position/velocity NULL or not finite */
+#define NS2_ERR_STATE (-2)      /* own position/velocity (or own past) NULL or not finite */
 #define NS2_ERR_NULL (-3)       /* n_neighbors > 0 but neighbors == NULL */
 #define NS2_ERR_JOB (-4)        /* job NULL, not begun, or stepped by the other path */
 
 typedef struct {
     uint8_t type;   /* robot type of the neighbour, 0 .. NS2_NUM_ROBOT_TYPES-1 */
-    float rel[6];   /* [p_j - p_i (m); v_j - v_i (m/s)], world frame */
+    float rel[NS2_INPUT_DIM]; /* [p_j - p_i (m); v_j - v_i (m/s)], world frame; then the
+                                 same at each history lag (NS2_HISTORY_LAGS > 0) */
 } ns2_neighbor_t;
 
 typedef struct {
@@ -57,8 +75,9 @@ uint16_t ns2_select_neighbors(uint8_t robot_type, const ns2_neighbor_t *neighbor
                               uint16_t n_neighbors, uint16_t idx[NS2_MAX_NEIGHBORS],
                               ns2_info_t *info);
 
-/* Clamp a 6-vector to the input box of neighbour type t (t may be NS2_ENV_TYPE). */
-void ns2_clamp_input(uint8_t t, const float in[6], float out[6]);
+/* Clamp a phi input (NS2_INPUT_DIM values: 6 per time) to the input box of
+ * neighbour type t (t may be NS2_ENV_TYPE); every 6-block to the same box. */
+void ns2_clamp_input(uint8_t t, const float in[NS2_INPUT_DIM], float out[NS2_INPUT_DIM]);
 
 /* f_a,z (g) of a robot of type robot_type at position p (m) with velocity v (m/s).
  * info may be NULL. */
@@ -74,6 +93,16 @@ int16_t ns2_predict_q15(uint8_t robot_type, const float p[3], const float v[3],
 /* ns2_predict_q15 converted to grams (exact: q * 2^-NS2_Q_OUT_FRAC). */
 float ns2_predict_q15_g(uint8_t robot_type, const float p[3], const float v[3],
                         const ns2_neighbor_t *neighbors, uint16_t n_neighbors, ns2_info_t *info);
+
+/* The same with the robot's own past for a model with wake memory: own_past holds
+ * 6 NS2_HISTORY_LAGS floats, [p; v] (m, m/s) at each lag of ns2_history_ms[]; it
+ * is not read (and may be NULL) when NS2_HISTORY_LAGS is 0.  The plain entry
+ * points are these with own_past NULL: for a model with wake memory they return
+ * 0 with NS2_ERR_STATE. */
+float ns2_predict_f32_hist(uint8_t robot_type, const float p[3], const float v[3], const float *own_past,
+                           const ns2_neighbor_t *neighbors, uint16_t n_neighbors, ns2_info_t *info);
+int16_t ns2_predict_q15_hist(uint8_t robot_type, const float p[3], const float v[3], const float *own_past,
+                             const ns2_neighbor_t *neighbors, uint16_t n_neighbors, ns2_info_t *info);
 
 /*
  * Prediction in slices, to spread one prediction over several control ticks
@@ -100,7 +129,7 @@ typedef struct {
     uint16_t n_inputs;                           /* phi inputs: the environment + info.n_used */
     uint16_t next;                               /* next phi input to evaluate */
     uint8_t type[NS2_MAX_NEIGHBORS + 1];         /* neighbour type of each phi input */
-    float x[NS2_MAX_NEIGHBORS + 1][6];           /* clamped phi inputs, environment first */
+    float x[NS2_MAX_NEIGHBORS + 1][NS2_INPUT_DIM]; /* clamped phi inputs, environment first */
     float h_f32[NS2_HIDDEN];                     /* latent sum, float path */
     int32_t h_q15[(NS2_HIDDEN + 3) / 4 * 4];     /* latent sum, fixed-point path (rows padded to 4) */
 } ns2_job_t;
@@ -108,6 +137,9 @@ typedef struct {
 /* Returns info.status (NS2_OK or NS2_ERR_*); on error the job finishes with 0. */
 int32_t ns2_job_begin(ns2_job_t *job, uint8_t robot_type, const float p[3], const float v[3],
                       const ns2_neighbor_t *neighbors, uint16_t n_neighbors);
+/* ns2_job_begin with the robot's own past (see ns2_predict_f32_hist) */
+int32_t ns2_job_begin_hist(ns2_job_t *job, uint8_t robot_type, const float p[3], const float v[3],
+                           const float *own_past, const ns2_neighbor_t *neighbors, uint16_t n_neighbors);
 uint16_t ns2_job_step_f32(ns2_job_t *job, uint16_t max_phi);
 uint16_t ns2_job_step_q15(ns2_job_t *job, uint16_t max_phi);
 /* f_a,z in grams (float) or in Q NS2_Q_OUT_FRAC (fixed); info (may be NULL)

@@ -249,7 +249,7 @@ static const float *net_f32(const ns2_f32_net_t *net, const float *x, float buf[
 }
 
 /* h = phi_t(x) (first input) or h += phi_t(x) */
-static void phi_add_f32(float h[NS2_HIDDEN], uint8_t t, const float x[6], int first)
+static void phi_add_f32(float h[NS2_HIDDEN], uint8_t t, const float x[NS2_INPUT_DIM], int first)
 {
     float buf[2][NS2_F32_BUF];
     const float *phi = net_f32(&ns2_f32_phi[t], x, buf);
@@ -262,11 +262,17 @@ static void phi_add_f32(float h[NS2_HIDDEN], uint8_t t, const float x[6], int fi
  * consecutive in the summation order, so the float sums are the ones of two
  * phi_add_f32 calls.  On Cortex-M4F both go through each layer together (pair
  * blocks, see dense2_f32_*); elsewhere one after the other. */
-static void phi2_add_f32(float h[NS2_HIDDEN], uint8_t t, const float xa[6], const float xb[6])
+static void phi2_add_f32(float h[NS2_HIDDEN], uint8_t t, const float xa[NS2_INPUT_DIM],
+                         const float xb[NS2_INPUT_DIM])
 {
 #ifdef NS2_F32_PAIRS
-    const float xab[16] = {xa[0], xa[1], xa[2], xa[3], xb[0], xb[1], xb[2], xb[3],
-                           xa[4], xa[5], 0.0f, 0.0f, xb[4], xb[5], 0.0f, 0.0f};
+    /* pair blocks: per group of four inputs the four of xa, then the four of xb
+     * (the last group zero-padded) */
+    float xab[2 * NS2_PAD4(NS2_INPUT_DIM)];
+    for (int i = 0; i < NS2_PAD4(NS2_INPUT_DIM); ++i) {
+        xab[8 * (i / 4) + i % 4] = i < NS2_INPUT_DIM ? xa[i] : 0.0f;
+        xab[8 * (i / 4) + 4 + i % 4] = i < NS2_INPUT_DIM ? xb[i] : 0.0f;
+    }
     float buf[2][2 * NS2_F32_BUF];
     const ns2_f32_net_t *net = &ns2_f32_phi[t];
     const float *in = xab;
@@ -303,14 +309,20 @@ static float rho_f32(uint8_t robot_type, const float h[NS2_HIDDEN])
 float ns2_predict_f32(uint8_t robot_type, const float p[3], const float v[3],
                       const ns2_neighbor_t *neighbors, uint16_t n_neighbors, ns2_info_t *info)
 {
+    return ns2_predict_f32_hist(robot_type, p, v, NULL, neighbors, n_neighbors, info);
+}
+
+float ns2_predict_f32_hist(uint8_t robot_type, const float p[3], const float v[3], const float *own_past,
+                           const ns2_neighbor_t *neighbors, uint16_t n_neighbors, ns2_info_t *info)
+{
     ns2_info_t local;
     ns2_info_t *inf = info != NULL ? info : &local;
-    float x[6];
+    float x[NS2_INPUT_DIM];
     float h[NS2_HIDDEN];
     uint16_t idx[NS2_MAX_NEIGHBORS];
     uint16_t n_used;
 
-    if (ns2_prepare(robot_type, p, v, neighbors, n_neighbors, x, idx, &n_used, inf) != NS2_OK) {
+    if (ns2_prepare(robot_type, p, v, own_past, neighbors, n_neighbors, x, idx, &n_used, inf) != NS2_OK) {
         return 0.0f;
     }
     phi_add_f32(h, NS2_ENV_TYPE, x, 1);
@@ -319,7 +331,7 @@ float ns2_predict_f32(uint8_t robot_type, const float p[3], const float v[3],
         const ns2_neighbor_t *nb = &neighbors[idx[j]];
         ns2_clamp_input(nb->type, nb->rel, x);
         if (j + 1u < n_used && neighbors[idx[j + 1u]].type == nb->type) {
-            float xb[6];
+            float xb[NS2_INPUT_DIM];
             ns2_clamp_input(nb->type, neighbors[idx[j + 1u]].rel, xb);
             phi2_add_f32(h, nb->type, x, xb);
             j = (uint16_t)(j + 2u);

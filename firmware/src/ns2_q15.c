@@ -52,6 +52,7 @@ static int32_t ns2_smlad_c(int32_t a, int32_t b, int32_t acc)
 
 #define NS2_Q_WORDS (NS2_PAD4(NS2_MAX_WIDTH) / 2) /* int16 pairs per activation buffer */
 #define NS2_HIDDEN_PAD4 NS2_PAD4(NS2_HIDDEN)      /* latent sum incl. the padded rows */
+#define NS2_IN_WORDS (NS2_PAD4(NS2_INPUT_DIM) / 2) /* int16 pairs of one phi input */
 
 /* floor(a / 2^s) for any sign, without implementation-defined shifts. */
 static int32_t floor_shift(int32_t a, uint8_t s)
@@ -441,22 +442,23 @@ static const int32_t *hidden_q15(const ns2_q15_net_t *net, const int32_t *x, int
     return in;
 }
 
-/* Clamped 6-vector -> 4 packed words xq[0], xq[step], xq[2 step], xq[3 step]
- * (inputs 6 and 7 are zero padding; step 2: one neighbour of an interleaved pair). */
-static void quantize_input(const float x[6], float scale, int32_t *xq, int step)
+/* Clamped phi input -> NS2_IN_WORDS packed words xq[0], xq[step], ... (inputs
+ * beyond NS2_INPUT_DIM are zero padding; step 2: one neighbour of an interleaved pair). */
+static void quantize_input(const float x[NS2_INPUT_DIM], float scale, int32_t *xq, int step)
 {
-    xq[0] = pack16(quantize(x[0], scale), quantize(x[1], scale));
-    xq[step] = pack16(quantize(x[2], scale), quantize(x[3], scale));
-    xq[2 * step] = pack16(quantize(x[4], scale), quantize(x[5], scale));
-    xq[3 * step] = 0;
+    for (int k = 0; k < NS2_IN_WORDS; ++k) {
+        const int32_t lo = 2 * k < NS2_INPUT_DIM ? quantize(x[2 * k], scale) : 0;
+        const int32_t hi = 2 * k + 1 < NS2_INPUT_DIM ? quantize(x[2 * k + 1], scale) : 0;
+        xq[k * step] = pack16(lo, hi);
+    }
 }
 
 /* h = phi_t(x) (first input) or h += phi_t(x), x clamped (int32 sums: exact).
  * phi's last layer writes or adds its int16 outputs straight into h (the
  * padded rows give 0). */
-static void phi_add_q15(int32_t h[NS2_HIDDEN_PAD4], uint8_t t, const float x[6], int first)
+static void phi_add_q15(int32_t h[NS2_HIDDEN_PAD4], uint8_t t, const float x[NS2_INPUT_DIM], int first)
 {
-    int32_t xq[4];
+    int32_t xq[NS2_IN_WORDS];
     int32_t buf[2][NS2_Q_WORDS];
     const ns2_q15_net_t *net = &ns2_q15_phi[t];
     quantize_input(x, ns2_q15_in_scale[t], xq, 1);
@@ -465,9 +467,10 @@ static void phi_add_q15(int32_t h[NS2_HIDDEN_PAD4], uint8_t t, const float x[6],
 
 /* h += phi_t(xa) + phi_t(xb): two neighbours of the same type t, whose inputs
  * and activations are interleaved so that each weight word serves both. */
-static void phi2_add_q15(int32_t h[NS2_HIDDEN_PAD4], uint8_t t, const float xa[6], const float xb[6])
+static void phi2_add_q15(int32_t h[NS2_HIDDEN_PAD4], uint8_t t, const float xa[NS2_INPUT_DIM],
+                        const float xb[NS2_INPUT_DIM])
 {
-    int32_t xq[8];
+    int32_t xq[2 * NS2_IN_WORDS];
     int32_t buf[2][2 * NS2_Q_WORDS];
     const ns2_q15_net_t *net = &ns2_q15_phi[t];
     const int32_t *in = xq;
@@ -499,15 +502,21 @@ static int16_t rho_q15(uint8_t robot_type, const int32_t h[NS2_HIDDEN_PAD4])
 int16_t ns2_predict_q15(uint8_t robot_type, const float p[3], const float v[3],
                         const ns2_neighbor_t *neighbors, uint16_t n_neighbors, ns2_info_t *info)
 {
+    return ns2_predict_q15_hist(robot_type, p, v, NULL, neighbors, n_neighbors, info);
+}
+
+int16_t ns2_predict_q15_hist(uint8_t robot_type, const float p[3], const float v[3], const float *own_past,
+                             const ns2_neighbor_t *neighbors, uint16_t n_neighbors, ns2_info_t *info)
+{
     ns2_info_t local;
     ns2_info_t *inf = info != NULL ? info : &local;
-    float x[6];
-    float xa[6];
+    float x[NS2_INPUT_DIM];
+    float xa[NS2_INPUT_DIM];
     int32_t h[NS2_HIDDEN_PAD4];
     uint16_t idx[NS2_MAX_NEIGHBORS];
     uint16_t n_used;
 
-    if (ns2_prepare(robot_type, p, v, neighbors, n_neighbors, x, idx, &n_used, inf) != NS2_OK) {
+    if (ns2_prepare(robot_type, p, v, own_past, neighbors, n_neighbors, x, idx, &n_used, inf) != NS2_OK) {
         return 0;
     }
     phi_add_q15(h, NS2_ENV_TYPE, x, 1);
@@ -541,7 +550,7 @@ static int pair_up(ns2_job_t *job, uint16_t i)
     for (uint16_t m = (uint16_t)(i + 1u); m < job->n_inputs; ++m) {
         if (job->type[m] == job->type[i]) {
             if (m != i + 1u) {
-                float tmp[6];
+                float tmp[NS2_INPUT_DIM];
                 memcpy(tmp, job->x[m], sizeof tmp);
                 memcpy(job->x[m], job->x[i + 1u], sizeof tmp);
                 memcpy(job->x[i + 1u], tmp, sizeof tmp);

@@ -44,7 +44,7 @@ uint16_t ns2_select_neighbors(uint8_t robot_type, const ns2_neighbor_t *neighbor
     }
     for (uint16_t j = 0; j < n_neighbors; ++j) {
         const ns2_neighbor_t *nb = &neighbors[j];
-        if (nb->type >= NS2_NUM_ROBOT_TYPES || !all_finite(nb->rel, 6)) {
+        if (nb->type >= NS2_NUM_ROBOT_TYPES || !all_finite(nb->rel, NS2_INPUT_DIM)) {
             info->n_invalid++;
         } else if (!in_volume(robot_type, nb->type, nb->rel)) {
             info->n_outside++;
@@ -58,19 +58,32 @@ uint16_t ns2_select_neighbors(uint8_t robot_type, const ns2_neighbor_t *neighbor
     return used;
 }
 
-void ns2_clamp_input(uint8_t t, const float in[6], float out[6])
+void ns2_clamp_input(uint8_t t, const float in[NS2_INPUT_DIM], float out[NS2_INPUT_DIM])
 {
     const float(*box)[2] = ns2_input_box[t < NS2_NUM_NEIGHBOR_TYPES ? t : NS2_ENV_TYPE];
-    for (int a = 0; a < 6; ++a) {
-        const float x = in[a];
-        out[a] = x < box[a][0] ? box[a][0] : (x > box[a][1] ? box[a][1] : x);
+    for (int k = 0; k < NS2_INPUT_DIM; k += 6) { /* now, then each history lag: the same box */
+        for (int a = 0; a < 6; ++a) {
+            const float x = in[k + a];
+            out[k + a] = x < box[a][0] ? box[a][0] : (x > box[a][1] ? box[a][1] : x);
+        }
     }
 }
 
+/* own_past usable: not read without history, else present and finite */
+static int own_past_ok(const float *own_past)
+{
+#if NS2_HISTORY_LAGS > 0
+    return own_past != NULL && all_finite(own_past, 6 * NS2_HISTORY_LAGS);
+#else
+    (void)own_past;
+    return 1;
+#endif
+}
+
 /* Shared prologue of both predict functions: validate, build x_env, select. */
-int32_t ns2_prepare(uint8_t robot_type, const float p[3], const float v[3],
+int32_t ns2_prepare(uint8_t robot_type, const float p[3], const float v[3], const float *own_past,
                     const ns2_neighbor_t *neighbors, uint16_t n_neighbors,
-                    float x_env[6], uint16_t idx[NS2_MAX_NEIGHBORS], uint16_t *n_used,
+                    float x_env[NS2_INPUT_DIM], uint16_t idx[NS2_MAX_NEIGHBORS], uint16_t *n_used,
                     ns2_info_t *info)
 {
     *n_used = 0;
@@ -81,12 +94,19 @@ int32_t ns2_prepare(uint8_t robot_type, const float p[3], const float v[3],
     info->n_truncated = 0;
     if (robot_type >= NS2_NUM_ROBOT_TYPES) {
         info->status = NS2_ERR_ROBOT_TYPE;
-    } else if (p == NULL || v == NULL || !all_finite(p, 3) || !all_finite(v, 3)) {
+    } else if (p == NULL || v == NULL || !all_finite(p, 3) || !all_finite(v, 3) || !own_past_ok(own_past)) {
         info->status = NS2_ERR_STATE;
     } else if (n_neighbors > 0 && neighbors == NULL) {
         info->status = NS2_ERR_NULL;
     } else {
-        const float env[6] = {-p[0], -p[1], -p[2], -v[0], -v[1], -v[2]};
+        float env[NS2_INPUT_DIM];
+        for (int a = 0; a < 3; ++a) {
+            env[a] = -p[a];
+            env[3 + a] = -v[a];
+        }
+        for (int k = 6; k < NS2_INPUT_DIM; ++k) { /* the own past, [p; v] at each lag */
+            env[k] = -own_past[k - 6];
+        }
         ns2_clamp_input(NS2_ENV_TYPE, env, x_env);
         *n_used = ns2_select_neighbors(robot_type, neighbors, n_neighbors, idx, info);
     }
@@ -95,6 +115,12 @@ int32_t ns2_prepare(uint8_t robot_type, const float p[3], const float v[3],
 
 int32_t ns2_job_begin(ns2_job_t *job, uint8_t robot_type, const float p[3], const float v[3],
                       const ns2_neighbor_t *neighbors, uint16_t n_neighbors)
+{
+    return ns2_job_begin_hist(job, robot_type, p, v, NULL, neighbors, n_neighbors);
+}
+
+int32_t ns2_job_begin_hist(ns2_job_t *job, uint8_t robot_type, const float p[3], const float v[3],
+                           const float *own_past, const ns2_neighbor_t *neighbors, uint16_t n_neighbors)
 {
     uint16_t idx[NS2_MAX_NEIGHBORS];
     uint16_t n_used;
@@ -105,7 +131,8 @@ int32_t ns2_job_begin(ns2_job_t *job, uint8_t robot_type, const float p[3], cons
     job->next = 0;
     job->n_inputs = 0;
     job->path = NS2_JOB_NONE;
-    if (ns2_prepare(robot_type, p, v, neighbors, n_neighbors, job->x[0], idx, &n_used, &job->info) != NS2_OK) {
+    if (ns2_prepare(robot_type, p, v, own_past, neighbors, n_neighbors, job->x[0], idx, &n_used, &job->info) !=
+        NS2_OK) {
         return job->info.status;
     }
     job->type[0] = NS2_ENV_TYPE;
