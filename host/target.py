@@ -8,13 +8,13 @@ queries go in through ``ns2_in.bin``, results come back in ``ns2_out.bin``.
 
 ns2_in.bin:  "NS2V", u32 count, then per query
              u8 robot_type, u8 pad, u16 n, f32 p[3], f32 v[3],
-             n x ns2_neighbor_t (u8 type, 3 pad bytes, f32 rel[6])
+             n x ns2_neighbor_t (u8 type, 3 pad bytes, f32 rel[NS2_INPUT_DIM]),
+             with wake memory (NS2_HISTORY_LAGS > 0) then f32 own_past[6 lags]
 ns2_out.bin: per query f32 float result, i16 fixed result, u16 pad,
              ns2_info_t of the float call, ns2_info_t of the fixed call
 """
 from __future__ import annotations
 
-import hashlib
 import os
 import shutil
 import subprocess
@@ -25,14 +25,20 @@ import numpy as np
 
 from ns2codegen.errors import Ns2Error
 
-from .cbuild import REPO, BUILD_ROOT, GENERATED, compile_error, flags
+from .cbuild import REPO, BUILD_ROOT, GENERATED, cached, compile_error, content_hash, flags
 
 ARM_CC = os.environ.get("ARM_CC", "arm-none-eabi-gcc")
 TARGET_DIR = REPO / "firmware" / "target"
 QEMU = "qemu-system-arm"
 
 QUERY_DT = np.dtype([("robot_type", "u1"), ("pad", "u1"), ("n", "<u2"), ("p", "<f4", 3), ("v", "<f4", 3)])
-NBR_DT = np.dtype({"names": ["type", "rel"], "formats": ["u1", ("<f4", 6)], "offsets": [0, 4], "itemsize": 28})
+def nbr_dtype(input_dim: int = 6) -> np.dtype:
+    """ns2_neighbor_t of a model with ``input_dim`` phi inputs (6 without wake memory)."""
+    return np.dtype({"names": ["type", "rel"], "formats": ["u1", ("<f4", input_dim)], "offsets": [0, 4],
+                     "itemsize": 4 + 4 * input_dim})
+
+
+NBR_DT = nbr_dtype()
 INFO_DT = [("status", "<i4"), ("n_used", "<u2"), ("n_invalid", "<u2"), ("n_outside", "<u2"), ("n_truncated", "<u2")]
 # f32/q15: ns2_predict_*; *_sliced: the same query through ns2_job_* in slices of
 # 1 + (query index mod 5) phi evaluations
@@ -92,30 +98,25 @@ def build_image(gen_dir: Path, program: str = "qemu_vectors.c", opt: str | None 
     opt_flags = [opt] if opt else f["NS2_OPT_FLAGS"]
     sources = [REPO / s for s in f["NS2_SOURCES"]] + [REPO / s for s in extra_sources] + \
         [TARGET_DIR / "startup_cm4.c", TARGET_DIR / program]
-    h = hashlib.sha256()
-    for p in sources + sorted((REPO / "firmware" / "include").glob("*.h")) + \
-            sorted((REPO / "firmware" / "src").glob("*.h")) + sorted(TARGET_DIR.glob("*.h")) + \
-            sorted((REPO / "firmware" / "hil").glob("*.h")) + [gen_dir / g for g in GENERATED] + \
-            [TARGET_DIR / "stm32f405.ld"]:
-        h.update(p.name.encode() + p.read_bytes())
-    h.update(repr((sorted(f.items()), opt_flags, ARM_CC, defines, semihosting)).encode())
-    out = BUILD_ROOT.parent / "arm" / f"{Path(program).stem}-{h.hexdigest()[:16]}.elf"
-    if out.is_file():
-        return out
-    out.parent.mkdir(parents=True, exist_ok=True)
+    key = content_hash([*sources, *sorted((REPO / "firmware" / "include").glob("*.h")),
+                        *sorted((REPO / "firmware" / "src").glob("*.h")), *sorted(TARGET_DIR.glob("*.h")),
+                        *sorted((REPO / "firmware" / "hil").glob("*.h")), *[gen_dir / g for g in GENERATED],
+                        TARGET_DIR / "stm32f405.ld", repr((sorted(f.items()), opt_flags, ARM_CC, defines, semihosting))],
+                       16)
+    out = BUILD_ROOT.parent / "arm" / f"{Path(program).stem}-{key}.elf"
     inc = [f"-I{REPO / i}" for i in f["NS2_INCLUDES"]] + [f"-I{gen_dir}", f"-I{TARGET_DIR}"]
-    with tempfile.TemporaryDirectory() as tmp:
-        su = Path(tmp)
+
+    def build(tmp: Path) -> None:
         cmd = [ARM_CC, *f["NS2_ARM_FLAGS"], *f["NS2_STD_FLAGS"], *opt_flags, *f["NS2_WARN_FLAGS"], *inc,
                *[f"-D{d}" for d in defines], "-ffunction-sections", "-fdata-sections", "-g",
                *(["-DNS2_SEMIHOSTING", "--specs=rdimon.specs"] if semihosting else ["--specs=nosys.specs"]),
                "-nostartfiles", f"-T{TARGET_DIR / 'stm32f405.ld'}",
-               "-Wl,--gc-sections", *map(str, sources), "-lm", "-o", str(su / out.name)]
+               "-Wl,--gc-sections", *map(str, sources), "-lm", "-o", str(tmp / out.name)]
         r = subprocess.run(cmd, capture_output=True, text=True)
         if r.returncode != 0:
             raise compile_error(f"the target image {out.name}", cmd, r)
-        os.replace(su / out.name, out)
-    return out
+
+    return cached(out, build, product=None)
 
 
 def build_controller_image(gen_dir: Path, opt: str | None = None) -> Path:
@@ -150,13 +151,14 @@ def build_hil_image(gen_dir: Path, opt: str | None = None) -> Path:
 def encode_queries(q) -> bytes:
     """Queries (ns2codegen.queries) in the ns2_in.bin layout."""
     parts = [b"NS2V", np.uint32(len(q)).tobytes()]
+    dt = nbr_dtype(q.nbr_rel.shape[-1])
     for i in range(len(q)):
         head = np.zeros(1, QUERY_DT)
         head["robot_type"], head["n"], head["p"], head["v"] = q.robot_type[i], q.n[i], q.p[i], q.v[i]
-        nb = np.zeros(int(q.n[i]), NBR_DT)
+        nb = np.zeros(int(q.n[i]), dt)
         nb["type"] = q.nbr_type[i, :q.n[i]]
         nb["rel"] = q.nbr_rel[i, :q.n[i]]
-        parts += [head.tobytes(), nb.tobytes()]
+        parts += [head.tobytes(), nb.tobytes(), np.ascontiguousarray(q.past[i], "<f4").tobytes()]
     return b"".join(parts)
 
 

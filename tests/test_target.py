@@ -48,6 +48,16 @@ def test_qemu_onboard_variant_bit_exact(onboard):
     _compare(onboard, onboard.cmodel(), q, target.run_vectors(elf, q))
 
 
+@pytest.mark.parametrize("opt", [None, "-Os"])
+def test_qemu_history_network_bit_exact(history, opt):
+    """The network with wake memory (24 inputs per neighbour, the robot's own past,
+    the *_hist entry points): other kernel sizes, NaN/Inf in past states too."""
+    elf = target.build_image(history.gen_dir, opt=opt)
+    q = random_queries(history.cfg, 4_000, seed=35, wild=0.05)
+    assert q.past.shape[1] == 3 and q.nbr_rel.shape[-1] == 24
+    _compare(history, history.cmodel(), q, target.run_vectors(elf, q))
+
+
 def test_qemu_crazyflie_flags_os(exported, cmodel):
     """-Os, as the Crazyflie firmware builds: still bit-exact (no fused multiply-add)."""
     elf = target.build_image(exported.gen_dir, opt="-Os")

@@ -3,7 +3,8 @@
  * semihosting, runs the float and fixed-point inference on the (emulated)
  * STM32F405, one-shot (ns2_predict_*) and in slices (ns2_job_*, 1 + k mod 5 phi
  * evaluations per step for query k), and writes the results to ns2_out.bin.
- * Formats: host/target.py.
+ * A model with wake memory reads the robot's own past after the neighbours and
+ * runs the *_hist entry points.  Formats: host/target.py.
  */
 #include <stdio.h>
 #include <string.h>
@@ -33,16 +34,17 @@ typedef struct {
 
 static ns2_neighbor_t neighbors[MAX_GIVEN];
 static ns2_job_t job;
+static float own_past[6u * NS2_HISTORY_LAGS + 1u]; /* [p; v] at each lag (not read without history) */
 
 /* The sliced API with `slice` phi evaluations per step; the job is begun again
  * for each path. */
 static void run_sliced(const query_t *q, uint16_t slice, result_t *r)
 {
-    (void)ns2_job_begin(&job, q->robot_type, q->p, q->v, neighbors, q->n);
+    (void)ns2_job_begin_hist(&job, q->robot_type, q->p, q->v, own_past, neighbors, q->n);
     while (ns2_job_step_f32(&job, slice) > 0u) {
     }
     r->f32_sliced = ns2_job_finish_f32(&job, NULL);
-    (void)ns2_job_begin(&job, q->robot_type, q->p, q->v, neighbors, q->n);
+    (void)ns2_job_begin_hist(&job, q->robot_type, q->p, q->v, own_past, neighbors, q->n);
     while (ns2_job_step_q15(&job, slice) > 0u) {
     }
     r->q15_sliced = ns2_job_finish_q15(&job, NULL);
@@ -62,12 +64,18 @@ int main(void)
         query_t q;
         result_t r;
         if (fread(&q, sizeof q, 1, in) != 1 || q.n > MAX_GIVEN ||
-            (q.n > 0 && fread(neighbors, sizeof neighbors[0], q.n, in) != q.n)) {
+            (q.n > 0 && fread(neighbors, sizeof neighbors[0], q.n, in) != q.n) ||
+            fread(own_past, sizeof own_past[0], 6u * NS2_HISTORY_LAGS, in) != 6u * NS2_HISTORY_LAGS) {
             return 4;
         }
         memset(&r, 0, sizeof r);
+#if NS2_HISTORY_LAGS > 0
+        r.f32 = ns2_predict_f32_hist(q.robot_type, q.p, q.v, own_past, neighbors, q.n, &r.info_f32);
+        r.q15 = ns2_predict_q15_hist(q.robot_type, q.p, q.v, own_past, neighbors, q.n, &r.info_q15);
+#else
         r.f32 = ns2_predict_f32(q.robot_type, q.p, q.v, neighbors, q.n, &r.info_f32);
         r.q15 = ns2_predict_q15(q.robot_type, q.p, q.v, neighbors, q.n, &r.info_q15);
+#endif
         run_sliced(&q, (uint16_t)(1u + k % 5u), &r);
         if (fwrite(&r, sizeof r, 1, out) != 1) {
             return 5;
