@@ -178,19 +178,54 @@ def host_cc() -> str:
     return os.environ.get("CC", "gcc")
 
 
-def _key(gen_dir: Path, f: dict) -> str:
+def content_hash(parts, n: int) -> str:
+    """The first ``n`` hex digits of the sha256 of ``parts`` in order, the key of every
+    host build's cache: a file (Path) counts by its name and bytes, a str by its UTF-8
+    bytes, bytes as they are."""
     h = hashlib.sha256()
+    for p in parts:
+        h.update(p.name.encode() + p.read_bytes() if isinstance(p, Path) else p.encode() if isinstance(p, str) else p)
+    return h.hexdigest()[:n]
+
+
+def cached(final: Path, build, product: str | None = "") -> Path:
+    """The build cache of every host build (the cffi modules here and in cfhost.py, the
+    firmware builds of cfapp.py, the ELFs of stabilizer.py and target.py, the fuzz
+    driver): ``final``, named by the content_hash of every input, made once by
+    ``build(out)`` into a fresh temporary folder beside it and put in place by one rename
+    (atomic on the one file system: nothing half-written is ever at ``final``).
+    product None: ``final`` is a file, which ``build`` writes as ``out / final.name``;
+    else ``final`` is the folder ``out``, complete when ``final / product`` exists ("": the
+    folder itself).  Of concurrent builders the first rename wins; the others' builds are
+    dropped.  Returns ``final``."""
+    def done() -> bool:
+        return final.is_file() if product is None else (final / product).exists()
+
+    if done():
+        return final
+    final.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(dir=final.parent, prefix=f".tmp-{final.name}-"))
+    try:
+        build(tmp)
+        try:
+            if product is None:
+                os.replace(tmp / final.name, final)
+            else:
+                os.rename(tmp, final)
+        except OSError:  # a concurrent builder put its own in place first
+            if not done():
+                raise
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    return final
+
+
+def _key(gen_dir: Path, f: dict) -> str:
     files = [REPO / s for s in f["NS2_SOURCES"]] + sorted((REPO / "firmware" / "include").glob("*.h")) \
         + sorted((REPO / "firmware" / "src").glob("*.h")) + [REPO / s for s in HOST_SOURCES] \
         + [REPO / "host" / "ns2_host.h"] + sorted((REPO / "firmware" / "target").glob("ns2_*_vectors.h")) \
         + [gen_dir / g for g in GENERATED]
-    for p in files:
-        h.update(p.name.encode())
-        h.update(p.read_bytes())
-    h.update(repr(sorted(f.items())).encode())
-    h.update(CDEF.encode())
-    h.update(host_cc().encode())
-    return h.hexdigest()[:20]
+    return content_hash([*files, repr(sorted(f.items())), CDEF, host_cc()], 20)
 
 
 def compile_objects(gen_dir: Path, out: Path, cc: str, extra: list[str], f: dict) -> list[Path]:
@@ -209,22 +244,10 @@ def compile_objects(gen_dir: Path, out: Path, cc: str, extra: list[str], f: dict
 
 
 def _module(key: str, prefix: str, build) -> tuple:
-    """Build a cffi module once into BUILD_ROOT/<key> (``build(tmp, name)`` compiles it)
-    and import it; concurrent builders race safely on the final rename."""
+    """Build a cffi module once into BUILD_ROOT/<key> (``build(tmp, name)`` compiles it;
+    cached) and import it."""
     name = f"{prefix}_{key}"
-    final = BUILD_ROOT / key
-    if not final.is_dir():
-        BUILD_ROOT.mkdir(parents=True, exist_ok=True)
-        tmp = Path(tempfile.mkdtemp(dir=BUILD_ROOT, prefix=".tmp-"))
-        try:
-            build(tmp, name)
-            try:
-                os.rename(tmp, final)
-            except OSError:  # built concurrently by another process
-                shutil.rmtree(tmp, ignore_errors=True)
-        except BaseException:
-            shutil.rmtree(tmp, ignore_errors=True)
-            raise
+    final = cached(BUILD_ROOT / key, lambda out: build(out, name))
     so = next(final.glob(f"{name}*.so"))
     spec = importlib.util.spec_from_file_location(name, so)
     mod = importlib.util.module_from_spec(spec)
@@ -268,8 +291,7 @@ def load_sim():
 
     src, header = REPO / "host" / "ns2_sim.c", REPO / "firmware" / "include" / "ns2_controller.h"
     f = flags()
-    key = "sim_" + hashlib.sha256(src.read_bytes() + header.read_bytes() + SIM_CDEF.encode()
-                                  + host_cc().encode()).hexdigest()[:16]
+    key = "sim_" + content_hash([src.read_bytes(), header.read_bytes(), SIM_CDEF, host_cc()], 16)
 
     def build(tmp: Path, name: str) -> None:
         obj = tmp / "ns2_sim.o"

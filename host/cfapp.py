@@ -16,18 +16,16 @@ prints the size report (JSON): stock, with the app, and the difference.
 from __future__ import annotations
 
 import argparse
-import hashlib
 import json
 import os
 import shutil
 import struct
 import subprocess
 import sys
-import tempfile
 from pathlib import Path
 
 from . import crazyflie
-from .cbuild import REPO, GENERATED, BuildError, compile_error
+from .cbuild import REPO, GENERATED, BuildError, cached, compile_error, content_hash
 
 APP_DIR = REPO / "firmware" / "app"
 CF_BUILD = crazyflie.BUILD / "cf"
@@ -57,23 +55,13 @@ def _make(args: list[str], log: Path) -> None:
 
 
 def _cached(name: str, key: bytes, build, product: str = "cf2.elf") -> Path:
-    """``build(tmp_dir)`` once into CF_BUILD/<name>-<hash>; returns that folder."""
-    final = CF_BUILD / f"{name}-{hashlib.sha256(key).hexdigest()[:16]}"
-    if (final / product).is_file():
-        return final
-    CF_BUILD.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{name}-", dir=CF_BUILD))
-    try:
-        build(tmp)
-        _prune(tmp)
-        try:
-            tmp.rename(final)
-        except OSError:  # a concurrent builder won
-            if not (final / product).is_file():
-                raise
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
-    return final
+    """``build(tmp_dir)`` once into CF_BUILD/<name>-<hash of key> (cbuild.cached), its
+    objects pruned; returns that folder."""
+    def pruned(out: Path) -> None:
+        build(out)
+        _prune(out)
+
+    return cached(CF_BUILD / f"{name}-{content_hash([key], 16)}", pruned, product)
 
 
 KEEP = ("cf2.elf", "cf2.bin", "cf2.map", ".config", "oot/built-in.o", "include/generated/autoconf.h")
@@ -166,10 +154,10 @@ def build_app(gen_dir: Path, infer: str = "fixed", out: Path | None = None, tabl
         _make(app_make_args(gen_dir, infer, out, tables), out / "ns2-build.log")
         return out
     fw = crazyflie.firmware_dir()
-    h = hashlib.sha256(_firmware_id(fw) + infer.encode() + tables.encode())
-    for p in app_inputs(gen_dir):
-        h.update(p.name.encode() + b"\0" + p.read_bytes())
-    return _cached(f"app-{infer}-{tables}", h.digest(),
+    # the inputs' digest, hashed again by _cached (the cache names the builds have had)
+    key = bytes.fromhex(content_hash([_firmware_id(fw), infer, tables,
+                                      *(p.name.encode() + b"\0" + p.read_bytes() for p in app_inputs(gen_dir))], 64))
+    return _cached(f"app-{infer}-{tables}", key,
                    lambda tmp: _make(app_make_args(gen_dir, infer, tmp, tables), tmp / "ns2-build.log"))
 
 

@@ -22,14 +22,13 @@ export folder, cached under build/host/<hash>.
 """
 from __future__ import annotations
 
-import hashlib
 import re
 import subprocess
 from functools import lru_cache
 from pathlib import Path
 
-from .cbuild import (CDEF, HOST_HEADERS, REPO, _key, _module, compile_error, compile_objects, flags,
-                     host_cc, require_export)
+from .cbuild import (CDEF, HOST_HEADERS, REPO, _key, _module, compile_error, compile_objects, content_hash,
+                     flags, host_cc, require_export)
 from .cfapp import app_config, stock_config
 from .crazyflie import extract_function, firmware_dir
 
@@ -120,10 +119,10 @@ def load_fly(gen_dir: str | Path):
     f = flags()
     fw_inc = [f"-I{fw / i}" for i in FW_INCLUDES] + [f"-I{auto}"]
     ns2_inc = [f"-I{REPO / i}" for i in f["NS2_INCLUDES"]] + [f"-I{gen_dir}", f"-I{REPO / 'host'}"]
-    h = hashlib.sha256(_key(gen_dir, f).encode() + FLY_CDEF.encode() + repr(FW_FLAGS).encode())
-    for p in [fw / s for s in FW_SOURCES] + [fw / s for s, _ in FW_EXTRACTED + FW_EXTRACTED_DEFINES] + [REPO / s for s in HOST_FLY] \
-            + [REPO / "host" / "ns2_fly.h", REPO / "host" / "ctrl_authors.h", auto / "autoconf.h", stock / "autoconf.h"]:
-        h.update(p.name.encode() + p.read_bytes())
+    key = content_hash([_key(gen_dir, f), FLY_CDEF, repr(FW_FLAGS), *[fw / s for s in FW_SOURCES],
+                        *[fw / s for s, _ in FW_EXTRACTED + FW_EXTRACTED_DEFINES], *[REPO / s for s in HOST_FLY],
+                        REPO / "host" / "ns2_fly.h", REPO / "host" / "ctrl_authors.h", auto / "autoconf.h",
+                        stock / "autoconf.h"], 18)
 
     def build(tmp: Path, name: str) -> None:
         objs = compile_objects(gen_dir, tmp, host_cc(), ["-fPIC"], f)
@@ -155,7 +154,7 @@ def load_fly(gen_dir: str | Path):
                                            "-Wno-pointer-to-int-cast"])
         ffi.compile(tmpdir=str(tmp), verbose=False)
 
-    return _module("fly_" + h.hexdigest()[:18], "_ns2_fly", build)
+    return _module("fly_" + key, "_ns2_fly", build)
 
 
 PPTRAJ_CDEF = """
@@ -194,8 +193,8 @@ def load_pptraj():
 
     fw = firmware_dir()
     src = fw / "src/modules/src/pptraj.c"
-    h = hashlib.sha256(src.read_bytes() + (fw / "src/modules/interface/pptraj.h").read_bytes()
-                       + PPTRAJ_CDEF.encode() + PPTRAJ_SOURCE.encode() + repr(FW_FLAGS).encode())
+    key = content_hash([src.read_bytes(), (fw / "src/modules/interface/pptraj.h").read_bytes(), PPTRAJ_CDEF,
+                        PPTRAJ_SOURCE, repr(FW_FLAGS)], 18)
 
     def build(tmp: Path, name: str) -> None:
         ffi = FFI()
@@ -204,4 +203,4 @@ def load_pptraj():
                        libraries=["m"], extra_compile_args=[*FW_FLAGS, "-ffp-contract=off"])
         ffi.compile(tmpdir=str(tmp), verbose=False)
 
-    return _module("pptraj_" + h.hexdigest()[:18], "_ns2_pptraj", build)
+    return _module("pptraj_" + key, "_ns2_pptraj", build)

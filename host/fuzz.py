@@ -12,16 +12,14 @@ contract check or failed recovery check ends the run with a non-zero status.
 from __future__ import annotations
 
 import argparse
-import hashlib
 import json
 import os
 import subprocess
 import sys
-import tempfile
 import time
 from pathlib import Path
 
-from .cbuild import BUILD_ROOT, GENERATED, REPO, BuildError, compile_error, flags, host_cc
+from .cbuild import BUILD_ROOT, GENERATED, REPO, BuildError, cached, compile_error, content_hash, flags, host_cc
 
 DRIVER = REPO / "fuzz" / "ns2_fuzz.c"
 TARGETS = ("infer", "sliced", "peers", "ctrl", "adapt", "hil")
@@ -48,21 +46,15 @@ def build(gen_dir: str | Path) -> Path:
     headers = sorted((REPO / "firmware").glob("*/*.h")) + [gen_dir / g for g in GENERATED + ("ns2_vehicles.h",)]
     cmd_flags = [*f["NS2_STD_FLAGS"], *f["NS2_WARN_FLAGS"], *SANITIZE,
                  *[f"-I{REPO / i}" for i in f["NS2_INCLUDES"]], f"-I{gen_dir}"]
-    h = hashlib.sha256(repr(cmd_flags).encode() + host_cc().encode())
-    for p in sources + headers:
-        h.update(p.name.encode() + p.read_bytes())
-    exe = BUILD_ROOT.parent / "fuzz" / h.hexdigest()[:20] / "ns2_fuzz"
-    if exe.is_file():
-        return exe
-    exe.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(dir=exe.parent, prefix=".tmp-")) / "ns2_fuzz"
-    cmd = [host_cc(), *cmd_flags, *map(str, sources), "-o", str(tmp), "-lm"]
-    r = subprocess.run(cmd, capture_output=True, text=True)
-    if r.returncode != 0:
-        raise compile_error("the fuzz driver", cmd, r)
-    os.replace(tmp, exe)
-    tmp.parent.rmdir()
-    return exe
+    exe = BUILD_ROOT.parent / "fuzz" / content_hash([repr(cmd_flags), host_cc(), *sources, *headers], 20) / "ns2_fuzz"
+
+    def build_exe(out: Path) -> None:
+        cmd = [host_cc(), *cmd_flags, *map(str, sources), "-o", str(out / exe.name), "-lm"]
+        r = subprocess.run(cmd, capture_output=True, text=True)
+        if r.returncode != 0:
+            raise compile_error("the fuzz driver", cmd, r)
+
+    return cached(exe, build_exe, product=None)
 
 
 def run(exe: Path, target: str, count: int, seed: int) -> dict:

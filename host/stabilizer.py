@@ -13,16 +13,13 @@ ticks of a 100 Hz period and reports the worst tick of each.
 """
 from __future__ import annotations
 
-import hashlib
-import os
 import subprocess
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
 from . import cfapp, cm4_count, crazyflie
-from .cbuild import BUILD_ROOT, REPO, compile_error, flags
+from .cbuild import BUILD_ROOT, REPO, cached, compile_error, content_hash, flags
 from .target import ARM_CC, TARGET_DIR
 
 FIRMWARE_SOURCES = (
@@ -59,30 +56,26 @@ def build_image(gen_dir: Path, infer: str = "fixed") -> Path:
     units = [(fw / s, ["-DUNIT_TEST_MODE", "-Wno-unused-const-variable"]) for s in FIRMWARE_SOURCES] + \
         [(REPO / "firmware/app/src" / s, app_flags) for s in ("ns2_app.c", "ns2_lib.c")] + \
         [(DRIVER, []), (TARGET_DIR / "startup_cm4.c", [])]
-    h = hashlib.sha256(repr((ARCH_CFLAGS, KBUILD_CFLAGS, app_flags, ARM_CC, ENTRY_POINTS)).encode())
-    for p in [u for u, _ in units] + cfapp.app_inputs(gen_dir) + [TARGET_DIR / "stm32f405.ld",
-                                                                  app / "include/generated/autoconf.h"]:
-        h.update(p.name.encode() + p.read_bytes())
-    out = BUILD_ROOT.parent / "arm" / f"cf_stabilizer-{h.hexdigest()[:16]}.elf"
-    if out.is_file():
-        return out
-    out.parent.mkdir(parents=True, exist_ok=True)
-    with tempfile.TemporaryDirectory() as tmp:
+    key = content_hash([repr((ARCH_CFLAGS, KBUILD_CFLAGS, app_flags, ARM_CC, ENTRY_POINTS)), *[u for u, _ in units],
+                        *cfapp.app_inputs(gen_dir), TARGET_DIR / "stm32f405.ld", app / "include/generated/autoconf.h"], 16)
+    out = BUILD_ROOT.parent / "arm" / f"cf_stabilizer-{key}.elf"
+
+    def build(tmp: Path) -> None:
         objs = []
         for i, (src, extra) in enumerate(units):
-            obj = Path(tmp) / f"{i}-{src.stem}.o"
+            obj = tmp / f"{i}-{src.stem}.o"
             cmd = [ARM_CC, *ARCH_CFLAGS, *KBUILD_CFLAGS, *extra, *inc, "-g", "-c", str(src), "-o", str(obj)]
             r = subprocess.run(cmd, capture_output=True, text=True)
             if r.returncode != 0:
                 raise compile_error(" ".join(cmd[-3:]), cmd, r)
             objs.append(str(obj))
         cmd = [ARM_CC, *ARCH_CFLAGS, "--specs=nosys.specs", "-nostartfiles", f"-T{TARGET_DIR / 'stm32f405.ld'}",
-               "-Wl,--gc-sections", *[f"-Wl,--undefined={e}" for e in ENTRY_POINTS], *objs, "-lm", "-o", str(Path(tmp) / out.name)]
+               "-Wl,--gc-sections", *[f"-Wl,--undefined={e}" for e in ENTRY_POINTS], *objs, "-lm", "-o", str(tmp / out.name)]
         r = subprocess.run(cmd, capture_output=True, text=True)
         if r.returncode != 0:
             raise compile_error(" ".join(cmd[-3:]), cmd, r)
-        os.replace(Path(tmp) / out.name, out)
-    return out
+
+    return cached(out, build, product=None)
 
 
 MODELS = {"zero_wait": "cycles", "memory": "memory_cycles"}  # cm4_count.Run's two counts
