@@ -264,12 +264,12 @@ def planning_margin(cfg: Config, fm: ForceModel, flights: list, limits: Limits) 
     return _margin(cfg, fm, flights, limits)[0]
 
 
-def measure(cfg: Config, fm: ForceModel, flights: list, limits: Limits, old_margin_g: float | None = None) -> dict:
+def measure(cfg: Config, fm: ForceModel, flights: list, limits: Limits) -> dict:
     """The margin per robot type and its evidence (plan.json's ``margin``): error
     statistics per type and flight kind (and team size beyond a pair), the spectral-norm
     bound and what it gives over the logs' sample spacing, and the closest hovering
     gaps per type pair with this
-    margin, with ``old_margin_g`` and with the largest one-sided error as margin.  The
+    margin and with the largest one-sided error as margin.  The
     margin the planner takes (``margin_g``) is conditioned on the relative speed
     (SPEED_EDGES_MPS, a speed table); ``margin_constant_g`` is the one over all speeds."""
     m, err, by_size = _margin(cfg, fm, flights, limits)
@@ -288,8 +288,6 @@ def measure(cfg: Config, fm: ForceModel, flights: list, limits: Limits, old_marg
             row = {"lower": lower, "upper": upper,
                    "gap_m": closest_gap(cfg, fm, lower, upper, limits.fa_max_g[lower] - pair[lower]["margins_g"][0]),
                    "gap_constant_m": closest_gap(cfg, fm, lower, upper, limits.fa_max_g[lower] - m_const[lower])}
-            if old_margin_g is not None:
-                row["gap_old_m"] = closest_gap(cfg, fm, lower, upper, limits.fa_max_g[lower] - old_margin_g)
             row["gap_largest_low_m"] = closest_gap(cfg, fm, lower, upper, limits.fa_max_g[lower]
                                                    - evidence[lower]["largest_low_rule_g"])
             gaps.append(row)
@@ -301,8 +299,7 @@ def measure(cfg: Config, fm: ForceModel, flights: list, limits: Limits, old_marg
             + ("; per team size n, on the flights of at most n robots" if by_size else ""), "evidence": evidence,
             "errors": {t: error_stats(err[t]["true"], err[t]["pred"], limits.fa_max_g[t]) for t in cfg.robot_types},
             "errors_by_kind": stats, "lipschitz_g_per_unit": lip, "sample_spacing": h,
-            "lipschitz_between_samples_g": {k: v * h / 2 for k, v in lip.items()}, "closest_gaps": gaps,
-            "old_margin_g": old_margin_g}
+            "lipschitz_between_samples_g": {k: v * h / 2 for k, v in lip.items()}, "closest_gaps": gaps}
 
 
 def for_team(m, n: int):
@@ -343,11 +340,11 @@ def margin_table(rep: dict) -> str:
             lines.append(f"| {'' if n is None else f'{n} robots (flights of at most {n}), '}{t} | "
                          + " | ".join(cells) + " |")
     lines += ["", "| lower under upper (hovering) | closest gap, margin at rest | closest gap, margin over all speeds | "
-              "closest gap, old margin | closest gap, margin = largest one-sided error |", "|---|---|---|---|---|"]
+              "closest gap, margin = largest one-sided error |", "|---|---|---|---|"]
     for g in rep["closest_gaps"]:
-        rest, const, old, big = ("-" if g.get(k) is None else "none" if math.isinf(g[k]) else f"{g[k]:.2f} m"
-                                 for k in ("gap_m", "gap_constant_m", "gap_old_m", "gap_largest_low_m"))
-        lines.append(f"| {g['lower']} under {g['upper']} | {rest} | {const} | {old} | {big} |")
+        rest, const, big = ("-" if g.get(k) is None else "none" if math.isinf(g[k]) else f"{g[k]:.2f} m"
+                            for k in ("gap_m", "gap_constant_m", "gap_largest_low_m"))
+        lines.append(f"| {g['lower']} under {g['upper']} | {rest} | {const} | {big} |")
     if rep.get("rounds"):
         per_case = rep.get("calibration_plans_per_case")
         lines += ["", f"Calibration on the NN's own flown plans (seeds {rep['calibration_seeds']}"

@@ -350,7 +350,7 @@ def test_measure_reports_the_margin_by_speed_and_its_tables(cfg):
     V = np.zeros_like(P)
     V[2:, 1, 1] = 0.6                                  # the upper robot passes at 0.6 m/s in the last two states
     F = np.array([[-4.5, 0.0], [-5.4, 0.0], [-1.0, -2.0], [-7.0, -1.0]])
-    rep = measure(cfg, ForceModel(cfg, None), [_flight(P, V, F)], lim, old_margin_g=2.0)
+    rep = measure(cfg, ForceModel(cfg, None), [_flight(P, V, F)], lim)
     assert rep["margin_constant_g"] == {"small": pytest.approx(5.1), "large": 0.0}
     np.testing.assert_allclose(rep["margin_g"]["small"]["margins_g"], [5.1] * 6)     # rest 5.4 g read as 0: 5.1
     assert rep["margin_g"]["large"]["margins_g"] == [0.0] * 6

@@ -11,7 +11,7 @@ from ns2plan.forces import ForceModel
 from ns2plan.problem import RRTParams, SCPParams
 
 from .. import margin
-from .cases import FA_MARGIN_G, LIMITS_3D
+from .cases import LIMITS_3D
 from .runs import fly_plans, plan_pool, trial_rows
 
 
@@ -36,7 +36,7 @@ def measured_margin(cfg: Config, fm: ForceModel, gen_dir, cache=None, log=print,
     flights = margin.held_out_flights(cfg, gen_dir, gap_max=NEAR_GAP_MAX, cache=cache, workers=workers)
     if calibration is not None:
         return calibrated_margin(cfg, fm, gen_dir=gen_dir, held_out=flights, log=log, **calibration)
-    return margin.measure(cfg, fm, flights, LIMITS_3D, old_margin_g=FA_MARGIN_G)
+    return margin.measure(cfg, fm, flights, LIMITS_3D)
 
 
 def calibration_wave(cases: list, seeds, plans: int, done: dict) -> list:
@@ -77,7 +77,7 @@ def calibrated_margin(cfg: Config, fm: ForceModel, checkpoint, gen_dir, held_out
     otherwise) with the ``rounds``; with ``cache`` (.npz) the flown plans are kept
     there (ns2exp.margin.load_flights)."""
     flights, history = list(held_out), []
-    rep = margin.measure(cfg, fm, flights, LIMITS_3D, old_margin_g=FA_MARGIN_G)
+    rep = margin.measure(cfg, fm, flights, LIMITS_3D)
     cases = [(name, d) for d in dims for name in scenarios]
     pool = plan_pool(checkpoint, gen_dir, workers)
     with pool or nullcontext():
@@ -92,7 +92,7 @@ def calibrated_margin(cfg: Config, fm: ForceModel, checkpoint, gen_dir, held_out
                 tasks += wave
                 done += flown
             flights += [fl for _, fl, _ in done if fl is not None]
-            rep = margin.measure(cfg, fm, flights, LIMITS_3D, old_margin_g=FA_MARGIN_G)
+            rep = margin.measure(cfg, fm, flights, LIMITS_3D)
             trials = trial_rows(cfg, tasks, done)
             history.append({"round": r, "margin_g": m, "margin_after_g": rep["margin_g"], "trials": trials})
             ok = [t for t in trials if t["planned"]]

@@ -12,7 +12,7 @@ from ns2codegen.fileio import atomic_write_bytes
 from ns2plan.forces import load_force_model
 
 from ..margin import compare_table, load_flights, margin_table, measure
-from .cases import FA_MARGIN_G, LIMITS_3D
+from .cases import LIMITS_3D
 
 
 def main(argv=None) -> None:
@@ -26,7 +26,7 @@ def main(argv=None) -> None:
     flights = [fl for path in a.flights for fl in load_flights(path)[0]]
     names = [Path(c).parent.name or c for c in a.checkpoints]
     names = names if len(set(names)) == len(names) else list(a.checkpoints)    # one folder: the paths
-    reports = {n: measure(cfg, load_force_model(cfg, c), flights, LIMITS_3D, FA_MARGIN_G)
+    reports = {n: measure(cfg, load_force_model(cfg, c), flights, LIMITS_3D)
                for n, c in zip(names, a.checkpoints)}
     for name, rep in reports.items():
         print(f"## {name}\n\n{margin_table(rep)}\n")
