@@ -183,6 +183,12 @@ $(REAL)/loco-%.json: $(REAL)/all.npz
 # the blind scores: overall, in the wake, per scenario; plain and mass-neutral; both mass conventions
 $(REAL)/blind.json: $(foreach c,$(REAL_COLLECTIONS),$(REAL)/loco-$(c).json) $(REAL)/heldout.json $(REAL)/authors.pt
 	$(NS2) real blind --dir $(REAL) --authors $(REAL)/authors.pt --seeds $(REAL_SEEDS) --out $@
+# on-board adaptation judged on the blind splits (issue 53 item 4, docs/adaptation.md): every robot's
+# flight through the host C's label and adaptation (any export builds it: the held-out network's)
+$(REAL)/adapt-gen/ns2_model_config.h: $(REAL)/heldout.json
+	$(NS2) export $(REAL)/heldout/H-20-seed0.pt --out $(REAL)/adapt-gen --quiet
+$(REAL)/adapt.json: $(REAL)/blind.json $(REAL)/adapt-gen/ns2_model_config.h
+	$(NS2) real adapt --dir $(REAL) --gen $(REAL)/adapt-gen --seeds $(REAL_SEEDS) --quiet --out $@
 # the wake's memory (issue 52): the blind splits with every neighbour's state also 50, 100 and
 # 200 ms ago (model.history_ms), in a folder of their own; by default the blind day only (June 2020
 # left out: 276,468 samples of 2019 to train on); the 2019 days left out train on 3.5x more
@@ -206,7 +212,7 @@ $(REAL)/gen/ns2_model_config.h: $(REAL)/paper.json
 $(REAL)/c_check.json: $(REAL)/gen/ns2_model_config.h
 	$(NS2) real check-c --gen $(REAL)/gen --checkpoint $(REAL)/paper/H-20-seed0.pt --data-dir $(REAL) --out $@
 real: $(REAL)/paper.json $(REAL)/heldout.json $(foreach a,$(REAL_AXES),$(REAL)/ablation-$(a).json) \
-		$(REAL)/authors.json $(REAL)/c_check.json $(REAL)/blind.json $(REAL)/memory.json
+		$(REAL)/authors.json $(REAL)/c_check.json $(REAL)/blind.json $(REAL)/memory.json $(REAL)/adapt.json
 	$(NS2) real report --dir $(REAL) --checkpoint $(REAL)/heldout/H-20-seed0.pt
 
 # The simulator against the real flights (docs/simulator.md, "A simulator as rough as a

@@ -137,6 +137,33 @@ def real_blind(out_dir, authors, seeds, collections, out, as_json):
     _emit(as_json, res, table(res))
 
 
+@real.command("adapt")
+@click.option("--dir", "out_dir", type=click.Path(file_okay=False), default="build/real", show_default=True,
+              help="output folder of `make real` (heldout/, loco-<collection>/, the data sets and their samples)")
+@click.option("--gen", "gen_dir", type=click.Path(file_okay=False), required=True,
+              help="an export (`ns2 export`): its host build runs the adaptation's C (any network)")
+@click.option("--unpack-dir", type=click.Path(file_okay=False), default="build/neural-swarm-data", show_default=True,
+              help="the unpacked logs (`ns2 real data`): the sensors the on-board label is computed from")
+@click.option("--seeds", type=int, default=3, show_default=True, help="networks per split")
+@click.option("--collection", "collections", multiple=True,
+              help="only these collections left out (repeat; default every one)")
+@click.option("--no-held-out", is_flag=True, help="skip the held-out flights (and so the laws chosen on them)")
+@click.option("--out", type=click.Path(dir_okay=False), required=True, help="JSON (and a .md table beside it)")
+@_quiet_option
+@_json_option
+def real_adapt(out_dir, gen_dir, unpack_dir, seeds, collections, no_held_out, out, quiet, as_json):
+    """On-board adaptation judged on the blind splits (issue 53 item 4): every robot's flight
+    through the host C's label and adaptation, static against adapted MSE; the laws tried
+    on the held-out flights, the chosen ones judged on the collections left out; the 3 g test."""
+    from ns2exp.adaptation import adaptation, by_type_table, table, write
+
+    _parent_ok(out)
+    res = adaptation(out_dir, gen_dir, unpack_dir, seeds, collections or None, not no_held_out,
+                     progress=None if quiet else (lambda msg: click.echo(msg, err=True)))
+    write(res, Path(out))
+    _emit(as_json, res, table(res) + "\n\n" + by_type_table(res))
+
+
 @real.command("memory")
 @click.option("--now", "now_path", type=click.Path(dir_okay=False), required=True,
               help="`ns2 real blind` JSON of the networks of the present state")

@@ -30,11 +30,14 @@ tables score): static (NN alone) and adapted (the C's output f = NN + term), pla
 mass-neutral, overall, in the wake (``realscore.WAKE``), per receiving type and per
 scenario, with the labels' masses (``real.toml``, 32.1 / 62.5 g).
 
-Variants: the default law (bias alone), bias + scale (the C with ``scale_max``
-``SCALE_MAX``), and Neural-Fly's last-layer basis psi = [1, rho's last hidden layer]
-(``rls_last_layer``: float64 RLS in Python only, the same gating as the C: it updates
-exactly at the ticks where the C updates), the forgetting factor swept on the held-out
-flights (``FORGETS``) and the one chosen there judged on the collections left out.
+Laws (``variants``): the default (bias alone, the app's parameters), bias + scale (the
+C with ``scale_max`` ``SCALE_MAX``), the forgetting factor (``FORGETS``), the wake
+gated by |NN| > wakeG alone without the app's flag (``WAKE_G``), and Neural-Fly's
+last-layer basis psi = [1, rho's last hidden layer] (``rls_last_layer``: float64 RLS in
+Python only, gated exactly as the C's default run; ``LAST_LAYER``).  Every law runs on
+the held-out flights; the best bias law and the best last-layer law there (plain
+overall MSE) are judged on the collections left out beside the default and bias +
+scale: nothing is chosen on the split it is judged on.
 
 The mass test (``mass_offset``): each robot's config 3 g lighter than the robot (the
 label cfg's mass - 3 g: every on-board label moves by -3 g times the load factor, the
@@ -59,6 +62,8 @@ from .realscore import relabel, score
 
 SCALE_MAX = 0.5
 FORGETS = (0.98, 0.99, 0.995, 0.998, 0.999)
+WAKE_G = (15.0, 5.0, 2.0)      # without the app's flag: a wake is |NN| > wakeG alone
+LAST_LAYER = ((0.995, 1.0), (0.999, 1.0), (0.999, 0.1), (0.999, 0.01), (0.9995, 0.01))   # (forget, p0)
 OFFSET_G, RECOVER_G = 3.0, 0.5
 GOAL = {"held_out_flights": 0.15, "collection_left_out": 0.30}
 
@@ -138,10 +143,10 @@ def label_cfg(cfg, tr: Track, mass_delta_g: float = 0.0) -> LabelCfg:
     return LabelCfg.of_vehicle(veh, h_s=tr.h_s)
 
 
-def replay(gen_dir, cfg, tr: Track, nn_g: np.ndarray, wake: np.ndarray, acfg: AdaptCfg,
-           mass_delta_g: float = 0.0) -> dict:
-    """One track through the host C (label and adaptation): ``nn_g``, ``wake`` per sample
-    of the data set; returns the C's outputs per tick (``ns2host.onboard.run_host``)."""
+def track_ticks(tr: Track, nn_g: np.ndarray, wake: np.ndarray, acfg: AdaptCfg):
+    """The track's ticks for the host C (``ns2host.onboard.Ticks``): ``nn_g``, ``wake``
+    per sample of the data set at the samples' ticks (NN non-finite elsewhere), the
+    reset at take-off."""
     from ns2host import onboard as host
 
     nn = np.full(len(tr), np.nan)
@@ -150,17 +155,26 @@ def replay(gen_dir, cfg, tr: Track, nn_g: np.ndarray, wake: np.ndarray, acfg: Ad
     wk[tr.tick] = wake[tr.samples]
     reset = np.zeros(len(tr), bool)
     reset[0] = True
-    t = host.ticks(tr.vz, tr.z, tr.q, tr.pwm, tr.battery_V, nn, acfg, reset, wk)
-    return host.run_host(gen_dir, label_cfg(cfg, tr, mass_delta_g), t)
+    return host.ticks(tr.vz, tr.z, tr.q, tr.pwm, tr.battery_V, nn, acfg, reset, wk)
 
 
-def rls_last_layer(tr: Track, nn_g: np.ndarray, feats: np.ndarray, c: dict, acfg: AdaptCfg) -> np.ndarray:
+def replay(gen_dir, cfg, tr: Track, nn_g: np.ndarray, wake: np.ndarray, acfg: AdaptCfg,
+           mass_delta_g: float = 0.0) -> dict:
+    """One track through the host C (label and adaptation); returns the C's outputs per
+    tick (``ns2host.onboard.run_host``)."""
+    from ns2host import onboard as host
+
+    return host.run_host(gen_dir, label_cfg(cfg, tr, mass_delta_g), track_ticks(tr, nn_g, wake, acfg))
+
+
+def rls_last_layer(tr: Track, nn_g: np.ndarray, feats: np.ndarray, c: dict, forget: float, p0: float,
+                   fa_max_g: float = AdaptCfg().fa_max_g) -> np.ndarray:
     """Neural-Fly's last-layer basis: f = NN + sat(theta^T [1, h]), h rho's last hidden
-    layer, theta by float64 RLS with forgetting ``acfg.forget`` on the C's label,
-    updated exactly where the C's run ``c`` updated (the same gating: sane label, no
-    wake, history), P = p0 I at take-off, its trace capped at p_max per parameter
-    (scaled down as a whole: P stays positive definite).  Returns f per sample of the
-    track (in ``tr.samples`` order)."""
+    layer, theta by float64 RLS with forgetting ``forget`` on the C's label, updated
+    exactly where the C's run ``c`` updated (the same gating: sane label, no wake,
+    history), P = p0 I at take-off (p0: how far from the trained last layer it may move),
+    its trace capped at 10 p0 per parameter (scaled down as a whole: P stays positive
+    definite).  Returns f per sample of the track (in ``tr.samples`` order)."""
     T = len(tr)
     n = feats.shape[1] + 1
     psi = np.zeros((T, n))
@@ -168,23 +182,25 @@ def rls_last_layer(tr: Track, nn_g: np.ndarray, feats: np.ndarray, c: dict, acfg
     psi[tr.tick, 1:] = feats[tr.samples]
     nn = np.full(T, np.nan)
     nn[tr.tick] = nn_g[tr.samples]
-    theta, P = np.zeros(n), np.eye(n) * acfg.p0
-    lam, cap = float(acfg.forget), acfg.p_max * n
-    upd = (c["adapt_status"] & ADAPT_UPDATED) != 0
-    term = np.zeros(T)
-    for t in range(T):
-        if upd[t]:
-            x = psi[t - 2]
-            Px = P @ x
-            k = Px / (lam + x @ Px)
-            theta += k * (float(c["label_g"][t]) - nn[t - 2] - theta @ x)
-            P = (P - np.outer(k, Px)) / lam
-            P = 0.5 * (P + P.T)
-            tr_p = np.trace(P)
-            if tr_p > cap:
-                P *= cap / tr_p
-        term[t] = theta @ psi[t]
-    term = np.clip(term, -acfg.fa_max_g, acfg.fa_max_g)
+    theta, P = np.zeros(n), np.eye(n) * p0
+    lam, cap = float(forget), 10.0 * p0 * n
+    upd = np.flatnonzero((c["adapt_status"] & ADAPT_UPDATED) != 0)
+    thetas = np.zeros((len(upd), n))
+    for j, t in enumerate(upd):
+        x = psi[t - 2]
+        Px = P @ x
+        k = Px / (lam + x @ Px)
+        theta = theta + k * (float(c["label_g"][t]) - nn[t - 2] - theta @ x)
+        P = (P - np.outer(k, Px)) / lam
+        P = 0.5 * (P + P.T)
+        tr_p = np.trace(P)
+        if tr_p > cap:
+            P *= cap / tr_p
+        thetas[j] = theta
+    # theta in use at each tick: that of the last update at or before it
+    last = np.searchsorted(upd, np.arange(T), side="right") - 1
+    th = np.where((last >= 0)[:, None], thetas[np.maximum(last, 0)] if len(upd) else 0.0, 0.0)
+    term = np.clip(np.einsum("ij,ij->i", th, psi), -fa_max_g, fa_max_g)
     return (nn + term)[tr.tick]
 
 
@@ -247,16 +263,21 @@ class Split:
     """A blind split's data: the data set, its sample table, the scored samples (those
     of ``ns2 real blind``), the robot tracks, the wake flag."""
 
-    def __init__(self, d: Path, key: str, cfg, flights: list, onboard: bool):
+    def __init__(self, ds, info: dict, robot_tracks: list[Track], onboard: bool):
+        self.ds, self.info, self.tracks = ds, info, robot_tracks
+        self.wake = robot_neighbours(ds) > 0
+        ob = info["onboard_g"]
+        self.keep = np.isfinite(ob) & (ob != 0.0) if onboard else np.ones(len(ds), bool)
+
+    @classmethod
+    def load(cls, d: Path, key: str, cfg, flights: list, onboard: bool) -> "Split":
+        """``key.npz`` of ``ns2 real data``'s folder ``d``, its sample table, and its robots'
+        tracks from ``flights`` (every flight read; those of the data set are taken)."""
         from ns2codegen.data.dataset import Dataset
 
-        self.ds = Dataset.load(d / f"{key}.npz")
-        self.info = load_samples(d / f"{key}_samples.npz")
-        names = set(self.info["flight_names"])
-        self.tracks = tracks(cfg, [f for f in flights if f.name in names], self.info)
-        self.wake = robot_neighbours(self.ds) > 0
-        ob = self.info["onboard_g"]
-        self.keep = np.isfinite(ob) & (ob != 0.0) if onboard else np.ones(len(self.ds), bool)
+        ds, info = Dataset.load(d / f"{key}.npz"), load_samples(d / f"{key}_samples.npz")
+        names = set(info["flight_names"])
+        return cls(ds, info, tracks(cfg, [f for f in flights if f.name in names], info), onboard)
 
     def score(self, pred: np.ndarray, label: np.ndarray | None = None, types=None) -> dict:
         k = self.keep
@@ -265,17 +286,23 @@ class Split:
         return score(lab[k], pred[k], sub, self.ds.robot_type[k], types, self.ds.scenario[k],
                      self.ds.scenario_names)
 
-    def run(self, gen_dir, cfg, nn: np.ndarray, acfg: AdaptCfg, feats=None, mass_delta_g: float = 0.0):
-        """The C's adapted prediction per sample (and the last-layer variant's with
-        ``feats``), the C's outputs per track."""
-        out, ll, runs = np.zeros(len(self.ds)), np.zeros(len(self.ds)), []
+    def run(self, gen_dir, cfg, nn: np.ndarray, acfg: AdaptCfg, wake_flag: bool = True,
+            mass_delta_g: float = 0.0) -> tuple[np.ndarray, list]:
+        """The C's adapted prediction per sample and its outputs per track; without
+        ``wake_flag`` the app's wake flag is never raised (only |NN| > wake_g gates)."""
+        out, runs = np.zeros(len(self.ds)), []
+        wake = self.wake if wake_flag else np.zeros(len(self.ds), bool)
         for tr in self.tracks:
-            c = replay(gen_dir, cfg, tr, nn, self.wake, acfg, mass_delta_g)
+            c = replay(gen_dir, cfg, tr, nn, wake, acfg, mass_delta_g)
             out[tr.samples] = c["out_g"][tr.tick]
-            if feats is not None:
-                ll[tr.samples] = rls_last_layer(tr, nn, feats, c, acfg)
             runs.append(c)
-        return out, (ll if feats is not None else None), runs
+        return out, runs
+
+    def last_layer(self, nn: np.ndarray, feats: np.ndarray, runs: list, forget: float, p0: float) -> np.ndarray:
+        out = np.zeros(len(self.ds))
+        for tr, c in zip(self.tracks, runs):
+            out[tr.samples] = rls_last_layer(tr, nn, feats, c, forget, p0)
+        return out
 
 
 def _gain(adapted: dict, static: dict) -> dict:
@@ -293,7 +320,7 @@ def mass_offset(gen_dir, cfg, sp: Split, nn: np.ndarray, base_runs: list, acfg: 
     masses = {t: cfg.vehicle(t)["mass_g"] for t in types}
     lighter = {t: m - OFFSET_G for t, m in masses.items()}
     label = relabel(sp.ds.label_g, sp.info, sp.ds.robot_type, masses, lighter, types)
-    adapted, _, runs = sp.run(gen_dir, cfg, nn, acfg, mass_delta_g=-OFFSET_G)
+    adapted, runs = sp.run(gen_dir, cfg, nn, acfg, mass_delta_g=-OFFSET_G)
     takeoff, step = [], []
     for tr, c0, c1 in zip(sp.tracks, base_runs, runs):
         takeoff.append(recovery_times(tr, c1["term_g"] - c0["term_g"], int(tr.tick[0]), -OFFSET_G, RECOVER_G))
@@ -301,28 +328,41 @@ def mass_offset(gen_dir, cfg, sp: Split, nn: np.ndarray, base_runs: list, acfg: 
         lab = c0["label_g"].copy()
         valid = np.flatnonzero(np.arange(len(tr)) >= mid + 2)       # labels of samples from the step on
         lab[valid] = (lab[valid] - np.float32(OFFSET_G)).astype(np.float32)
-        nn_t = np.full(len(tr), np.nan, np.float32)
-        nn_t[tr.tick] = nn[tr.samples]
-        wk = np.zeros(len(tr), bool)
-        wk[tr.tick] = sp.wake[tr.samples]
-        reset = np.zeros(len(tr), bool)
-        reset[0] = True
-        r = adapt_f32(acfg, nn_t, wk, lab, c0["label_status"], reset)
+        t = track_ticks(tr, nn, sp.wake, acfg)
+        r = adapt_f32(acfg, t.nn_g, t.wake, lab, c0["label_status"], t.reset)
         if not np.array_equal(r["term_g"][:mid + 2].view(np.uint32), c0["term_g"][:mid + 2].view(np.uint32)):
             raise AssertionError(f"{tr.name}: the float32 reference differs from the C before the step")
         step.append(recovery_times(tr, r["term_g"] - c0["term_g"], mid, -OFFSET_G, RECOVER_G))
+    share = [float(sp.wake[tr.samples].mean()) for tr in sp.tracks]
+    some = [i for i, w in enumerate(share) if w < 0.5]
     return {"offset_g": -OFFSET_G, "tolerance_g": RECOVER_G,
             "static": sp.score(nn, label, types), "adapted": sp.score(adapted, label, types),
             "recovery_from_takeoff": _stats(takeoff), "recovery_from_step_mid_flight": _stats(step),
-            "per_robot": {tr.name: {"from_takeoff_s": a, "from_step_s": b}
-                          for tr, a, b in zip(sp.tracks, takeoff, step)}}
+            "flag_under_half_the_time": {"recovery_from_takeoff": _stats([takeoff[i] for i in some]),
+                                         "recovery_from_step_mid_flight": _stats([step[i] for i in some])},
+            "per_robot": {tr.name: {"from_takeoff_s": a, "from_step_s": b, "wake_flag_share": round(w, 3),
+                                    "updates": int(((c["adapt_status"] & ADAPT_UPDATED) != 0).sum())}
+                          for tr, a, b, w, c in zip(sp.tracks, takeoff, step, share, base_runs)}}
+
+
+def variants() -> dict:
+    """name -> ("c", AdaptCfg overrides, app's wake flag) or ("last_layer", forget, p0):
+    every law tried on the held-out flights."""
+    v = {"bias": ("c", {}, True), "bias + scale": ("c", {"scale_max": SCALE_MAX}, True)}
+    v.update({f"bias, no wake flag, wakeG {g}": ("c", {"wake_g": g}, False) for g in WAKE_G})
+    v.update({f"bias, forget {f}": ("c", {"forget": f}, True) for f in FORGETS if f != AdaptCfg().forget})
+    v.update({f"last layer, forget {f}, p0 {p}": ("last_layer", f, p) for f, p in LAST_LAYER})
+    return v
 
 
 def adaptation(data_dir, gen_dir, root, seeds: int = 3, collections=None, held_out: bool = True,
-               last_layer: bool = True, progress=None) -> dict:
+               progress=None) -> dict:
     """The experiment (module docstring) on ``ns2 real data``'s folder ``data_dir`` with
     the blind splits' networks, the logs unpacked under ``root`` and the host build of
-    the export ``gen_dir`` (any export: the adaptation's C does not depend on the network)."""
+    the export ``gen_dir`` (any export: the adaptation's C does not depend on the
+    network).  Every variant runs on the held-out flights; on the collections left out
+    the default, bias + scale, and the best other bias law and last-layer law of the
+    held-out flights (chosen there, judged here)."""
     from ns2codegen.config import Config
 
     from .real import read_collections
@@ -337,59 +377,65 @@ def adaptation(data_dir, gen_dir, root, seeds: int = 3, collections=None, held_o
         raise RealDataError(f"collection {unknown[0]}: not one of {', '.join(c.key for c in COLLECTIONS)}")
     flights, _ = read_collections(cfg, root)
     base = AdaptCfg()
+    every = variants()
     out = {"masses_g": {t: cfg.vehicle(t)["mass_g"] for t in types}, "robot_types": types,
-           "law": base.as_dict(), "scale_max": SCALE_MAX, "forgets": list(FORGETS), "goal": GOAL,
-           "nn": "the checkpoint in float32 (torch), the predictions of ns2 real blind", "splits": {}}
+           "law": base.as_dict(), "variants": {k: list(v[1:]) for k, v in every.items()}, "goal": GOAL,
+           "nn": "the checkpoint in float32 (torch), the predictions of ns2 real blind",
+           "labels": "the host C's on-board label from the logged sensors, masses of real.toml; "
+                     "scored against the data set's labels (the pipeline's, same masses)", "splits": {}}
 
-    def one_split(name, key, ckdir, forgets, onboard, mass_test):
+    def one_split(name, key, ckdir, names, onboard, mass_test):
         ckpts = sorted((d / ckdir).glob("H-20-seed*.pt"))[:seeds]
         if not ckpts:
             raise RealDataError(f"{d / ckdir}: no trained network (make real trains them)")
-        sp = Split(d, key, cfg, flights, onboard)
+        sp = Split.load(d, key, cfg, flights, onboard)
         res = {"samples": int(len(sp.ds)), "scored": int(sp.keep.sum()), "robots": len(sp.tracks),
+               "wake_flag_share": round(float(sp.wake.mean()), 4),
                "checkpoints": [str(c) for c in ckpts], "seeds": []}
         for ck in ckpts:
             say(f"{name}: {ck.name}")
             nn = predictions(ck, sp.ds).astype(np.float32).astype(np.float64)
-            feats = last_hidden(ck, sp.ds) if last_layer else None
-            row = {"static": sp.score(nn, types=types)}
-            adapted, ll, runs = sp.run(gen_dir, cfg, nn, base, feats)
-            row["bias"] = sp.score(adapted, types=types)
-            upd = sum(int((c["adapt_status"] & ADAPT_UPDATED).astype(bool).sum()) for c in runs)
-            row["updates"] = upd
-            if ll is not None:
-                row["last_layer"] = sp.score(ll, types=types)
-            row["bias_scale"] = sp.score(sp.run(gen_dir, cfg, nn, replace(base, scale_max=SCALE_MAX))[0], types=types)
-            row["forget"] = {str(f): sp.score(sp.run(gen_dir, cfg, nn, replace(base, forget=f))[0], types=types)
-                             for f in forgets if f != base.forget}
+            row = {"static": sp.score(nn, types=types), "variants": {}}
+            adapted, runs = sp.run(gen_dir, cfg, nn, base)
+            row["updates"] = sum(int(((c["adapt_status"] & ADAPT_UPDATED) != 0).sum()) for c in runs)
+            feats = None
+            for v in names:
+                kind, *par = every[v]
+                if v == "bias":
+                    pred = adapted
+                elif kind == "c":
+                    pred = sp.run(gen_dir, cfg, nn, replace(base, **par[0]), wake_flag=par[1])[0]
+                else:
+                    feats = last_hidden(ck, sp.ds) if feats is None else feats
+                    pred = sp.last_layer(nn, feats, runs, *par)
+                row["variants"][v] = sp.score(pred, types=types)
             if mass_test:
                 row["mass_offset"] = mass_offset(gen_dir, cfg, sp, nn, runs, base, types)
-            row["gain"] = {v: _gain(row[v], row["static"]) for v in ("bias", "bias_scale", "last_layer") if v in row}
-            row["gain"].update({f"forget {f}": _gain(s, row["static"]) for f, s in row["forget"].items()})
+            row["gain"] = {v: _gain(s, row["static"]) for v, s in row["variants"].items()}
             res["seeds"].append(row)
         return res
 
+    chosen = []
     if held_out:
         info = load_samples(d / "heldout_samples.npz")
         june = all(n.startswith(ONBOARD_COLLECTION) for n in info["flight_names"])
-        out["splits"]["held_out_flights"] = one_split("held-out flights", "heldout", "heldout", FORGETS, june, True)
-        out["chosen_forget"] = choose_forget(out["splits"]["held_out_flights"])
-    chosen = out.get("chosen_forget")
+        held = one_split("held-out flights", "heldout", "heldout", list(every), june, True)
+        out["splits"]["held_out_flights"] = held
+        out["chosen_on_held_out_flights"] = chosen = choose(held, every)
     for key in keys:
-        fg = [chosen] if chosen is not None and chosen != base.forget else []
+        names = ["bias", "bias + scale"] + [c for c in chosen if c not in ("bias", "bias + scale")]
         out["splits"][f"collection {key} left out"] = one_split(
-            f"{key} left out", f"c-{key}", f"loco-{key}", fg, key == ONBOARD_COLLECTION, False)
+            f"{key} left out", f"c-{key}", f"loco-{key}", names, key == ONBOARD_COLLECTION, False)
     out["verdict"] = verdict(out)
     return out
 
 
-def choose_forget(split: dict) -> float:
-    """The forgetting factor with the lowest mean plain overall MSE over the seeds on this
-    split (the held-out flights: never the split it is judged on)."""
-    def mean_of(f):
-        rows = [r["bias"] if f == AdaptCfg().forget else r["forget"][str(f)] for r in split["seeds"]]
-        return float(np.mean([r["plain"] for r in rows]))
-    return min(FORGETS, key=mean_of)
+def choose(split: dict, every: dict) -> list[str]:
+    """On this split (the held-out flights: never the one it is judged on), the bias law
+    and the last-layer law with the lowest mean plain overall MSE over the seeds."""
+    def mean_of(v):
+        return float(np.mean([r["variants"][v]["plain"] for r in split["seeds"]]))
+    return [min((v for v in every if every[v][0] == kind), key=mean_of) for kind in ("c", "last_layer")]
 
 
 def verdict(res: dict) -> dict:
@@ -419,27 +465,22 @@ def _pct(xs) -> str:
 
 
 def table(res: dict) -> str:
-    """Markdown: per split, static and each variant's MSE (mean +- std over seeds) and
-    the gain of each seed."""
+    """Markdown: per split, static and each law's MSE (mean +- std over seeds) and how
+    much lower than static it is (mean, and per seed)."""
     names = {"held_out_flights": "whole held-out flights"}
     lines = ["| split | law | overall plain | overall mass-neutral | wake plain | wake mass-neutral | "
-             "lower than static, overall plain (per seed) | wake plain | wake mass-neutral |",
+             "lower than static: overall plain (per seed) | wake plain | wake mass-neutral |",
              "|---|---|---|---|---|---|---|---|---|"]
     for name, s in res["splits"].items():
         rows = s["seeds"]
-        variants = ["static", "bias", "bias_scale", "last_layer"] + [f"forget {f}" for f in rows[0]["forget"]]
-        for v in variants:
-            get = (lambda r: r["forget"][v.split()[1]]) if v.startswith("forget") else (lambda r: r.get(v))
-            if get(rows[0]) is None:
-                continue
-            sc = [get(r) for r in rows]
+        for v in ["static"] + list(rows[0]["variants"]):
+            sc = [r["static"] if v == "static" else r["variants"][v] for r in rows]
             cells = [_m([x["plain"] for x in sc]), _m([x["neutral"] for x in sc]),
                      _m([x["wake"]["plain"] for x in sc]), _m([x["wake"]["neutral"] for x in sc])]
             gains = ["", "", ""] if v == "static" else \
                 [_pct([r["gain"][v][k] for r in rows]) for k in ("overall_plain", "wake_plain", "wake_neutral")]
-            label = {"static": "static (NN alone)", "bias": "bias (default)", "bias_scale": f"bias + scale "
-                     f"(scaleMax {res['scale_max']})", "last_layer": "last-layer basis (Python float64)"}.get(v, v)
-            lines.append(f"| {names.get(name, name)} | {label} | " + " | ".join(cells) + " | " + " | ".join(gains) + " |")
+            label = {"static": "static (NN alone)", "bias": "bias (the default law)"}.get(v, v)
+            lines.append(f"| {names.get(name, name)} | {label} | " + " | ".join(cells + gains) + " |")
     return "\n".join(lines)
 
 
@@ -454,11 +495,11 @@ def by_type_table(res: dict) -> str:
         cells = []
         for t in types:
             st = np.mean([r["static"]["wake_by_type"][t]["plain"] or np.nan for r in rows])
-            ad = np.mean([r["bias"]["wake_by_type"][t]["plain"] or np.nan for r in rows])
+            ad = np.mean([r["variants"]["bias"]["wake_by_type"][t]["plain"] or np.nan for r in rows])
             cells.append(f"{st:.2f} / {ad:.2f}")
         sc = rows[0]["static"]["scenario"]
         per = ", ".join(f"{k} {np.mean([r['static']['scenario'][k]['plain'] for r in rows]):.1f} / "
-                        f"{np.mean([r['bias']['scenario'][k]['plain'] for r in rows]):.1f}" for k in sc)
+                        f"{np.mean([r['variants']['bias']['scenario'][k]['plain'] for r in rows]):.1f}" for k in sc)
         lines.append(f"| {name} | " + " | ".join(cells) + f" | {per} |")
     return "\n".join(lines)
 

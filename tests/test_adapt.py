@@ -217,18 +217,24 @@ REAL_MEMBERS = [f"{COLLECTION}/{f}" for f in ("swap_sl/cf51_04", "swap_sl/cf101_
 
 
 @pytest.fixture(scope="module")
-def real_robots(cfg):
-    """(label config, Ticks with the on-board prediction flown as NN, the pipeline's f_a,z in N)
-    of every labelled robot of two real 16 June 2020 flights (swap_sl, swap_lll)."""
-    from ns2codegen.data.from_logs import labelled_steps
+def real_flights(cfg):
+    """Two real 16 June 2020 flights (swap_sl/04, swap_lll/01), aligned and cut into pieces."""
     from ns2codegen.logs.align import logs_to_flights
     from ns2codegen.logs.collection import write_manifest
 
     root = real_logs(SWAPS, REAL_MEMBERS)
     write_manifest(root)
-    flights, _ = logs_to_flights(cfg, root)
+    return logs_to_flights(cfg, root)[0]
+
+
+@pytest.fixture(scope="module")
+def real_robots(cfg, real_flights):
+    """(label config, Ticks with the on-board prediction flown as NN, the pipeline's f_a,z in N)
+    of every labelled robot of the two real flights."""
+    from ns2codegen.data.from_logs import labelled_steps
+
     out = []
-    for fl, i, steps, fa in labelled_steps(cfg, flights):
+    for fl, i, steps, fa in labelled_steps(cfg, real_flights):
         h = float(np.median(np.diff(fl.t)))
         lc = label_cfg(cfg, fl.types[i], h_s=h)
         nn = fl.fa_onboard_g[:, i] if fl.fa_onboard_g is not None else np.zeros(len(fl.t))
@@ -280,3 +286,72 @@ def test_cycle_counts_of_one_update_on_the_cortex_m4(cfg, exported):
     runs = budget.adapt_runs(exported.gen_dir, cfg)
     assert runs["adapt_step_update"].cycles > runs["adapt_step_wake"].cycles > 0
     assert 0 < runs["label_step"].memory_cycles + runs["adapt_step_update"].memory_cycles < 10_000
+
+
+@needs(REAL_DATA)
+def test_replay_of_real_flights_for_the_judgement(cfg, exported, real_flights):
+    """experiments/adaptation.py's replay (issue 53 item 4) on the two real flights: every
+    sample once, each robot's in time order, its flight's pieces joined by one non-finite
+    tick that restarts the label and NN history and holds theta; the take-off reset; the C
+    bit for bit the float32 reference across the joins; a robot 3 g heavier than its
+    config recovers, found by the recovery detection, unless the wake flag never lets it learn."""
+    from ns2codegen.data.from_logs import flights_to_dataset, sample_info
+    from ns2exp import adaptation as ad
+    from ns2exp.real import RealDataError
+
+    ds, info = flights_to_dataset(cfg, real_flights), sample_info(cfg, real_flights)
+    trs = ad.tracks(cfg, real_flights, info)
+    assert np.array_equal(np.sort(np.concatenate([t.samples for t in trs])), np.arange(len(ds)))
+    for t in trs:
+        assert np.array_equal(t.t_s[t.tick], info["t_s"][t.samples]) and (np.diff(t.t_s[t.tick]) > 0).all()
+        assert len(set(info["robot"][t.samples])) == 1
+    with pytest.raises(RealDataError):
+        ad.tracks(cfg, real_flights[::-1], info)           # not the data set's order: refused
+    nn = np.nan_to_num(info["onboard_g"])
+    sp = ad.Split(ds, info, trs, onboard=False)
+    acfg = AdaptCfg()
+    adapted, runs = sp.run(exported.gen_dir, cfg, nn, acfg)
+    joined = [(t, c) for t, c in zip(trs, runs) if np.isnan(t.vz).any()]
+    assert joined                                           # swap_sl/04 is cut into three pieces
+    for t, c in joined:
+        assert_bits(c, reference(ad.label_cfg(cfg, t), ad.track_ticks(t, nn, sp.wake, acfg)))
+        for j in np.flatnonzero(np.isnan(t.vz)):
+            assert c["label_status"][j] == ob.LABEL_BAD_INPUT and c["adapt_status"][j] == ob.ADAPT_BAD_INPUT
+            assert np.array_equal(c["theta"][j - 1], c["theta"][j + 4])   # held until the label is warm again
+            assert not (c["adapt_status"][j:j + 5] & ob.ADAPT_UPDATED).any()
+    for t, c in zip(trs, runs):
+        first = t.tick[0]
+        assert first == 2 and c["updates"][first] == 0 and adapted[t.samples[0]] == np.float32(nn[t.samples[0]])
+        upd = np.flatnonzero(c["adapt_status"] & ob.ADAPT_UPDATED)
+        flagged = np.zeros(len(t), bool)
+        flagged[t.tick] = sp.wake[t.samples]
+        assert not flagged[upd - 2].any()                    # never learns from a flagged tick
+    m = ad.mass_offset(exported.gen_dir, cfg, sp, nn, runs, acfg, cfg.robot_types)
+    assert m["adapted"]["plain"] < m["static"]["plain"]
+    assert sum(r["wake_flag_share"] < 0.5 for r in m["per_robot"].values()) >= 1
+    for name, r in m["per_robot"].items():
+        if r["wake_flag_share"] < 0.5:
+            assert r["from_takeoff_s"] is not None and r["from_takeoff_s"] < 3.0, name
+            assert r["from_step_s"] is not None and r["from_step_s"] < 15.0, name
+        if r["updates"] == 0:
+            assert r["from_takeoff_s"] is None, name
+
+
+def test_recovery_detection():
+    """The time until the adapted terms' difference is within the tolerance of the offset
+    for good: 2 ln 6 s for an exponential approach with a 2 s time constant; None when it
+    leaves the band again at the end; from a step, counted from the step."""
+    from ns2exp import adaptation as ad
+
+    n = 2000
+    t_s = np.arange(n) * 0.01
+    tr = ad.Track("x", "small", 0.01, *(np.zeros(n),) * 2, np.zeros((n, 4)), np.zeros((n, 4)), np.zeros(n),
+                  np.arange(n), np.arange(n), t_s)
+    d = -3.0 * (1 - np.exp(-t_s / 2.0))
+    assert abs(ad.recovery_times(tr, d, 0, -3.0, 0.5) - 2 * np.log(6)) <= 0.011
+    assert ad.recovery_times(tr, np.where(t_s > 19.0, 0.0, d), 0, -3.0, 0.5) is None
+    late = np.where(t_s < 5.0, 0.0, -3.0 * (1 - np.exp(-(t_s - 5.0) / 2.0)))
+    assert abs(ad.recovery_times(tr, late, 500, -3.0, 0.5) - 2 * np.log(6)) <= 0.011
+    wobble = d.copy()
+    wobble[1500] = 0.0                                        # out of the band once, late: counted from after it
+    assert abs(ad.recovery_times(tr, wobble, 0, -3.0, 0.5) - 15.01) <= 1e-9
