@@ -24,7 +24,7 @@ def real():
               help="data sets (all, train, heldout .npz), held-out queries, real.toml, data_report.json")
 @click.option("--history-ms", default="", show_default=True,
               help="comma list of lags (ms): every neighbour row also holds its state that long ago "
-                   "(model.history_ms, the wake-memory experiment; no C export)")
+                   "(model.history_ms, the wake memory; the held-out queries carry the lags for check-c)")
 @_quiet_option
 @_json_option
 def real_data(shared, unpack_dir, out_dir, history_ms, quiet, as_json):

@@ -302,21 +302,35 @@ def cut_summary(reports: list[dict]) -> dict:
             "used_s": round(sum(r["used_samples"] for r in reports) / 100.0, 2)}
 
 
+QUERY_FIELDS = ("robot_type", "p", "v", "n", "nbr_type", "nbr_rel", "past")
+
+
 def save_queries(path: Path, q: Queries) -> None:
-    """The held-out samples as the C API receives them (``flight_queries``), for the C in the loop."""
+    """The held-out samples as the C API receives them (``flight_queries``), for the C in
+    the loop; with ``model.history_ms`` the lagged states and the robots' own past too."""
     import io
 
     buf = io.BytesIO()
-    np.savez(buf, **{k: getattr(q, k) for k in ("robot_type", "p", "v", "n", "nbr_type", "nbr_rel")})
+    np.savez(buf, **{k: getattr(q, k) for k in QUERY_FIELDS})
     atomic_write_bytes(path, buf.getvalue())
 
 
 def load_queries(path: str | Path) -> Queries:
+    """A query file of ``save_queries`` (one written before the wake memory has no
+    ``past``: a present-state query set)."""
     try:
         with np.load(path, allow_pickle=False) as z:
-            return Queries(*(z[k] for k in ("robot_type", "p", "v", "n", "nbr_type", "nbr_rel")))
+            return Queries(*(z[k] for k in QUERY_FIELDS[:-1]), z["past"] if "past" in z.files else None)
     except (OSError, KeyError, ValueError) as e:
         raise RealDataError(f"{path}: not a query file of `ns2 real data` ({e})") from None
+
+
+def _same_history(queries: Queries, cfg: Config, what) -> None:
+    """The queries carry the lags the model sees (``model.history_ms``), else a one-line error."""
+    if queries.lags != len(cfg.history_ms) or queries.nbr_rel.shape[-1] != cfg.input_dim:
+        raise RealDataError(f"{what}: model.history_ms {cfg.history_ms} but the queries have {queries.lags} history "
+                            f"lags: make the data with the same lags (`ns2 real data --history-ms "
+                            f"{','.join(map(str, cfg.history_ms)) or '<none>'}`)")
 
 
 def c_in_the_loop(gen_dir: str | Path, checkpoint: str | Path, queries: Queries, labels_g: np.ndarray) -> dict:
@@ -329,6 +343,7 @@ def c_in_the_loop(gen_dir: str | Path, checkpoint: str | Path, queries: Queries,
     from ns2host.cbuild import CModel
 
     em = from_checkpoint(load_checkpoint(checkpoint))
+    _same_history(queries, em.cfg, checkpoint)
     cm = CModel(gen_dir)
     c_f, info_f = cm.predict(queries, fixed=False)
     c_q, info_q = cm.predict(queries, fixed=True)
@@ -502,13 +517,25 @@ def score(checkpoint: str | Path, data_dir: str | Path) -> dict:
 
 def selection_mismatches(gen_dir: str | Path, queries: Queries, ds) -> dict:
     """Issue 29 on the whole collection: the data set's neighbour count of every sample
-    against the C's selection (host build, ``info.n_used``) for the same sample."""
+    against the C's selection (host build, ``info.n_used``) for the same sample; and the
+    data set's rows (with ``model.history_ms`` the lagged states too) against the inputs
+    the C feeds to phi (``reference.phi_rows``), bit for bit."""
+    from ns2codegen.export import export_config
+    from ns2codegen.reference import phi_rows
     from ns2host.cbuild import CModel
 
+    cfg = export_config(gen_dir)
+    _same_history(queries, cfg, gen_dir)
     _, info = CModel(gen_dir).predict(queries, fixed=True)
     ours = np.diff(ds.nbr_offsets) - 1
     if len(ours) != len(queries):
         raise RealDataError(f"{len(queries)} queries for {len(ours)} samples: not the same flights")
     bad = info["n_used"].astype(np.int64) != ours
+    sample, types, x = phi_rows(cfg, queries)
+    same_rows = np.array_equal(sample, np.repeat(np.arange(len(ours)), np.diff(ds.nbr_offsets))) and \
+        np.array_equal(types, ds.nbr_type) and x.shape == ds.nbr_state.shape
+    rows_bad = int((x.view(np.uint32) != ds.nbr_state.view(np.uint32)).any(1).sum()) if same_rows \
+        else len(ds.nbr_type)
     return {"samples": len(queries), "mismatches": int(bad.sum()),
-            "neighbours_used": int(ours.sum()), "status_nonzero": int((info["status"] != 0).sum())}
+            "neighbours_used": int(ours.sum()), "status_nonzero": int((info["status"] != 0).sum()),
+            "input_rows": len(ds.nbr_type), "input_row_mismatches": rows_bad}

@@ -16,7 +16,7 @@ import numpy as np
 import torch
 
 from .queries import Queries
-from .selection import clamp, env_state, membership
+from .selection import boxes_f32, clamp, env_input, membership, volumes_f32
 
 ERR_ROBOT_TYPE, ERR_STATE = -1, -2
 INT32_MAX = 2**31 - 1
@@ -43,10 +43,26 @@ def select(m, q: Queries) -> Selection:
     ok = status == 0
     valid, inside, accepted = membership(m.volumes, q.robot_type, q.nbr_type, q.nbr_rel, given & ok[:, None], k,
                                          m.max_neighbors)
-    x_env = clamp(np.concatenate([env_state(q.p, q.v), -q.past.reshape(len(q), -1)], 1), m.boxes[m.env_index])
+    x_env = clamp(env_input(q.p, q.v, q.past), m.boxes[m.env_index])
     cnt = lambda a: np.where(ok, a.sum(1), 0).astype(np.int64)  # noqa: E731
     return Selection(status, accepted, cnt(given & ok[:, None] & ~valid), cnt(valid & ~inside),
                      cnt(inside & ~accepted), x_env)
+
+
+def phi_rows(cfg, q: Queries) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Every clamped input the C feeds to phi for queries of valid robots (real flights),
+    ordered as a data set's rows: by query, then neighbour type (environment last), then
+    array order.  Returns (query index, neighbour type, input [rows, input_dim])."""
+    boxes = boxes_f32(cfg)
+    _, _, acc = membership(volumes_f32(cfg), q.robot_type, q.nbr_type, q.nbr_rel, q.given(), cfg.num_robot_types,
+                           cfg.model["max_neighbors"])
+    ts, ss = np.nonzero(acc)
+    types = q.nbr_type[ts, ss].astype(np.int64)
+    sample = np.concatenate([ts, np.arange(len(q))])
+    ty = np.concatenate([types, np.full(len(q), cfg.env_index)])
+    x = np.concatenate([clamp(q.nbr_rel[ts, ss], boxes[types]), clamp(env_input(q.p, q.v, q.past), boxes[cfg.env_index])])
+    order = np.lexsort((ty, sample))  # stable: array order within a type
+    return sample[order], ty[order], x[order]
 
 
 # ---------------------------------------------------------------- float32 reference

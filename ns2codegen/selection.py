@@ -44,6 +44,16 @@ def env_state(p_i, v_i) -> np.ndarray:
     return -np.concatenate([np.asarray(p_i, np.float32), np.asarray(v_i, np.float32)], -1)
 
 
+def env_input(p_i, v_i, past=None) -> np.ndarray:
+    """The environment's phi input [-p_i; -v_i] [..., 6], then the robot's own past
+    negated ([..., lags, 6] of [p; v] at each lag, ``model.history_ms``), unclamped."""
+    now = env_state(p_i, v_i)
+    if past is None or np.shape(past)[-2] == 0:
+        return now
+    past = np.asarray(past, np.float32)
+    return np.concatenate([now, -past.reshape(*past.shape[:-2], -1)], -1)
+
+
 def clamp(x: np.ndarray, box: np.ndarray) -> np.ndarray:
     """x < lo ? lo : (x > hi ? hi : x), elementwise with box [..., 6, 2] (float32); x of
     6 (1 + lags) values (``model.history_ms``): every 6-block to the same box, as the C."""

@@ -191,25 +191,40 @@ def test_collection_manifest_covers_every_log():
     assert text.count("[[flight]]") == 2 and 'id = "cf100", label = false' in text
 
 
-def test_selection_of_the_data_equals_the_c_on_real_flights(swaps, cfg, exported):
+@pytest.fixture(scope="module", params=["exported", "history"])
+def model(request):
+    """The default network, then the one with wake memory (conftest.history)."""
+    return request.getfixturevalue(request.param)
+
+
+def test_selection_of_the_data_equals_the_c_on_real_flights(swaps, model):
     """Issue 29: the neighbour sets written to the data set equal the C's selection
-    (host build of ns2_select.c) sample for sample on real flights."""
+    (host build of ns2_select.c) sample for sample on real flights, and the data set's
+    rows (with wake memory: the lagged states too) the inputs the C feeds to phi."""
+    from ns2exp.real import selection_mismatches
     from ns2host.cbuild import CModel
 
     _manifest(swaps, LLL, ["cf100", "cf101", "cf102"], ["large"] * 3)
-    flights, _ = logs_to_flights(exported.cfg, swaps)
-    ds = flights_to_dataset(exported.cfg, flights)
-    q = flight_queries(exported.cfg, flights)
-    _, info = CModel(exported.gen_dir).predict(q, fixed=False)
+    flights, _ = logs_to_flights(model.cfg, swaps)
+    ds = flights_to_dataset(model.cfg, flights)
+    q = flight_queries(model.cfg, flights)
+    _, info = CModel(model.gen_dir).predict(q, fixed=False)
     ours = np.diff(ds.nbr_offsets) - 1
     assert len(q) == len(ds) > 1000
     assert np.array_equal(info["n_used"].astype(np.int64), ours)
     assert np.array_equal(info["status"], np.zeros(len(q), np.int32))
+    res = selection_mismatches(model.gen_dir, q, ds)
+    assert res["mismatches"] == 0 and res["input_row_mismatches"] == 0 and res["input_rows"] == len(ds.nbr_type)
+    assert ds.nbr_state.shape[1] == model.cfg.input_dim
+    if model.cfg.history_ms:   # the rows differ where the past differs: the check can fail
+        q.nbr_rel[:, :, 6:] += np.float32(0.01)
+        assert selection_mismatches(model.gen_dir, q, ds)["input_row_mismatches"] > 1000
 
 
-def test_c_in_the_loop_on_real_samples_and_the_held_out_rule(swaps, cfg, exported):
+def test_c_in_the_loop_on_real_samples_and_the_held_out_rule(swaps, cfg, model):
     """Issue 22 item 6 on a real flight: every sample through the exported C, float and
-    fixed point, equals the references bit for bit."""
+    fixed point, equals the references bit for bit (with wake memory too)."""
+    exported = model
     from ns2exp.real import c_in_the_loop, is_held_out
 
     _manifest(swaps, LLL, ["cf100", "cf101", "cf102"], ["large"] * 3, labels=[False, True, True])
@@ -219,6 +234,10 @@ def test_c_in_the_loop_on_real_samples_and_the_held_out_rule(swaps, cfg, exporte
     assert res["samples"] == len(ds) > 1000
     assert res["float_mismatches"] == 0 and res["fixed_mismatches"] == 0 and res["status_nonzero"] == 0
     assert 0 < res["abs_fixed_minus_float_g"]["max"] < 1.0
+    if exported.cfg.history_ms:  # present-state queries (a data folder made without the lags): refused
+        from ns2exp.real import RealDataError
+        with pytest.raises(RealDataError, match=r"model.history_ms \[50, 100, 200\] but the queries have 0"):
+            c_in_the_loop(exported.gen_dir, exported.checkpoint, flight_queries(cfg, flights), ds.label_g)
     names = [f"swap_ss/{k:02d}" for k in range(11)] + ["takeoff_l/cf102_00"]
     held = [n for n in names if is_held_out(n, names)]
     assert held == ["swap_ss/02", "swap_ss/07"]

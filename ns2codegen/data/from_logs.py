@@ -71,6 +71,12 @@ def lag_steps(fl: Flight, history_ms: list[int]) -> list[int]:
     return [max(1, int(round(ms * 1e-3 / h))) for ms in history_ms]
 
 
+def past_steps(cfg: Config, fl: Flight, steps: np.ndarray) -> list[np.ndarray]:
+    """The samples ``model.history_ms`` before ``steps``, one array per lag: the flight
+    piece's first sample where the piece is younger than the lag."""
+    return [np.maximum(steps - lag, 0) for lag in lag_steps(fl, cfg.history_ms)]
+
+
 def neighbor_rows(cfg: Config, fl: Flight, i: int, steps: np.ndarray):
     """The neighbour rows of robot i at time steps ``steps`` as the drone forms them
     (``ns2codegen.selection``: float32 relative states, the C's volume test, order
@@ -87,8 +93,7 @@ def neighbor_rows(cfg: Config, fl: Flight, i: int, steps: np.ndarray):
     ts, ss = np.nonzero(acc)                                                   # by time, then slot order
     rob = [clamp(rel[ts, ss], boxes[ntype[ts, ss]])]
     env = [clamp(env_state(fl.p[steps, i], fl.v[steps, i]), boxes[cfg.env_index])]
-    for lag in lag_steps(fl, cfg.history_ms):
-        past = np.maximum(steps - lag, 0)
+    for past in past_steps(cfg, fl, steps):
         _, rel_past = candidates(cfg, fl, i, past)
         rob.append(clamp(rel_past[ts, ss], boxes[ntype[ts, ss]]))
         env.append(clamp(env_state(fl.p[past, i], fl.v[past, i]), boxes[cfg.env_index]))
@@ -99,13 +104,20 @@ def neighbor_rows(cfg: Config, fl: Flight, i: int, steps: np.ndarray):
 
 def flight_queries(cfg: Config, flights: list[Flight]) -> Queries:
     """The data set's samples (``flights_to_dataset``, same order) as the C API
-    receives them: own state in float32 and every other robot as a neighbour."""
+    receives them: own state in float32 and every other robot as a neighbour; with
+    ``model.history_ms`` every neighbour's x_ij also at each lag and the robot's own
+    [p; v] at each lag (ns2_predict_*_hist), the samples of ``past_steps``."""
     parts = []
     for fl, i, steps, _ in labelled_steps(cfg, flights):
         ntype, rel = candidates(cfg, fl, i, steps)
+        past = past_steps(cfg, fl, steps)
+        rel = np.concatenate([rel] + [candidates(cfg, fl, i, ps)[1] for ps in past], -1)
+        own = np.stack([np.concatenate([fl.p[ps, i], fl.v[ps, i]], -1) for ps in past], 1) if past \
+            else np.zeros((len(steps), 0, 6))
         parts.append(Queries(np.full(len(steps), cfg.robot_types.index(fl.types[i]), np.uint8),
                              fl.p[steps, i].astype(np.float32), fl.v[steps, i].astype(np.float32),
-                             np.full(len(steps), ntype.shape[1], np.int64), ntype.astype(np.uint8), rel))
+                             np.full(len(steps), ntype.shape[1], np.int64), ntype.astype(np.uint8), rel,
+                             own.astype(np.float32)))
     return Queries.concat(parts)
 
 
