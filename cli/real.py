@@ -155,13 +155,13 @@ def real_adapt(out_dir, gen_dir, unpack_dir, seeds, collections, no_held_out, ou
     """On-board adaptation judged on the blind splits (issue 53 item 4): every robot's flight
     through the host C's label and adaptation, static against adapted MSE; the laws tried
     on the held-out flights, the chosen ones judged on the collections left out; the 3 g test."""
-    from ns2exp.adaptation import adaptation, by_type_table, table, write
+    from ns2exp.adaptation import adaptation, tables, write
 
     _parent_ok(out)
     res = adaptation(out_dir, gen_dir, unpack_dir, seeds, collections or None, not no_held_out,
                      progress=None if quiet else (lambda msg: click.echo(msg, err=True)))
     write(res, Path(out))
-    _emit(as_json, res, table(res) + "\n\n" + by_type_table(res))
+    _emit(as_json, res, tables(res))
 
 
 @real.command("memory")

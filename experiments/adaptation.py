@@ -57,7 +57,7 @@ from ns2codegen.logs.collection import COLLECTIONS
 from ns2codegen.onboard import ADAPT_UPDATED, AdaptCfg, LabelCfg, adapt_f32
 
 from .blind import ONBOARD_COLLECTION, load_samples, predictions
-from .real import RealDataError
+from .real import AUTHORS_MASSES_G, RealDataError
 from .realscore import relabel, score
 
 SCALE_MAX = 0.5
@@ -137,9 +137,11 @@ def robot_neighbours(ds) -> np.ndarray:
     return np.bincount(sample_of[robot], minlength=len(ds))
 
 
-def label_cfg(cfg, tr: Track, mass_delta_g: float = 0.0) -> LabelCfg:
+def label_cfg(cfg, tr: Track, mass_delta_g: float | dict = 0.0) -> LabelCfg:
+    """The on-board label's config of the track's robot type, its mass moved by
+    ``mass_delta_g`` (g, or a dict by robot type)."""
     veh = dict(cfg.vehicle(tr.robot_type))
-    veh["mass_g"] = veh["mass_g"] + mass_delta_g
+    veh["mass_g"] = veh["mass_g"] + (mass_delta_g[tr.robot_type] if isinstance(mass_delta_g, dict) else mass_delta_g)
     return LabelCfg.of_vehicle(veh, h_s=tr.h_s)
 
 
@@ -159,7 +161,7 @@ def track_ticks(tr: Track, nn_g: np.ndarray, wake: np.ndarray, acfg: AdaptCfg):
 
 
 def replay(gen_dir, cfg, tr: Track, nn_g: np.ndarray, wake: np.ndarray, acfg: AdaptCfg,
-           mass_delta_g: float = 0.0) -> dict:
+           mass_delta_g: float | dict = 0.0) -> dict:
     """One track through the host C (label and adaptation); returns the C's outputs per
     tick (``ns2host.onboard.run_host``)."""
     from ns2host import onboard as host
@@ -204,9 +206,9 @@ def rls_last_layer(tr: Track, nn_g: np.ndarray, feats: np.ndarray, c: dict, forg
     return (nn + term)[tr.tick]
 
 
-def last_hidden(checkpoint: Path, ds) -> np.ndarray:
+def last_hidden(checkpoint: Path, ds, nn: np.ndarray) -> np.ndarray:
     """rho's last hidden layer (after its ReLU) of every sample, float32 [N, width]; its
-    last linear layer of these equals ``predictions`` (checked)."""
+    last linear layer of these equals the checkpoint's predictions ``nn`` (checked)."""
     import torch
 
     from ns2codegen.checkpoint import load_checkpoint
@@ -234,8 +236,9 @@ def last_hidden(checkpoint: Path, ds) -> np.ndarray:
                     x = torch.relu(layer(x))
                 out[s + rows.numpy()] = x.numpy()
                 pred[s + rows.numpy()] = model.rho[r].layers[-1](x).squeeze(1).numpy()
-    ref = predictions(checkpoint, ds)
-    assert np.allclose(pred, ref, atol=1e-4), float(np.abs(pred - ref).max())
+    if not np.allclose(pred, nn, atol=1e-4):
+        raise AssertionError(f"{checkpoint}: rho's last layer of its last hidden layer is not its prediction "
+                             f"({float(np.abs(pred - nn).max())} g apart)")
     return out
 
 
@@ -287,7 +290,7 @@ class Split:
                      self.ds.scenario_names)
 
     def run(self, gen_dir, cfg, nn: np.ndarray, acfg: AdaptCfg, wake_flag: bool = True,
-            mass_delta_g: float = 0.0) -> tuple[np.ndarray, list]:
+            mass_delta_g: float | dict = 0.0) -> tuple[np.ndarray, list]:
         """The C's adapted prediction per sample and its outputs per track; without
         ``wake_flag`` the app's wake flag is never raised (only |NN| > wake_g gates)."""
         out, runs = np.zeros(len(self.ds)), []
@@ -345,6 +348,18 @@ def mass_offset(gen_dir, cfg, sp: Split, nn: np.ndarray, base_runs: list, acfg: 
                           for tr, a, b, w, c in zip(sp.tracks, takeoff, step, share, base_runs)}}
 
 
+def last_layer_cost(width: int) -> dict:
+    """What the last-layer law would add on board, counted (no C exists): n = width + 1
+    parameters; per update P x (n^2 multiply-adds), x^T P x, the gain, the error and theta
+    (4 n), P's symmetric half (n (n + 1) / 2 multiply-adds and as many scalings by
+    1 / lambda); per tick the term (n); memory P's half, theta and three ticks of psi
+    (the label's delay), float32.  The bias law's own update: a handful of operations."""
+    n = width + 1
+    half = n * (n + 1) // 2
+    return {"parameters": n, "multiply_adds_per_update": n * n + 4 * n + 2 * half, "multiply_adds_per_tick": n,
+            "memory_bytes": 4 * (half + n + 3 * n), "P_floats_symmetric_half": half}
+
+
 def variants() -> dict:
     """name -> ("c", AdaptCfg overrides, app's wake flag) or ("last_layer", forget, p0):
     every law tried on the held-out flights."""
@@ -378,7 +393,9 @@ def adaptation(data_dir, gen_dir, root, seeds: int = 3, collections=None, held_o
     flights, _ = read_collections(cfg, root)
     base = AdaptCfg()
     every = variants()
-    out = {"masses_g": {t: cfg.vehicle(t)["mass_g"] for t in types}, "robot_types": types,
+    masses = {t: cfg.vehicle(t)["mass_g"] for t in types}
+    out = {"masses_g": masses, "other_masses_g": AUTHORS_MASSES_G, "robot_types": types,
+           "last_layer_cost": last_layer_cost(cfg.model["width"]),
            "law": base.as_dict(), "variants": {k: list(v[1:]) for k, v in every.items()}, "goal": GOAL,
            "nn": "the checkpoint in float32 (torch), the predictions of ns2 real blind",
            "labels": "the host C's on-board label from the logged sensors, masses of real.toml; "
@@ -406,9 +423,14 @@ def adaptation(data_dir, gen_dir, root, seeds: int = 3, collections=None, held_o
                 elif kind == "c":
                     pred = sp.run(gen_dir, cfg, nn, replace(base, **par[0]), wake_flag=par[1])[0]
                 else:
-                    feats = last_hidden(ck, sp.ds) if feats is None else feats
+                    feats = last_hidden(ck, sp.ds, nn) if feats is None else feats
                     pred = sp.last_layer(nn, feats, runs, *par)
                 row["variants"][v] = sp.score(pred, types=types)
+            # the authors' masses (32 / 67 g): the on-board label and the scores' labels alike
+            other = relabel(sp.ds.label_g, sp.info, sp.ds.robot_type, masses, AUTHORS_MASSES_G, types)
+            delta = {t: AUTHORS_MASSES_G[t] - masses[t] for t in types}
+            row["other_masses"] = {"static": sp.score(nn, other, types),
+                                   "bias": sp.score(sp.run(gen_dir, cfg, nn, base, mass_delta_g=delta)[0], other, types)}
             if mass_test:
                 row["mass_offset"] = mass_offset(gen_dir, cfg, sp, nn, runs, base, types)
             row["gain"] = {v: _gain(s, row["static"]) for v, s in row["variants"].items()}
@@ -504,8 +526,47 @@ def by_type_table(res: dict) -> str:
     return "\n".join(lines)
 
 
+def other_masses_table(res: dict) -> str:
+    """Markdown: static and the default law with the authors' masses (the on-board label and
+    the scores' labels alike), mean +- std over seeds."""
+    lines = ["| split | static: overall plain | adapted | static: wake plain | adapted | "
+             "lower than static, overall plain (per seed) |", "|---|---|---|---|---|---|"]
+    for name, s in res["splits"].items():
+        rows = [r["other_masses"] for r in s["seeds"]]
+        g = [_gain(r["bias"], r["static"])["overall_plain"] for r in rows]
+        lines.append(f"| {name} | " + " | ".join(
+            _m([r[v][k] if k == "plain" else r[v]["wake"]["plain"] for r in rows])
+            for k in ("plain", "wake") for v in ("static", "bias")) + f" | {_pct(g)} |")
+    return "\n".join(lines)
+
+
+def mass_table(res: dict) -> str:
+    """Markdown: the 3 g test of each seed: MSE with the offset, static / adapted, and the
+    recovery times (all robots; robots whose wake flag is up less than half the time)."""
+    def rec(x):
+        return (f"median {x.get('median_s', '-')} s, 90 % {x.get('p90_s', '-')} s, max {x.get('max_s', '-')} s; "
+                f"never {x['never']} of {x['robots']}")
+    lines = ["| split, seed | overall plain with the offset: static / adapted | recovery from take-off | "
+             "from a step mid-flight | the same, robots flagged < 50 % of the time: take-off | step |",
+             "|---|---|---|---|---|---|"]
+    for name, s in res["splits"].items():
+        for k, r in enumerate(s["seeds"]):
+            m = r.get("mass_offset")
+            if m is None:
+                continue
+            h = m["flag_under_half_the_time"]
+            lines.append(f"| {name}, {k} | {m['static']['plain']:.2f} / {m['adapted']['plain']:.2f} | "
+                         f"{rec(m['recovery_from_takeoff'])} | {rec(m['recovery_from_step_mid_flight'])} | "
+                         f"{rec(h['recovery_from_takeoff'])} | {rec(h['recovery_from_step_mid_flight'])} |")
+    return "\n".join(lines)
+
+
+def tables(res: dict) -> str:
+    return "\n\n".join((table(res), by_type_table(res), other_masses_table(res), mass_table(res)))
+
+
 def write(res: dict, out: Path) -> None:
     from ns2codegen.fileio import atomic_write_bytes
 
     atomic_write_bytes(out, json.dumps(res, indent=1, sort_keys=True).encode())
-    atomic_write_bytes(out.with_suffix(".md"), (table(res) + "\n\n" + by_type_table(res) + "\n").encode())
+    atomic_write_bytes(out.with_suffix(".md"), (tables(res) + "\n").encode())
