@@ -148,17 +148,19 @@ def real_blind(out_dir, authors, seeds, collections, out, as_json):
 @click.option("--collection", "collections", multiple=True,
               help="only these collections left out (repeat; default every one)")
 @click.option("--no-held-out", is_flag=True, help="skip the held-out flights (and so the laws chosen on them)")
+@click.option("--choose-on", default=None,
+              help="with --no-held-out: the collection left out the laws are chosen on (and the 3 g test made)")
 @click.option("--out", type=click.Path(dir_okay=False), required=True, help="JSON (and a .md table beside it)")
 @_quiet_option
 @_json_option
-def real_adapt(out_dir, gen_dir, unpack_dir, seeds, collections, no_held_out, out, quiet, as_json):
+def real_adapt(out_dir, gen_dir, unpack_dir, seeds, collections, no_held_out, choose_on, out, quiet, as_json):
     """On-board adaptation judged on the blind splits (issue 53 item 4): every robot's flight
     through the host C's label and adaptation, static against adapted MSE; the laws tried
     on the held-out flights, the chosen ones judged on the collections left out; the 3 g test."""
     from ns2exp.adaptation import adaptation, tables, write
 
     _parent_ok(out)
-    res = adaptation(out_dir, gen_dir, unpack_dir, seeds, collections or None, not no_held_out,
+    res = adaptation(out_dir, gen_dir, unpack_dir, seeds, collections or None, not no_held_out, choose_on,
                      progress=None if quiet else (lambda msg: click.echo(msg, err=True)))
     write(res, Path(out))
     _emit(as_json, res, tables(res))

@@ -371,13 +371,15 @@ def variants() -> dict:
 
 
 def adaptation(data_dir, gen_dir, root, seeds: int = 3, collections=None, held_out: bool = True,
-               progress=None) -> dict:
+               choose_on: str | None = None, progress=None) -> dict:
     """The experiment (module docstring) on ``ns2 real data``'s folder ``data_dir`` with
     the blind splits' networks, the logs unpacked under ``root`` and the host build of
     the export ``gen_dir`` (any export: the adaptation's C does not depend on the
     network).  Every variant runs on the held-out flights; on the collections left out
     the default, bias + scale, and the best other bias law and last-layer law of the
-    held-out flights (chosen there, judged here)."""
+    held-out flights (chosen there, judged here).  Without the held-out flights, with
+    ``choose_on`` (a collection key) that collection left out takes their place (every
+    law and the 3 g test there, the laws chosen there judged on the others)."""
     from ns2codegen.config import Config
 
     from .real import read_collections
@@ -387,7 +389,7 @@ def adaptation(data_dir, gen_dir, root, seeds: int = 3, collections=None, held_o
     types = cfg.robot_types
     say = progress or (lambda s: None)
     keys = [c.key for c in COLLECTIONS if collections is None or c.key in collections]
-    unknown = sorted(set(collections or ()) - {c.key for c in COLLECTIONS})
+    unknown = sorted((set(collections or ()) | ({choose_on} if choose_on else set())) - {c.key for c in COLLECTIONS})
     if unknown:
         raise RealDataError(f"collection {unknown[0]}: not one of {', '.join(c.key for c in COLLECTIONS)}")
     flights, _ = read_collections(cfg, root)
@@ -429,8 +431,8 @@ def adaptation(data_dir, gen_dir, root, seeds: int = 3, collections=None, held_o
             # the authors' masses (32 / 67 g): the on-board label and the scores' labels alike
             other = relabel(sp.ds.label_g, sp.info, sp.ds.robot_type, masses, AUTHORS_MASSES_G, types)
             delta = {t: AUTHORS_MASSES_G[t] - masses[t] for t in types}
-            row["other_masses"] = {"static": sp.score(nn, other, types),
-                                   "bias": sp.score(sp.run(gen_dir, cfg, nn, base, mass_delta_g=delta)[0], other, types)}
+            moved = sp.run(gen_dir, cfg, nn, base, mass_delta_g=delta)[0]
+            row["other_masses"] = {"static": sp.score(nn, other, types), "bias": sp.score(moved, other, types)}
             if mass_test:
                 row["mass_offset"] = mass_offset(gen_dir, cfg, sp, nn, runs, base, types)
             row["gain"] = {v: _gain(s, row["static"]) for v, s in row["variants"].items()}
@@ -443,8 +445,18 @@ def adaptation(data_dir, gen_dir, root, seeds: int = 3, collections=None, held_o
         june = all(n.startswith(ONBOARD_COLLECTION) for n in info["flight_names"])
         held = one_split("held-out flights", "heldout", "heldout", list(every), june, True)
         out["splits"]["held_out_flights"] = held
-        out["chosen_on_held_out_flights"] = chosen = choose(held, every)
+        out["chosen_on"] = "held_out_flights"
+        chosen = choose(held, every)
+    elif choose_on is not None:        # no held-out networks: the laws chosen on one collection left out
+        name = f"collection {choose_on} left out"
+        out["splits"][name] = one_split(name, f"c-{choose_on}", f"loco-{choose_on}", list(every),
+                                        choose_on == ONBOARD_COLLECTION, True)
+        out["chosen_on"] = name
+        chosen = choose(out["splits"][name], every)
+    out["chosen"] = chosen
     for key in keys:
+        if not held_out and key == choose_on:
+            continue
         names = ["bias", "bias + scale"] + [c for c in chosen if c not in ("bias", "bias + scale")]
         out["splits"][f"collection {key} left out"] = one_split(
             f"{key} left out", f"c-{key}", f"loco-{key}", names, key == ONBOARD_COLLECTION, False)
