@@ -79,13 +79,17 @@ int16_t ns2_job_finish_q15(ns2_job_t *job, ns2_info_t *info);
 #define NS2_CTRL_RECOVERING ...
 #define NS2_CTRL_BAD_CONFIG ...
 #define NS2_CTRL_RECOVERY_TICKS ...
-typedef struct { uint8_t id; uint8_t type; uint8_t samples; uint32_t t_ms; float p[3]; float v[3]; } ns2_peer_t;
+typedef struct { uint8_t id; uint8_t type; uint8_t samples; uint32_t t_ms; float p[3]; float v[3]; ...; } ns2_peer_t;
 typedef struct { ns2_peer_t peer[...]; uint8_t count; float alpha; } ns2_peers_t;
 void ns2_peers_init(ns2_peers_t *s, float alpha);
 int32_t ns2_peers_update(ns2_peers_t *s, uint8_t id, uint8_t type, uint32_t t_ms, const float p[3]);
 uint8_t ns2_type_table_get(const uint32_t table[16], uint8_t id, uint8_t n_types);
 uint16_t ns2_peers_neighbors(const ns2_peers_t *s, uint8_t self_id, const float p[3], const float v[3],
                              uint32_t now_ms, uint32_t max_age_ms, ns2_neighbor_t *out, uint16_t max);
+#define NS2_PEERS_HIST ...
+#define NS2_PEERS_HIST_PERIOD_MS ...
+void ns2_peers_record(ns2_peers_t *s, const float p[3], const float v[3]);
+void ns2_peers_own_past(const ns2_peers_t *s, const float p[3], const float v[3], float *own_past);
 typedef struct { float mass_kg; float inertia[3]; float arm_m; float kappa_m; float lambda; float f_max_N;
                  float psi2[5]; } ns2_vehicle_t;
 typedef struct { float Lp[3]; float Kv[3]; float Gv[3]; float Lq[3]; float Kw[3]; float Gw[3]; float Kwd[3];

@@ -415,6 +415,24 @@ def test_app_motor_commands_equal_ns2_pilot_bit_for_bit(harness, exported, tmp_p
     ns2_pilot_default_cfg's; the learned force was in use and the PWM varied.  The large
     peers' radio ids may be any (200 and 255, 40 and 33): their types come from the
     type table (PARAM ns2type.t0..t15) the ground writes."""
+    _app_equals_pilot(harness, exported, tmp_path, fixed, self_type, ids)
+
+
+def test_app_with_wake_memory(history, tmp_path_factory, tmp_path):
+    """A network with wake memory (model.history_ms) in the app: the peer table's
+    history ring at the 100 Hz position tick (ns2_peers_record), the own past, the
+    sliced prediction through ns2_job_begin_hist equal to the direct one-shot
+    prediction bit for bit (hovering: every past state is the present), and the app's
+    motor commands equal ns2_pilot's on the moving 1.5 s trace, bit for bit."""
+    exe = cfapp.build_harness(history.gen_dir, tmp_path_factory.mktemp("harness-history"))
+    for fixed in (1, 0):
+        res = _run(exe, fixed, 1)
+        assert res["mode"] == 2 and res["n"] == 1 and res["fa_hat_g"] != 0.0
+        assert np.float32(res["fa_hat_g"]) == np.float32(res["direct_g"])
+    _app_equals_pilot(exe, history, tmp_path, 1, 0, PEER_IDS)
+
+
+def _app_equals_pilot(harness, exported, tmp_path, fixed, self_type, ids):
     from ns2host.cbuild import fill_gains, fill_vehicle
     from ns2host.cfhost import load_fly
     from ns2host.sim.vehicle import default_gains, vehicle

@@ -162,3 +162,82 @@ def test_type_table_layout_matches_the_ground_side(lib):
         type_table({256: 1})
     with pytest.raises(ValueError):
         type_table({3: 4})
+
+
+def test_history_ring_gives_the_states_that_long_ago(history):
+    """Wake memory (model.history_ms 50, 100, 200 ms: 5, 10, 20 ticks of 10 ms): at every
+    100 Hz history tick the neighbour list holds, after x_ij of now, x_ij of the tick of
+    each lag bit for bit (both states of that tick); a peer younger than the lag, a
+    restarted track (a jump) and a bad own state (every history restarts) use their
+    oldest recorded tick, the data sets' rule (from_logs.past_steps); the own past
+    likewise."""
+    import numpy as np
+
+    c = history.cmodel()
+    ffi, L = c.ffi, c.lib
+    assert L.NS2_PEERS_HIST_PERIOD_MS == 10 and L.NS2_PEERS_HIST == 21
+    lags = [5, 10, 20]
+    s = ffi.new("ns2_peers_t *")
+    L.ns2_peers_init(s, 0.5)
+    out = ffi.new("ns2_neighbor_t[16]")
+    own_past = ffi.new("float[18]")
+    present = {0: {}, 1: {}}          # by peer type (= peer): tick -> x_ij of then
+    own = {}
+    first = {0: None, 1: 0}           # the tick each history began
+    own_first = 0
+    checked = 0
+    for k in range(60):
+        t = 1000 + 10 * k
+        pa = [0.02 * k if k < 33 else 3.0 + 0.02 * k, 0.1, 1.3]          # type 1: a jump at tick 33
+        _update(ffi, L, s, 3, 1, t, pa)
+        if k >= 25:
+            _update(ffi, L, s, 4, 0, t, [-0.5, 0.3 + 0.01 * k, 1.1])     # type 0: from tick 25 on
+        p = [0.001 * k, 0.0, 1.0] if k != 45 else [math.nan, 0.0, 1.0]     # tick 45: no own state
+        v = [0.1, 0.0, 0.01 * (k % 7)]
+        pp, vv = ffi.new("float[3]", p), ffi.new("float[3]", v)
+        L.ns2_peers_record(s, pp, vv)
+        n = L.ns2_peers_neighbors(s, 9, pp, vv, t, 100, out, 16)
+        L.ns2_peers_own_past(s, pp, vv, own_past)
+        if k == 25:
+            first[0] = 25
+        if k == 33:
+            first[1] = 33
+        if k == 45:
+            assert n == 0 and all(math.isnan(own_past[6 * i]) for i in range(3))
+            continue
+        if k == 46:
+            first = {0: 46, 1: 46}
+            own_first = 46
+        own[k] = np.float32(p + v)
+        got_own = np.frombuffer(ffi.buffer(own_past), np.float32).reshape(3, 6)
+        for i, lag in enumerate(lags):
+            assert np.array_equal(got_own[i], own[max(k - lag, own_first)]), (k, lag)
+        assert n == (2 if k >= 25 else 1)
+        for j in range(n):
+            rel = np.frombuffer(ffi.buffer(out[j].rel), np.float32)
+            ty = out[j].type
+            present[ty][k] = rel[:6].copy()
+            for i, lag in enumerate(lags):
+                want = present[ty][max(k - lag, first[ty])]
+                assert np.array_equal(rel[6 * (i + 1):6 * (i + 2)].view(np.uint32), want.view(np.uint32)), (k, ty, lag)
+                checked += 1
+    assert checked > 200
+    assert not np.array_equal(present[1][40], present[1][20])   # the check can tell ticks apart
+
+
+def test_without_history_the_peer_table_is_that_of_before(exported, lib):
+    """A network without wake memory: ns2_peers_record and ns2_peers_own_past do
+    nothing, the neighbour list holds 6 values per peer, the table its old size."""
+    ffi, L = lib
+    assert L.NS2_HISTORY_LAGS == 0 and ffi.sizeof("ns2_neighbor_t") == 28
+    assert ffi.sizeof("ns2_peer_t") == 32
+    s = ffi.new("ns2_peers_t *")
+    L.ns2_peers_init(s, 1.0)
+    _update(ffi, L, s, 3, 1, 1000, [0.0, 0.0, 1.3])
+    p, v = ffi.new("float[3]", [0.0, 0.0, 1.0]), ffi.new("float[3]", [0.0, 0.0, 0.0])
+    before = bytes(ffi.buffer(s))
+    L.ns2_peers_record(s, p, v)
+    assert bytes(ffi.buffer(s)) == before
+    own_past = ffi.new("float[2]", [7.0, 7.0])
+    L.ns2_peers_own_past(s, p, v, own_past)
+    assert list(own_past) == [7.0, 7.0]

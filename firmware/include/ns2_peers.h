@@ -32,6 +32,22 @@
  * whose type changes (the ground rewrote the type table) carries the new type from
  * its next sample on.
  *
+ * Wake memory (a model exported with model.history_ms, NS2_HISTORY_LAGS > 0): at
+ * every history tick (ns2_peers_record, the app's 100 Hz position tick) the table
+ * keeps each peer's [p; v] as the neighbour list uses it, and the robot's own, in
+ * a ring of NS2_PEERS_HIST ticks (no dynamic memory).  The neighbour list then
+ * holds, after x_ij of now, x_ij of each lag of ns2_history_ms (rounded half up to
+ * NS2_PEERS_HIST_PERIOD_MS ticks, at least one): both states of that tick,
+ * subtracted in float32 as the data builders do (ns2codegen.data.from_logs); a
+ * peer recorded for fewer ticks than the lag uses its oldest recorded tick (and
+ * the own state of that tick), the rule of the data sets (a flight piece's first
+ * sample); ns2_peers_own_past gives the own [p; v] at each lag (the oldest where
+ * younger).  A restarted track (NS2_PEERS_RESTARTED, or a new peer in a slot)
+ * starts a new history; an own state that is not finite or beyond the limits
+ * restarts every history (and records nothing); a peer not recorded yet uses its
+ * present state for the past.  Without wake memory none of this is compiled in
+ * (ns2_peers_record does nothing, the structures are those of before).
+ *
  * Type table: the robot type of every radio id 0..255 in NS2_TYPE_TABLE_WORDS
  * 32-bit words, NS2_TYPE_BITS bits per id (id i: word i / 16, bits 2 (i % 16) and
  * 2 (i % 16) + 1), so up to 4 robot types; the app's PARAM ns2type.t0 .. t15, which
@@ -58,6 +74,13 @@
 #define NS2_TYPE_TABLE_WORDS 16u    /* 256 radio ids x NS2_TYPE_BITS in uint32 words */
 #define NS2_TYPE_TABLE_MAX_TYPES 4u /* robot types the table can name */
 
+/* wake memory: ticks of the history ring (ns2_peers_record every NS2_PEERS_HIST_PERIOD_MS) */
+#ifndef NS2_PEERS_HIST_PERIOD_MS
+#define NS2_PEERS_HIST_PERIOD_MS 10u /* the app's 100 Hz position tick (NS2_PILOT_POS_HZ) */
+#endif
+/* the ticks of the longest lag, rounded half up, and the present */
+#define NS2_PEERS_HIST ((NS2_HISTORY_MAX_MS + NS2_PEERS_HIST_PERIOD_MS / 2u) / NS2_PEERS_HIST_PERIOD_MS + 1u)
+
 #define NS2_PEERS_OK 0
 #define NS2_PEERS_REJECTED (-1)     /* table full or sample invalid / out of order */
 #define NS2_PEERS_RESTARTED 1       /* accepted as the first sample of a new track */
@@ -69,12 +92,22 @@ typedef struct {
     uint32_t t_ms;    /* time of the last sample */
     float p[3];       /* m, world frame */
     float v[3];       /* m/s, finite differences, filtered */
+#if NS2_HISTORY_LAGS > 0
+    uint8_t hist_count;                /* history ticks recorded since the track began (saturating) */
+    float hist[NS2_PEERS_HIST][6];     /* [p; v] at each history tick, ring (head in ns2_peers_t) */
+#endif
 } ns2_peer_t;
 
 typedef struct {
     ns2_peer_t peer[NS2_PEERS_MAX];
     uint8_t count;
     float alpha; /* velocity filter weight in (0, 1]; 1 = raw finite differences */
+#if NS2_HISTORY_LAGS > 0
+    uint8_t hist_head;                 /* ring slot of the latest history tick */
+    uint8_t own_count;                 /* own history ticks recorded (saturating) */
+    uint8_t lag_ticks[NS2_HISTORY_LAGS]; /* ns2_history_ms in history ticks */
+    float own[NS2_PEERS_HIST][6];      /* own [p; v] at each history tick */
+#endif
 } ns2_peers_t;
 
 void ns2_peers_init(ns2_peers_t *s, float alpha);
@@ -94,5 +127,15 @@ uint8_t ns2_type_table_get(const uint32_t table[NS2_TYPE_TABLE_WORDS], uint8_t i
  * own id; nearest first.  At most NS2_PEERS_MAX entries are written. */
 uint16_t ns2_peers_neighbors(const ns2_peers_t *s, uint8_t self_id, const float p[3], const float v[3],
                              uint32_t now_ms, uint32_t max_age_ms, ns2_neighbor_t *out, uint16_t max);
+
+/* Wake memory: one history tick (every NS2_PEERS_HIST_PERIOD_MS, before the
+ * neighbour list of that tick) with the robot's own state p, v; nothing without
+ * NS2_HISTORY_LAGS. */
+void ns2_peers_record(ns2_peers_t *s, const float p[3], const float v[3]);
+
+/* Wake memory: the own [p; v] at each lag (6 NS2_HISTORY_LAGS floats, the
+ * own_past of ns2_predict_*_hist); p, v (the present) where nothing is recorded.
+ * Nothing is written without NS2_HISTORY_LAGS. */
+void ns2_peers_own_past(const ns2_peers_t *s, const float p[3], const float v[3], float *own_past);
 
 #endif /* NS2_PEERS_H */

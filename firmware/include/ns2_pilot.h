@@ -16,6 +16,9 @@
  *    then ns2_ctrl_attitude (delay compensation, mixing, psi_2 PWM).
  * So the learned force used at a position tick was begun one period (10 ms)
  * earlier, from the state and neighbours of then: the on-board latency.
+ * With wake memory (NS2_HISTORY_LAGS > 0) every position tick is also a history
+ * tick of the peer table (ns2_peers_record before the neighbour list: lags in
+ * 10 ms ticks) and the prediction begins with the own past (ns2_job_begin_hist).
  *
  * On-board adaptation (ns2_label.h, ns2_adapt.h, docs/adaptation.md): at every
  * position tick, before the position loop, the robot's own label f_a,z of two

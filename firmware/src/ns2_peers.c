@@ -4,6 +4,21 @@
 
 #include "ns2_peers.h"
 
+#if NS2_HISTORY_LAGS > 0
+/* ring slot of the history tick k ticks before the latest (k < NS2_PEERS_HIST) */
+static uint32_t hist_slot(const ns2_peers_t *s, uint32_t k)
+{
+    return ((uint32_t)s->hist_head + NS2_PEERS_HIST - k) % NS2_PEERS_HIST;
+}
+
+/* the tick of lag l for a history of `count` ticks: the oldest where younger */
+static uint32_t hist_lag(const ns2_peers_t *s, int l, uint8_t count)
+{
+    const uint32_t k = s->lag_ticks[l];
+    return k < count ? k : (uint32_t)count - 1u;
+}
+#endif
+
 void ns2_peers_init(ns2_peers_t *s, float alpha)
 {
     if (s == NULL) {
@@ -13,7 +28,18 @@ void ns2_peers_init(ns2_peers_t *s, float alpha)
     s->alpha = (alpha > 0.0f && alpha <= 1.0f) ? alpha : 1.0f;
     for (uint8_t i = 0; i < NS2_PEERS_MAX; ++i) {
         s->peer[i].samples = 0;
+#if NS2_HISTORY_LAGS > 0
+        s->peer[i].hist_count = 0;
+#endif
     }
+#if NS2_HISTORY_LAGS > 0
+    s->hist_head = 0;
+    s->own_count = 0;
+    for (int l = 0; l < NS2_HISTORY_LAGS; ++l) {
+        const uint32_t k = ((uint32_t)ns2_history_ms[l] + NS2_PEERS_HIST_PERIOD_MS / 2u) / NS2_PEERS_HIST_PERIOD_MS;
+        s->lag_ticks[l] = (uint8_t)(k > 0u ? k : 1u); /* <= NS2_PEERS_HIST - 1 */
+    }
+#endif
 }
 
 static int within3(const float x[3], float lim)
@@ -65,6 +91,9 @@ int32_t ns2_peers_update(ns2_peers_t *s, uint8_t id, uint8_t type, uint32_t t_ms
         e->id = id;
         e->samples = 0;
         e->v[0] = e->v[1] = e->v[2] = 0.0f;
+#if NS2_HISTORY_LAGS > 0
+        e->hist_count = 0; /* a new track: a new history */
+#endif
     }
     if (e->samples > 0u) {
         const uint32_t ahead = t_ms - e->t_ms; /* modulo 2^32 */
@@ -88,6 +117,9 @@ int32_t ns2_peers_update(ns2_peers_t *s, uint8_t id, uint8_t type, uint32_t t_ms
              * the track restarts from this sample, velocity unknown until the next */
             e->samples = 0;
             e->v[0] = e->v[1] = e->v[2] = 0.0f;
+#if NS2_HISTORY_LAGS > 0
+            e->hist_count = 0;
+#endif
             ret = NS2_PEERS_RESTARTED;
         } else {
             for (int a = 0; a < 3; ++a) {
@@ -141,6 +173,21 @@ uint16_t ns2_peers_neighbors(const ns2_peers_t *s, uint8_t self_id, const float 
             nb.rel[a + 3] = (e->samples > 1u ? e->v[a] : 0.0f) - v[a];
             d2 += nb.rel[a] * nb.rel[a];
         }
+#if NS2_HISTORY_LAGS > 0
+        for (int l = 0; l < NS2_HISTORY_LAGS; ++l) { /* x_ij of the tick of each lag */
+            float *past = &nb.rel[6 * (l + 1)];
+            if (e->hist_count == 0u) {
+                for (int a = 0; a < 6; ++a) {
+                    past[a] = nb.rel[a]; /* not recorded yet: the present */
+                }
+            } else {
+                const uint32_t slot = hist_slot(s, hist_lag(s, l, e->hist_count));
+                for (int a = 0; a < 6; ++a) {
+                    past[a] = e->hist[slot][a] - s->own[slot][a];
+                }
+            }
+        }
+#endif
         uint16_t k = n < max ? n : max;
         while (k > 0u && dist2[k - 1u] > d2) {
             if (k < max) {
@@ -158,4 +205,70 @@ uint16_t ns2_peers_neighbors(const ns2_peers_t *s, uint8_t self_id, const float 
         }
     }
     return n;
+}
+
+void ns2_peers_record(ns2_peers_t *s, const float p[3], const float v[3])
+{
+#if NS2_HISTORY_LAGS > 0
+    if (s == NULL) {
+        return;
+    }
+    if (p == NULL || v == NULL || !within3(p, NS2_PEERS_P_MAX_M) || !within3(v, NS2_PEERS_V_MAX_MS)) {
+        s->own_count = 0; /* no own state: every history restarts */
+        for (uint8_t i = 0; i < s->count; ++i) {
+            s->peer[i].hist_count = 0;
+        }
+        return;
+    }
+    s->hist_head = (uint8_t)((s->hist_head + 1u) % NS2_PEERS_HIST);
+    for (int a = 0; a < 3; ++a) {
+        s->own[s->hist_head][a] = p[a];
+        s->own[s->hist_head][a + 3] = v[a];
+    }
+    s->own_count = (uint8_t)(s->own_count < NS2_PEERS_HIST ? s->own_count + 1u : NS2_PEERS_HIST);
+    for (uint8_t i = 0; i < s->count; ++i) {
+        ns2_peer_t *e = &s->peer[i];
+        if (e->samples == 0u) {
+            e->hist_count = 0;
+            continue;
+        }
+        for (int a = 0; a < 3; ++a) {
+            e->hist[s->hist_head][a] = e->p[a];
+            e->hist[s->hist_head][a + 3] = e->samples > 1u ? e->v[a] : 0.0f; /* as the neighbour list */
+        }
+        e->hist_count = (uint8_t)(e->hist_count < NS2_PEERS_HIST ? e->hist_count + 1u : NS2_PEERS_HIST);
+    }
+#else
+    (void)s;
+    (void)p;
+    (void)v;
+#endif
+}
+
+void ns2_peers_own_past(const ns2_peers_t *s, const float p[3], const float v[3], float *own_past)
+{
+#if NS2_HISTORY_LAGS > 0
+    if (s == NULL || p == NULL || v == NULL || own_past == NULL) {
+        return;
+    }
+    for (int l = 0; l < NS2_HISTORY_LAGS; ++l) {
+        float *out = &own_past[6 * l];
+        if (s->own_count == 0u) {
+            for (int a = 0; a < 3; ++a) {
+                out[a] = p[a];
+                out[a + 3] = v[a];
+            }
+        } else {
+            const uint32_t slot = hist_slot(s, hist_lag(s, l, s->own_count));
+            for (int a = 0; a < 6; ++a) {
+                out[a] = s->own[slot][a];
+            }
+        }
+    }
+#else
+    (void)s;
+    (void)p;
+    (void)v;
+    (void)own_past;
+#endif
 }

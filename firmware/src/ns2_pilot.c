@@ -106,9 +106,19 @@ void ns2_pilot_finish(ns2_pilot_t *pl)
 
 void ns2_pilot_begin(ns2_pilot_t *pl, const ns2_ctrl_state_t *s, uint8_t self_id, uint32_t now_ms)
 {
+#if NS2_HISTORY_LAGS > 0
+    /* wake memory: this position tick is a history tick of the peer table */
+    float own_past[6 * NS2_HISTORY_LAGS];
+    ns2_peers_record(&pl->peers, s->p, s->v);
+#endif
     const uint16_t n = ns2_peers_neighbors(&pl->peers, self_id, s->p, s->v, now_ms, pl->cfg.max_age_ms,
                                            pl->nbrs, NS2_PEERS_MAX);
+#if NS2_HISTORY_LAGS > 0
+    ns2_peers_own_past(&pl->peers, s->p, s->v, own_past);
+    (void)ns2_job_begin_hist(&pl->job, pl->cfg.self_type, s->p, s->v, own_past, pl->nbrs, n);
+#else
     (void)ns2_job_begin(&pl->job, pl->cfg.self_type, s->p, s->v, pl->nbrs, n);
+#endif
     pl->job_begun = 1u;
 }
 

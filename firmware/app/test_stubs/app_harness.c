@@ -513,8 +513,18 @@ int main(int argc, char **argv)
     const float p[3] = {0.0f, 0.0f, 1.0f}, v[3] = {0.0f, 0.0f, 0.0f}, pp[3] = {0.05f, 0.0f, 1.3f};
     (void)ns2_peers_update(&direct_peers, 2u, 1u, 0u, pp);
     (void)ns2_peers_update(&direct_peers, 2u, 1u, 10u, pp);
+#if NS2_HISTORY_LAGS > 0
+    /* wake memory: hovering since long before, so every past state is the present one */
+    float own_past[6 * NS2_HISTORY_LAGS];
+    ns2_peers_record(&direct_peers, p, v);
+#endif
     const uint16_t n = ns2_peers_neighbors(&direct_peers, 1u, p, v, 10u, 100u, nb, NS2_PEERS_MAX);
-#if NS2_APP_FIXED && NS2_APP_FLOAT
+#if NS2_APP_FIXED && NS2_APP_FLOAT && NS2_HISTORY_LAGS > 0
+    ns2_peers_own_past(&direct_peers, p, v, own_past);
+    const float direct = fixed ? ldexpf((float)ns2_predict_q15_hist(NS2_TYPE_SMALL, p, v, own_past, nb, n, NULL),
+                                        -NS2_Q_OUT_FRAC)
+                               : ns2_predict_f32_hist(NS2_TYPE_SMALL, p, v, own_past, nb, n, NULL);
+#elif NS2_APP_FIXED && NS2_APP_FLOAT
     const float direct = fixed ? ns2_predict_q15_g(NS2_TYPE_SMALL, p, v, nb, n, NULL)
                                : ns2_predict_f32(NS2_TYPE_SMALL, p, v, nb, n, NULL);
 #else
