@@ -72,3 +72,15 @@ def test_dataset_errors(cfg, tmp_path):
     ds.nbr_type[-1] = 0  # the environment row must be last
     with pytest.raises(DatasetError, match="environment"):
         ds.validated()
+
+
+def test_analytic_generators_refuse_a_history_config(cfg):
+    """The analytic generators draw single instants: a config with model.history_ms is
+    refused in one line naming the field (`ns2 sim collect` and the logs make lagged rows)."""
+    from ns2codegen.config import ConfigError
+    from ns2codegen.data.analytic import downwash_dataset, max_dataset
+
+    hcfg = cfg.with_overrides(history_ms=[50])
+    for make in (downwash_dataset, max_dataset):
+        with pytest.raises(ConfigError, match=r"^model.history_ms \[50\]: the .* generator draws single instants"):
+            make(hcfg, 10, seed=0)

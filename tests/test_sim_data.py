@@ -7,7 +7,7 @@ from ns2codegen.checkpoint import save_checkpoint
 from ns2codegen.data.labels import residual_force
 from ns2codegen.export import export
 from ns2codegen.train import train
-from ns2host.sim.cloop import CLoopSwarm
+from ns2host.sim.cloop import CLoopSwarm, NS2Controller, robots_of
 from ns2host.sim.collect import collect
 from ns2host.sim.scenarios import swap
 from ns2host.sim.vehicle import G, vehicle
@@ -17,7 +17,7 @@ def test_labels_from_logs_match_the_ground_truth(cfg, exported):
     """f_a = m v_dot - m g - R f_u from the logged v, q, PWM and voltage (five-point
     differentiation, psi_1 with the motor delay) against the simulator's true f_a."""
     sp, start = swap(2, [0.5, 0.8], radius=0.4, duration=2.5, rest=0.5)
-    log = CLoopSwarm(cfg, ["small", "large"], exported.gen_dir, start, aero=True).run(6.0, sp)
+    log = CLoopSwarm(cfg, robots_of(["small", "large"], start), exported.gen_dir, aero=True).run(6.0, sp)
     for i, kind in enumerate(["small", "large"]):
         veh = vehicle(cfg, kind)
         fa = residual_force(log["t"], log["v"][:, i], log["q"][:, i], log["pwm"][:, i], log["battery_V"][:, i],
@@ -59,7 +59,28 @@ def test_learned_term_beats_the_baseline_on_a_swap(cfg, sim_trained, learned):
     worst = {}
     for mode in (None, learned):
         sp, start = swap(2, [0.5, 0.8], radius=0.4, duration=2.5, rest=0.5, seed=7)
-        log = CLoopSwarm(cfg, ["small", "large"], gen, start, aero=True, learned=mode).run(6.0, sp)
+        log = CLoopSwarm(cfg, robots_of(["small", "large"], start, NS2Controller(mode)), gen, aero=True).run(6.0, sp)
         worst[mode] = np.abs(log["truth_p"][:, 0, 2] - log["p_d"][:, 0, 2]).max()
     print("worst-case z error of the small robot:", worst)
     assert worst[learned] < 0.7 * worst[None]
+
+
+def test_collect_with_wake_memory_gives_the_lagged_rows(cfg, exported):
+    """`ns2 sim collect` with model.history_ms: the same flights (same seeds) give the
+    same samples and present states, and each row also the states 50, 100 and 200 ms
+    before (from_logs.neighbor_rows on the simulated logs, the lag in log samples)."""
+    hcfg = cfg.with_overrides(history_ms=[50, 100, 200])
+    now = collect(cfg, exported.gen_dir, 2.0, seed=1, team_list=[("small", "large")])
+    ds = collect(hcfg, exported.gen_dir, 2.0, seed=1, team_list=[("small", "large")])
+    assert ds.nbr_state.shape == (len(now.nbr_type), 24)
+    assert np.array_equal(ds.nbr_offsets, now.nbr_offsets) and np.array_equal(ds.nbr_state[:, :6], now.nbr_state)
+    # the small robot's environment rows (its own state), sample by sample: where the
+    # sample 200 ms earlier is in the data set too, the lag-200 block is its present
+    env = ds.nbr_offsets[1:] - 1
+    mine = np.flatnonzero(ds.robot_type == 0)
+    t = ds.time_s[mine]
+    lag = np.flatnonzero(np.isclose(t[20:] - t[:-20], 0.2, atol=1e-6))
+    assert lag.size > 100
+    assert np.array_equal(ds.nbr_state[env[mine[lag + 20]], 18:24], ds.nbr_state[env[mine[lag]], :6])
+    assert np.array_equal(ds.nbr_state[env[mine[lag + 20]], 12:18], ds.nbr_state[env[mine[lag + 10]], :6])
+    assert not np.array_equal(ds.nbr_state[:, 18:24], ds.nbr_state[:, :6])

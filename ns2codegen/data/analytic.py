@@ -15,7 +15,7 @@ import itertools
 
 import numpy as np
 
-from ..config import Config
+from ..config import Config, ConfigError
 from .dataset import Dataset, scenario_name
 
 G_SMALL_UNDER_SMALL = 9.0  # g, downwash 0.3 m under a small robot (paper, Fig. "vis")
@@ -72,9 +72,17 @@ def _csr(counts: np.ndarray):
     return offsets, sample_of
 
 
+def no_history(cfg: Config, generator: str) -> None:
+    """The analytic generators draw single instants: no past states (``model.history_ms``)."""
+    if cfg.history_ms:
+        raise ConfigError(f"model.history_ms {cfg.history_ms}: the {generator} generator draws single instants "
+                          "without a past; make the data with `ns2 sim collect` or from logs")
+
+
 def downwash_dataset(cfg: Config, samples_per_scenario: int = 2000, seed: int = 0,
                      noise_g: float = 0.0, max_neighbors: int = 2) -> Dataset:
     """Random configurations of every scenario mix, labelled by ``analytic_fa_z``."""
+    no_history(cfg, "analytic downwash")
     rng = np.random.default_rng(seed)
     mixes = scenario_mixes(cfg, max_neighbors)
     n_s = samples_per_scenario
@@ -116,6 +124,7 @@ def max_dataset(cfg: Config, n: int = 20000, seed: int = 0) -> Dataset:
     """Paper's 2-group example: robot type 0 with two type-0 and two type-1 neighbours;
     x = first relative-position component of type-0 neighbours, y = of type-1 ones,
     label h = max(x1, x2) + 2 max(y1, y2) (in 'grams')."""
+    no_history(cfg, "max example")
     if cfg.num_robot_types < 2:
         raise ValueError("the 2-group example needs two robot types")
     rng = np.random.default_rng(seed)
