@@ -50,12 +50,15 @@ def frame(msg_type: int, seq: int, body: bytes) -> bytes:
     return SYNC + head + payload + struct.pack("<H", crc16(head + payload))
 
 
-def predict_body(robot_type: int, p, v, types, rels) -> bytes:
+def predict_body(robot_type: int, p, v, types, rels, past=()) -> bytes:
+    """A PREDICT body: rels of 6 values per neighbour, or 6 (1 + lags) with wake memory
+    and then the own past ([p; v] at each lag)."""
     if len(types) > MAX_NEIGHBORS:
         raise ValueError(f"at most {MAX_NEIGHBORS} neighbours per HIL request")
     out = [struct.pack("<BB3f3f", robot_type, len(types), *np.asarray(p, np.float32), *np.asarray(v, np.float32))]
     for t, r in zip(types, rels):
         out.append(struct.pack("<B", int(t)) + np.asarray(r, "<f4").tobytes())
+    out.append(np.asarray(past, "<f4").tobytes())
     return b"".join(out)
 
 
@@ -174,8 +177,8 @@ class HilClient:
             raise HilError(f"PING echo differs ({len(body)} bytes back, {len(data)} sent)")
         return body
 
-    def predict(self, robot_type: int, p, v, types, rels) -> Result:
-        body = self._exchange(PREDICT, predict_body(robot_type, p, v, types, rels), RESULT)
+    def predict(self, robot_type: int, p, v, types, rels, past=()) -> Result:
+        body = self._exchange(PREDICT, predict_body(robot_type, p, v, types, rels, past), RESULT)
         if len(body) != 18:
             raise HilError(f"RESULT body of {len(body)} bytes, expected 18")
         return Result(*struct.unpack("<iIhHHHH", body))
@@ -190,7 +193,7 @@ def run(client: HilClient, queries, cmodel, progress=None) -> dict:
     for i in range(len(queries)):
         n = int(queries.n[i])
         r = client.predict(int(queries.robot_type[i]), queries.p[i], queries.v[i],
-                           queries.nbr_type[i, :n], queries.nbr_rel[i, :n])
+                           queries.nbr_type[i, :n], queries.nbr_rel[i, :n], queries.past[i])
         host = (int(info["status"][i]), int(f_host[i:i + 1].view(np.uint32)[0]), int(q_host[i]),
                 int(info["n_used"][i]), int(info["n_invalid"][i]), int(info["n_outside"][i]),
                 int(info["n_truncated"][i]))

@@ -33,6 +33,25 @@ def test_hil_bit_exact_over_serial(exported, qemu_hil):
 
 
 @needs_target
+def test_hil_with_wake_memory_bit_exact_over_serial(history):
+    """A network with wake memory over the serial link: 24 values per neighbour and the
+    own past in the PREDICT frame (at most 9 neighbours fit a frame), the *_hist entry
+    points on the target, bit for bit with the host C."""
+    proc, pty = hil.start_qemu(target.build_hil_image(history.gen_dir))
+    client = hil.HilClient(pty, timeout=2.0)
+    try:
+        q = random_queries(history.cfg, 80, seed=8, wild=0.05, max_given=9)
+        assert q.past.shape[1] == 3
+        report = hil.run(client, q, history.cmodel())
+        assert report["mismatches"] == 0, report["first_mismatches"]
+        assert report["queries"] == 80 and report["error_frames"] == 0
+    finally:
+        client.close()
+        proc.kill()
+        proc.wait()
+
+
+@needs_target
 def test_hil_recovers_from_a_corrupted_stream(exported, qemu_hil):
     port = qemu_hil.port
     errors_before = qemu_hil.stats.error_frames

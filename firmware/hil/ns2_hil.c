@@ -71,16 +71,22 @@ static void send_error(ns2_hil_t *h, uint16_t seq, uint8_t code)
     send(h, NS2_HIL_ERROR, seq, &code, 1u);
 }
 
+#define NS2_HIL_NB_BYTES (1u + 4u * NS2_INPUT_DIM) /* u8 type, f32 rel[NS2_INPUT_DIM] */
+#define NS2_HIL_PAST_BYTES (24u * NS2_HISTORY_LAGS) /* f32 own_past[6 NS2_HISTORY_LAGS] */
+
 static void predict(ns2_hil_t *h, uint16_t seq, const uint8_t *b, uint16_t n)
 {
     static ns2_neighbor_t nb[NS2_HIL_MAX_NEIGHBORS];
-    if (n < 26u) {
+#if NS2_HISTORY_LAGS > 0
+    static float own_past[6u * NS2_HISTORY_LAGS];
+#endif
+    if (n < 26u + NS2_HIL_PAST_BYTES) {
         send_error(h, seq, NS2_HIL_E_BODY);
         return;
     }
     const uint8_t robot_type = b[0];
     const uint8_t count = b[1];
-    if (count > NS2_HIL_MAX_NEIGHBORS || n != (uint16_t)(26u + 25u * count)) {
+    if (count > NS2_HIL_MAX_NEIGHBORS || n != (uint16_t)(26u + NS2_HIL_NB_BYTES * count + NS2_HIL_PAST_BYTES)) {
         send_error(h, seq, NS2_HIL_E_BODY);
         return;
     }
@@ -90,15 +96,23 @@ static void predict(ns2_hil_t *h, uint16_t seq, const uint8_t *b, uint16_t n)
         v[a] = get_f32(&b[14 + 4 * a]);
     }
     for (uint16_t j = 0; j < count; ++j) {
-        const uint8_t *r = &b[26u + 25u * j];
+        const uint8_t *r = &b[26u + NS2_HIL_NB_BYTES * j];
         nb[j].type = r[0];
-        for (int a = 0; a < 6; ++a) {
+        for (int a = 0; a < NS2_INPUT_DIM; ++a) {
             nb[j].rel[a] = get_f32(&r[1 + 4 * a]);
         }
     }
     ns2_info_t info;
+#if NS2_HISTORY_LAGS > 0
+    for (uint32_t a = 0; a < 6u * NS2_HISTORY_LAGS; ++a) {
+        own_past[a] = get_f32(&b[26u + NS2_HIL_NB_BYTES * count + 4u * a]);
+    }
+    const float f = ns2_predict_f32_hist(robot_type, p, v, own_past, nb, count, &info);
+    const int16_t q = ns2_predict_q15_hist(robot_type, p, v, own_past, nb, count, &info);
+#else
     const float f = ns2_predict_f32(robot_type, p, v, nb, count, &info);
     const int16_t q = ns2_predict_q15(robot_type, p, v, nb, count, &info);
+#endif
     uint32_t fbits;
     memcpy(&fbits, &f, sizeof fbits);
     uint8_t out[18];

@@ -6,7 +6,11 @@
  * payload[0] = message type, payload[1..2] = sequence number (u16 LE).
  *
  * Requests:  0x01 PREDICT  u8 robot_type, u8 n, f32 p[3], f32 v[3],
- *                          n x (u8 type, f32 rel[6])            (all LE, packed)
+ *                          n x (u8 type, f32 rel[NS2_INPUT_DIM]),
+ *                          f32 own_past[6 NS2_HISTORY_LAGS]      (all LE, packed)
+ *                          (a network without wake memory: rel[6], no own_past;
+ *                          with it the *_hist entry points; the payload limit
+ *                          bounds n: 9 neighbours with 3 lags)
  *            0x02 PING     any bytes, echoed (the first NS2_HIL_MAX_REPLY of them)
  * Responses: 0x81 RESULT   i32 status, u32 float bits, i16 fixed, u16 n_used,
  *                          u16 n_invalid, u16 n_outside, u16 n_truncated
