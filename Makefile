@@ -135,6 +135,10 @@ paper-data: deps
 # 2 cores about 8 min for the data sets and 34 min for the trainings two at once (76 min
 # in all one at a time; docs/ground-truth.md); ABLATION_DEVICE=cuda trains on a GPU
 # (one at a time). The data sets are kept per simulator.
+# Every training is kept under $(RUNS)/<experiment>/ as it finishes (committed: a rerun, by anyone,
+# trains only what is missing); NS2_SCHEDULER=tcp://host:8786 trains on a Dask cluster
+# (docs/experiments.md).
+RUNS ?= docs/results/runs
 ABLATION_DEVICE ?= cpu
 ABLATION_WORKERS ?= $(if $(filter cpu,$(ABLATION_DEVICE)),2,1)
 build/paper_data-%.npz: | deps
@@ -146,7 +150,7 @@ build/larger_teams-%.npz: | deps
 	$(PYTHON) benchmarks/paper_data.py --sim $* --workers 2 --data-only --team-sizes 4,5 --samples 200000 --seed 8 --out $@
 ablation: build/paper_data-$(SIMULATOR).npz build/larger_teams-$(SIMULATOR).npz
 	$(PYTHON) benchmarks/ablation.py --data build/paper_data-$(SIMULATOR).npz --test-data build/larger_teams-$(SIMULATOR).npz \
-		--seeds 3 --lr-drops 2 --device $(ABLATION_DEVICE) --workers $(ABLATION_WORKERS) \
+		--seeds 3 --lr-drops 2 --device $(ABLATION_DEVICE) --workers $(ABLATION_WORKERS) --runs $(RUNS)/ablation \
 		> build/ablation.json.tmp && mv build/ablation.json.tmp build/ablation.json
 	@cat build/ablation.json
 
@@ -162,7 +166,7 @@ REAL_ABLATION_SEEDS ?= 3
 REAL_EPOCHS ?= 30
 REAL_AXES ?= H L V P T
 REAL_TRAIN = $(PYTHON) benchmarks/ablation.py --config $(REAL)/real.toml --max-epochs $(REAL_EPOCHS) \
-	--patience 3 --lr-drops 1 --batch-size 1024
+	--patience 3 --lr-drops 1 --batch-size 1024 --runs $(RUNS)/real-trainings
 REAL_HELD = --data $(REAL)/train.npz --test-data $(REAL)/heldout.npz --test-label held_out_flights
 REAL_HISTORY ?=
 $(REAL)/all.npz: | deps

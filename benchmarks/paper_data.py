@@ -23,12 +23,12 @@ import tempfile
 import time
 from pathlib import Path
 
-import ablation
 from ns2codegen.checkpoint import save_checkpoint
 from ns2codegen.config import Config
 from ns2codegen.data.analytic import downwash_dataset
 from ns2codegen.export import export
 from ns2codegen.train import train
+from ns2exp import ablation
 from ns2host.sim.cloop import LOG_HZ
 from ns2host.sim.collect import collect, teams
 from ns2host.sim.roughness import Roughness

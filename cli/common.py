@@ -60,6 +60,22 @@ def _json_option(f):
                         help="print the result as JSON (for machines) instead of text")(f)
 
 
+def _set_scheduler(ctx, param, value):
+    if value is not None:
+        from ns2codegen.executor import use_scheduler
+
+        use_scheduler(value)
+    return value
+
+
+def _scheduler_option(f):
+    return click.option("--scheduler", default=None, expose_value=False, callback=_set_scheduler,
+                        metavar="ADDRESS",
+                        help="run the jobs (trials, flights, replays) on the workers of this Dask scheduler "
+                             "(tcp://host:8786), or 'local-cluster' for a Dask cluster of --workers processes "
+                             "here; sets NS2_SCHEDULER [default: NS2_SCHEDULER, else forked processes here]")(f)
+
+
 def _quiet_option(f):
     return click.option("--quiet", is_flag=True,
                         help="no progress bar (it is also off when stderr is not a terminal)")(f)

@@ -11,7 +11,7 @@ from ns2codegen.config import Config
 
 from .common import (
     _config, _config_option, _emit, _json_option, _progress,
-    _quiet_option, main,
+    _quiet_option, _scheduler_option, main,
 )
 
 
@@ -52,10 +52,14 @@ from .common import (
 @click.option("--workers", type=click.IntRange(min=1), default=2, show_default=True,
               help="experiments (and --fa-margin calibrated, --plan-data-rounds): trials planned and flown at once, "
                    "in forked processes (the outcomes do not depend on it)")
+@_scheduler_option
+@click.option("--runs", "runs_dir", type=click.Path(file_okay=False), default=None,
+              help="experiments: keep the margin and every finished trial here (small JSON files; a rerun plans "
+                   "only what is missing; docs/results/runs/planning for the runs behind docs/) [default: OUT/resume]")
 @_quiet_option
 @_json_option
 def plan_cmd(checkpoint, model_dir, config_path, problem_path, baseline, out_dir, scenarios, dims, trials,
-             max_samples, time_limit, fa_margin, plan_data_rounds, workers, quiet, as_json):
+             max_samples, time_limit, fa_margin, plan_data_rounds, workers, runs_dir, quiet, as_json):
     """Interaction-aware motion planning (AO-RRT + SCP): the paper's experiments, or one problem.
     The config is the checkpoint's; --config only without a checkpoint."""
     from dataclasses import replace
@@ -93,7 +97,7 @@ def plan_cmd(checkpoint, model_dir, config_path, problem_path, baseline, out_dir
         from .planexp import plan_experiments
 
         plan_experiments(cfg, checkpoint, trained, out_dir, names, dims, trials, rrt, scp_params, margin,
-                         fa_margin == "calibrated", plan_data_rounds, workers, quiet, as_json)
+                         fa_margin == "calibrated", plan_data_rounds, workers, quiet, as_json, runs_dir)
         return
     with _progress(quiet, None, "stage", "plan"):
         report = plan_problem_file(cfg, problem_path, None if baseline else checkpoint, out_dir, rrt, scp_params)

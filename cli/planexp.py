@@ -25,10 +25,11 @@ def check_scenarios(names: list) -> None:
 
 def plan_experiments(cfg: Config, checkpoint, trained: bool, out_dir, names: list, dims: str, trials: int, rrt,
                      scp_params, margin, calibrate: bool, plan_data_rounds, workers: int, quiet: bool,
-                     as_json: bool) -> None:
+                     as_json: bool, runs_dir=None) -> None:
     """Every case of ``names`` in ``dims``, NN and BL (ns2exp.planning.planning_experiments),
     with ``checkpoint`` (``trained``: the planning model `ns2 plan` trained, not one given)
-    after, with ``plan_data_rounds``, its retraining on its own flown plans."""
+    after, with ``plan_data_rounds``, its retraining on its own flown plans; the finished
+    trials kept in ``runs_dir`` (default ``out_dir``/resume)."""
     from ns2codegen.export import export as run_export
     from ns2exp import planning as ex
     from ns2exp.margin import held_out_flights
@@ -51,6 +52,6 @@ def plan_experiments(cfg: Config, checkpoint, trained: bool, out_dir, names: lis
     with _progress(quiet, len(dim_list) * len(names) * 2 * trials, "trial", "plan") as update:
         res = ex.planning_experiments(cfg, checkpoint, gen, out_dir, names, dim_list, trials, rrt, scp_params,
                                       log=log, progress=update, fa_margin_g=margin, calibrate=calibrate,
-                                      workers=workers)
+                                      workers=workers, runs_dir=runs_dir)
     _emit(as_json, {k: {m: r["summary"] for m, r in v.items()} for k, v in res.items()},
           (Path(out_dir) / "plan.md").read_text())

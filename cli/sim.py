@@ -6,7 +6,7 @@ import click
 
 from .common import (
     _emit, _export_config, _gen_option, _json_option, _parent_ok, _progress,
-    _quiet_option, _vehicle_option, main,
+    _quiet_option, _scheduler_option, _vehicle_option, main,
 )
 
 
@@ -39,9 +39,13 @@ def _rough(simulator: str):
 @_vehicle_option
 @_rough_option
 @click.option("--out", type=click.Path(dir_okay=False), required=True, help="data set to write (.npz)")
+@click.option("--workers", type=click.IntRange(min=1), default=1, show_default=True,
+              help="fly this many flights at once (processes; the same data set)")
+@_scheduler_option
 @_quiet_option
 @_json_option
-def sim_collect(gen_dir, seconds_per_team, learned, seed, usd_dir, vehicle_files, simulator, out, quiet, as_json):
+def sim_collect(gen_dir, seconds_per_team, learned, seed, usd_dir, vehicle_files, simulator, out, workers, quiet,
+                as_json):
     """Fly every team of 1-3 robots (random walks and swaps) and build a data set from the logs."""
     from ns2host.sim.collect import collect, teams
 
@@ -50,7 +54,7 @@ def sim_collect(gen_dir, seconds_per_team, learned, seed, usd_dir, vehicle_files
     team_list = teams(cfg)
     with _progress(quiet, sum(1 if len(t) == 1 else 2 for t in team_list), "flight", "sim collect") as update:
         ds = collect(cfg, gen_dir, seconds_per_team, seed=seed, learned=None if learned == "none" else learned,
-                     usd_dir=usd_dir, progress=update, rough=_rough(simulator))
+                     usd_dir=usd_dir, progress=update, rough=_rough(simulator), workers=workers)
     ds.save(out)
     _emit(as_json, {"out": out, "samples": len(ds), "teams": len(team_list), "scenarios": ds.scenario_names},
           f"wrote {out}: {len(ds)} samples from {len(team_list)} teams, scenarios {ds.scenario_names}")

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from .common import _emit, _export_config, _gen_option, _json_option, _progress, _quiet_option
+from .common import _emit, _export_config, _gen_option, _json_option, _progress, _quiet_option, _scheduler_option
 from .sim import _rough, _rough_option, sim
 
 
@@ -71,6 +71,7 @@ def sim_rings(gen_dir, out_dir, duration, learned, simulator, quiet, as_json):
                    "read_law.toml)")
 @click.option("--workers", type=click.IntRange(min=1), default=1, show_default=True,
               help="replay this many flights at once (processes)")
+@_scheduler_option
 @_quiet_option
 @_json_option
 def sim_calibrate(logs_dir, data_dir, gen_dir, out_dir, per_scenario, refit, workers, quiet, as_json):

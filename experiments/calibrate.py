@@ -39,7 +39,7 @@ import numpy as np
 from ns2codegen.config import Config
 from ns2codegen.data.from_logs import Flight
 from ns2codegen.fileio import atomic_write_files
-from ns2codegen.parallel import forked_map
+from ns2codegen.executor import run_map
 
 from ns2host.sim import flightstats as fs
 from ns2host.sim.cloop import CLoopSwarm
@@ -148,14 +148,15 @@ def fit_vibration(cfg: Config, gen_dir, flights: list[Flight], base: Roughness,
 
 def replay_all(cfg: Config, gen_dir, pieces: dict, rough: Roughness | None, workers: int = 1,
                seed: int = 0, controller: str = "ns2", learned: str = "float", law: dict | None = None) -> list[Flight]:
-    """Replay every flight of ``pieces`` (name -> real pieces); ``workers`` processes;
+    """Replay every flight of ``pieces`` (name -> real pieces); ``workers`` processes (or the
+    Dask cluster of NS2_SCHEDULER: ns2codegen.executor);
     ``controller``, ``learned``, ``law``: replay.replay's."""
     names = sorted(pieces)
     if workers > 1 and len(names) > 1:
         from ns2host.cfhost import load_fly
         load_fly(gen_dir)                             # build once, before the workers load it
-    return forked_map(_replay_one, [(cfg, pieces[n], gen_dir, rough, seed, controller, learned, law) for n in names],
-                      workers)
+    return run_map(_replay_one, [(cfg, pieces[n], gen_dir, rough, seed, controller, learned, law) for n in names],
+                   workers)
 
 
 def _replay_one(cfg, pcs, gen_dir, rough, seed, controller, learned, law) -> Flight:

@@ -74,7 +74,8 @@ def test_ablation_trainings_side_by_side_give_the_same_results(tmp_path, cfg):
     def run(workers: int) -> dict:
         out = subprocess.run([sys.executable, str(script), "--data", str(tmp_path / "d.npz"), "--test-data",
                               str(tmp_path / "d.npz"), "--axes", "H,V", "--seeds", "2", "--max-epochs", "2",
-                              "--workers", str(workers)], env=env, capture_output=True, text=True, check=True)
+                              "--workers", str(workers), "--runs", str(tmp_path / f"runs{workers}")],
+                             env=env, capture_output=True, text=True, check=True)
         d = json.loads(out.stdout)
         assert d.pop("workers") == workers
         d.pop("wall_s")

@@ -651,7 +651,7 @@ def test_planning_experiments_run_trials_in_workers_as_in_one_process(cfg, expor
 def test_planning_experiments_resume_a_run_cut_short_from_its_kept_trials(cfg, exported, tmp_path, monkeypatch):
     """planning_experiments keeps every finished trial (TrialStore): the same call again
     plans only the trials missing and gives the same results and plan.json; another
-    margin or other code reuses nothing."""
+    margin or another version of the experiment reuses nothing."""
     import json
 
     from ns2exp import planning as ex
@@ -700,33 +700,26 @@ def test_planning_experiments_resume_a_run_cut_short_from_its_kept_trials(cfg, e
     calls.clear()
     run(2.5, ("BL",))
     assert len(calls) == 1
-    # other code: nothing reused either
+    # another version of the experiment (store.VERSION bumped): nothing reused either
     calls.clear()
-    monkeypatch.setattr(store, "code_tag", lambda root=None: "another version")
+    monkeypatch.setattr(store, "VERSION", store.VERSION + 1)
     run(2.0, ("BL",))
     assert len(calls) == 1
+    # the trials kept elsewhere (--runs: committed), the examples not: each case's first plan flown again
+    monkeypatch.setattr(store, "VERSION", store.VERSION - 1)
+    calls.clear()
+    elsewhere = ex.planning_experiments(cfg, exported.checkpoint, exported.gen_dir, tmp_path / "fresh", ["SL"], (3,), 1,
+                                        rrt, scp, log=lambda m: None, fa_margin_g=2.0, workers=1,
+                                        runs_dir=tmp_path / ex.RESUME_DIR)
+    assert sorted(calls) == sorted((m, "SL", 3, 0) for m in ("NN", "BL") if first["3D SL"][m]["trials"][0]["error"] is None)
+    assert all(elsewhere["3D SL"][m]["summary"]["trials"] == 1 for m in ("NN", "BL"))
+    assert not list((tmp_path / "fresh" / ex.RESUME_DIR).glob("trial_*.json"))
     # in forked workers every trial is kept as it finishes
     monkeypatch.setattr(runs, "_experiment_trial", real)
     kept = set((tmp_path / ex.RESUME_DIR).glob("trial_*.json"))
     ex.planning_experiments(cfg, exported.checkpoint, exported.gen_dir, tmp_path, ["SL"], (3,), 2, rrt, scp,
                             log=lambda m: None, fa_margin_g=3.0, modes=("BL",), workers=2)
     assert len(set((tmp_path / ex.RESUME_DIR).glob("trial_*.json")) - kept) == 2
-
-
-def test_code_tag_follows_every_source_a_trial_depends_on(tmp_path):
-    from ns2exp.planning import code_tag
-
-    (tmp_path / "planner").mkdir()
-    (tmp_path / "host" / "sim").mkdir(parents=True)
-    (tmp_path / "planner" / "a.py").write_text("x = 1\n")
-    (tmp_path / "host" / "sim" / "b.py").write_text("y = 1\n")
-    (tmp_path / "README.md").write_text("docs\n")
-    tag = code_tag(tmp_path)
-    (tmp_path / "README.md").write_text("other docs\n")
-    assert code_tag(tmp_path) == tag                     # not a source
-    (tmp_path / "host" / "sim" / "b.py").write_text("y = 2\n")
-    assert code_tag(tmp_path) != tag
-    assert len(code_tag()) == 16 and code_tag() == code_tag()
 
 
 def test_default_checkpoint_collects_who_flights_of_pairs_and_of_three_and_reuses_by_its_data(cfg, monkeypatch,

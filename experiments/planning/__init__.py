@@ -2,7 +2,7 @@
 one module per job:
 
 cases.py        the cases: scenarios, the experiments' limits, scenario_problem
-runs.py         one trial planned, checked and flown; a case's summary; the forked workers
+runs.py         one trial planned, checked and flown; a case's summary; the workers (executor)
 calibrated.py   the margin of a run: measured on held-out flights, calibrated on the
                 planner's own flown plans
 retraining.py   the planning model retrained on its own flown plans
@@ -22,12 +22,12 @@ from .reports import (CHECK_GAPS, PROFILE_COLUMNS, downwash_check, downwash_tabl
                       summary_figure, table)
 from .retraining import PLAN_DATA_ROUNDS, PLAN_DATA_SEEDS, plan_trained_checkpoint, training_data_files
 from .runs import fly_plans, over_limit, run_trial, trial_summary, unforeseen
-from .store import CODE_GLOBS, RESUME_DIR, TrialStore, code_tag
+from .store import RESUME_DIR, TrialStore
 
-__all__ = ["CALIBRATION_PLANS", "CALIBRATION_ROUNDS", "CALIBRATION_SEEDS", "CHECK_GAPS", "CODE_GLOBS", "FA_MARGIN_G",
+__all__ = ["CALIBRATION_PLANS", "CALIBRATION_ROUNDS", "CALIBRATION_SEEDS", "CHECK_GAPS", "FA_MARGIN_G",
            "HEIGHT", "LIMITS_2D", "LIMITS_3D", "NEAR_FIELD_M", "PLAN_DATA_ROUNDS", "PLAN_DATA_SEEDS",
            "PROFILE_COLUMNS", "RESUME_DIR", "SCENARIOS", "SPACING", "TrialStore", "calibrated_margin",
-           "calibration_wave", "code_tag", "downwash_check", "downwash_table", "example_figure", "fly_plans",
+           "calibration_wave", "downwash_check", "downwash_table", "example_figure", "fly_plans",
            "measured_margin", "over_limit", "plan_trained_checkpoint", "planning_experiments", "profile_table",
            "run_trial", "scenario_problem", "summary_figure", "table", "training_data_files", "trial_summary",
            "unforeseen"]

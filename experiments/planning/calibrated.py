@@ -3,8 +3,6 @@
 round until the plans keep it."""
 from __future__ import annotations
 
-from contextlib import nullcontext
-
 from ns2codegen.config import Config
 from ns2host.sim.planmodel import NEAR_GAP_MAX
 from ns2plan.forces import ForceModel
@@ -12,7 +10,7 @@ from ns2plan.problem import RRTParams, SCPParams
 
 from .. import margin
 from .cases import LIMITS_3D
-from .runs import fly_plans, plan_pool, trial_rows
+from .runs import fly_plans, plan_executor, trial_rows
 
 
 # the margin's calibration on the planner's own flown plans (calibrated_margin): per case and round,
@@ -79,14 +77,13 @@ def calibrated_margin(cfg: Config, fm: ForceModel, checkpoint, gen_dir, held_out
     flights, history = list(held_out), []
     rep = margin.measure(cfg, fm, flights, LIMITS_3D)
     cases = [(name, d) for d in dims for name in scenarios]
-    pool = plan_pool(checkpoint, gen_dir, workers)
-    with pool or nullcontext():
+    with plan_executor(checkpoint, gen_dir, workers) as ex:
         for r in range(rounds):
             m = rep["margin_g"]
             log(f"margin calibration round {r}: {plans} NN plans per case of seeds {list(seeds)} with margin {m}")
             tasks, done = [], []
             while wave := calibration_wave(cases, seeds, plans, _outcomes(tasks, done)):
-                flown = fly_plans(fm, checkpoint, gen_dir, wave, m, rrt, scp_params, workers, pool)
+                flown = fly_plans(checkpoint, gen_dir, wave, m, rrt, scp_params, ex)
                 log("  " + ", ".join(f"{d}D {name} seed {s}: {'planned' if res[1] is not None else 'no plan'}"
                                      for (name, d, s), res in zip(wave, flown)))
                 tasks += wave

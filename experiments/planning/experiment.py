@@ -26,21 +26,24 @@ from .store import RESUME_DIR, TrialStore
 def planning_experiments(cfg: Config, checkpoint, gen_dir, out_dir, scenarios=None, dims=(2, 3), trials: int = 5,
                          rrt: RRTParams = RRTParams(), scp_params: SCPParams = SCPParams(), log=print,
                          progress=None, fa_margin_g=None, modes=("NN", "BL"), calibrate: bool = False,
-                         workers: int = 2) -> dict:
+                         workers: int = 2, runs_dir=None) -> dict:
     """Every scenario in every dimension, ``trials`` seeds with NN and with BL (or
     ``modes``; ``progress(1)`` after every trial), ``workers`` trials at once (forked
-    processes; a trial's outcome does not depend on it); writes plan.json, plan.md and
+    processes, or the Dask cluster of NS2_SCHEDULER: runs.plan_executor; a trial's
+    outcome does not depend on it); writes plan.json, plan.md and
     the figures.  ``fa_margin_g`` None: the margin measured on held-out flights
     (measured_margin; with ``calibrate`` also on the NN's flown plans of calibration
     seeds, calibrated_margin), else this one (g, one value or per type).  The margin
-    and every finished trial are kept in ``out_dir``/RESUME_DIR (TrialStore): the same
-    call again, after a run was cut short, reuses them and plans only the rest."""
+    and every finished trial are kept in ``runs_dir`` (default ``out_dir``/RESUME_DIR;
+    TrialStore; each case's example plan in ``out_dir``/RESUME_DIR) as they finish: the
+    same call again, after a run was cut short, reuses them and plans only the rest."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     models = [m for m in ("NN", "BL") if m in modes]
     nn = load_force_model(cfg, checkpoint)
     names = list(scenarios or SCENARIOS)
-    store = TrialStore(out / RESUME_DIR, checkpoint, names, list(dims), rrt, scp_params)
+    store = TrialStore(runs_dir if runs_dir is not None else out / RESUME_DIR, checkpoint, names, list(dims), rrt,
+                       scp_params, examples=out / RESUME_DIR)
     rep = None
     if fa_margin_g is None:
         rep = store.get("margin", calibrate)
@@ -60,21 +63,19 @@ def planning_experiments(cfg: Config, checkpoint, gen_dir, out_dir, scenarios=No
     tkey = lambda mode, name, d, trial: (mode, name, d, trial, fa_margin_g)  # noqa: E731
     kept = {t: store.get("trial", *tkey(*t)) for t in tasks}
     todo = [t for t in tasks if kept[t] is None]
-    if len(todo) < len(tasks):
-        log(f"{len(tasks) - len(todo)} of {len(tasks)} trials from an earlier run of these inputs ({store.folder})")
-    pool = runs.plan_pool(checkpoint, gen_dir, workers) if todo else None
-    with pool or nullcontext():
-        if pool is None:
-            runs._set_worker_model(nn)
+    store.report("trials", len(tasks), len(todo), log)
+    for group in {t[:3] for t in tasks}:    # a case's example (the first plan) kept elsewhere: fly it again
+        first = next((t for t in tasks if t[:3] == group and (kept[t] is None or kept[t]["error"] is None)), None)
+        if first is not None and kept[first] is not None and not store.has_example(*tkey(*first)):
+            kept[first] = None
+            todo.append(first)
+    ex = runs.plan_executor(checkpoint, gen_dir, workers) if todo else nullcontext()
+    with ex:
         args = {t: (*t[:4], fa_margin_g, str(gen_dir), rrt, scp_params) for t in todo}
 
-        def keep(t, future) -> None:            # a trial kept as soon as it finishes, in any order
-            if future.exception() is None:
-                store.put("trial", future.result()[0], *tkey(*t))
-
-        futures = {t: pool.submit(runs._experiment_trial, *a) for t, a in args.items()} if pool is not None else {}
-        for t, f in futures.items():
-            f.add_done_callback(lambda f, t=t: keep(t, f))
+        futures = {t: ex.submit(runs._experiment_trial, *a) for t, a in args.items()}
+        for t, f in futures.items():            # a trial kept as soon as it finishes, in any order
+            ex.when_done(f, lambda out, t=t: store.put("trial", out[0], *tkey(*t)))
         results, figures = {}, {}
         for d in dims:
             for name in names:
@@ -91,12 +92,9 @@ def planning_experiments(cfg: Config, checkpoint, gen_dir, out_dir, scenarios=No
                             if rec["error"] is None and mode not in examples:
                                 res, flight = store.get_example(*tkey(*t)) or (None, None)
                         else:
-                            rec, res, flight = (futures[t].result() if pool is not None else
-                                                runs._experiment_trial(*args[t]))
+                            rec, res, flight = futures[t].result()
                             if res is not None and mode not in examples:
                                 store.put_example((res, flight), *tkey(*t))
-                            if pool is None:
-                                store.put("trial", rec, *tkey(*t))
                         recs.append(rec)
                         if progress is not None:
                             progress(1)

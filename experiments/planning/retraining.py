@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-from contextlib import nullcontext
 from pathlib import Path
 
 from ns2codegen.config import Config
@@ -15,7 +14,7 @@ from ns2plan.problem import PlanningError, RRTParams, SCPParams
 
 from .. import margin
 from .cases import LIMITS_3D
-from .runs import fly_plans, plan_pool, trial_rows
+from .runs import fly_plans, plan_executor, trial_rows
 
 
 # the planning model trained on its own flown plans too (plan_trained_checkpoint): seeds 2000 + 100 r
@@ -73,9 +72,8 @@ def plan_trained_checkpoint(cfg: Config, checkpoint, gen_dir, held_out: list, sc
         data = folder / f"data_plans_r{r}_{tag}.npz"
         if not data.is_file():
             log(f"plan data round {r}: {len(tasks)} NN plans of {ck.name} with its held-out margin {m}")
-            pool = plan_pool(ck, gen_dir, workers)
-            with pool or nullcontext():
-                done = fly_plans(fm, ck, gen_dir, tasks, m, rrt, scp_params, workers, pool)
+            with plan_executor(ck, gen_dir, workers) as ex:
+                done = fly_plans(ck, gen_dir, tasks, m, rrt, scp_params, ex)
             rows = trial_rows(cfg, tasks, done)
             ok = [t for t in rows if t["planned"]]
             log(f"  planned {len(ok)}/{len(rows)}, {sum(t['over_limit'] for t in ok)} over a limit in flight")

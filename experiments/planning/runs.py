@@ -1,6 +1,6 @@
 """One planning trial: plan a case (NN or BL), check the plan, fly it in the
 simulator (ns2exp.tracking) and record it; the summary of a case's trials; the
-forked workers that plan and fly trials, each holding the planning model."""
+workers that plan and fly trials (ns2codegen.executor), each holding the planning model."""
 from __future__ import annotations
 
 import time
@@ -10,6 +10,8 @@ import numpy as np
 
 from ns2codegen.config import Config
 from ns2codegen.data.from_logs import Flight
+from ns2codegen.executor import Executor
+from ns2codegen.results import file_hash
 from ns2plan.forces import ForceModel, load_force_model
 from ns2plan.planner import plan
 from ns2plan.problem import GRAMS_TO_N, PlanningError, Problem, RRTParams, SCPParams
@@ -20,7 +22,7 @@ from ..tracking import track
 from .cases import SCENARIOS, scenario_problem
 
 
-_WORKER_MODEL = None                    # the model of the planning workers (_worker_init, _set_worker_model)
+_WORKER_MODEL = None                    # the model of a planning worker (_worker_init)
 
 
 def over_limit(trial: dict, fa_max) -> bool:
@@ -94,22 +96,13 @@ def unforeseen(pb: Problem, fm: ForceModel, log: dict, t_pre: float = 1.0) -> di
     return {"over_limit_states": over.sum(0).tolist(), "over_limit_in_bound_states": (over & in_bound).sum(0).tolist()}
 
 
-def _worker_init(checkpoint) -> None:
-    """A forked worker: one torch thread (two workers on the 2 cores; and a forked
-    child must not enter the parent's OpenMP pool, which hangs), the model loaded."""
+def _worker_init(checkpoint, checkpoint_hash: str) -> None:
+    """A worker's setup (ns2codegen.executor): the model of ``checkpoint`` (its content
+    hash in the arguments: a checkpoint rewritten under the same name is loaded again)."""
     global _WORKER_MODEL
-    import torch
-
     from ns2codegen.checkpoint import load_checkpoint
 
-    torch.set_num_threads(1)
-
     _WORKER_MODEL = load_force_model(load_checkpoint(checkpoint).cfg, checkpoint)
-
-
-def _set_worker_model(fm: ForceModel) -> None:
-    global _WORKER_MODEL
-    _WORKER_MODEL = fm
 
 
 def _experiment_trial(mode: str, name: str, dims: int, seed: int, fa_margin_g, gen_dir, rrt: RRTParams,
@@ -138,30 +131,23 @@ def _flown_plan(name: str, dims: int, seed: int, fa_margin_g, gen_dir, rrt: RRTP
                    name=f"plan {dims}D {name} seed {seed}"))
 
 
-def fly_plans(fm: ForceModel, checkpoint, gen_dir, tasks: list, fa_margin_g, rrt: RRTParams, scp_params: SCPParams,
-              workers: int = 2, pool=None) -> list:
-    """_flown_plan for every (scenario, dims, seed) of ``tasks``: in ``pool`` (forked
-    workers that loaded ``checkpoint``, _worker_init), else in this process
-    with ``fm``."""
+def fly_plans(checkpoint, gen_dir, tasks: list, fa_margin_g, rrt: RRTParams, scp_params: SCPParams,
+              executor: Executor) -> list:
+    """_flown_plan for every (scenario, dims, seed) of ``tasks`` on ``executor``
+    (plan_executor's: its workers hold the model of ``checkpoint``)."""
     args = [(n, d, s, fa_margin_g, str(gen_dir), rrt, scp_params) for n, d, s in tasks]
-    if pool is not None:
-        return [f.result() for f in [pool.submit(_flown_plan, *a) for a in args]]
-    _set_worker_model(fm)
-    return [_flown_plan(*a) for a in args]
+    return executor.map(_flown_plan, args)
 
 
-def plan_pool(checkpoint, gen_dir, workers: int):
-    """Forked workers holding the model of ``checkpoint`` (None with one worker)."""
-    import multiprocessing
-    from concurrent.futures import ProcessPoolExecutor
-
+def plan_executor(checkpoint, gen_dir, workers: int, scheduler: str | None = None) -> Executor:
+    """The executor of planning trials (ns2codegen.executor: ``workers`` forked processes,
+    or the Dask cluster of ``scheduler`` / NS2_SCHEDULER, or this process), each worker
+    holding the model of ``checkpoint`` (_worker_init); the C flight kernel is built here
+    first (the workers on this machine load it)."""
     from ns2host.cfhost import load_fly
 
     load_fly(gen_dir)                                 # build once, before any worker loads it
-    if workers <= 1:
-        return None
-    return ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("fork"), initializer=_worker_init,
-                               initargs=(str(checkpoint),))
+    return Executor(workers, scheduler, setup=(_worker_init, (str(checkpoint), file_hash(checkpoint))))
 
 
 def trial_rows(cfg: Config, tasks: list, done: list) -> list:

@@ -19,7 +19,7 @@ import numpy as np
 from ns2codegen.config import Config
 from ns2codegen.data.dataset import Dataset
 from ns2codegen.data.from_logs import Flight, flights_to_dataset
-from ns2codegen.parallel import forked_map
+from ns2codegen.executor import run_map
 
 from .cloop import CLoopSwarm
 from .roughness import Roughness
@@ -145,4 +145,4 @@ def fly_many(fn, args: list, gen_dir, workers: int = 1, progress=None) -> list:
     if workers > 1 and len(args) > 1:
         from ..cfhost import load_fly
         load_fly(gen_dir)                             # build once, before the workers load it
-    return forked_map(fn, args, workers, progress)
+    return run_map(fn, args, workers, progress)
