@@ -63,9 +63,11 @@ def real_check_c(gen_dir, checkpoint, data_dir, out, as_json):
     """Every held-out real sample through the exported C, float and fixed, against the references."""
     from ns2codegen.data.dataset import Dataset
     from ns2codegen.fileio import atomic_write_bytes
-    from ns2exp.real import c_in_the_loop, load_queries, selection_mismatches
+    from ns2codegen.export import export_config
+    from ns2exp.real import c_in_the_loop, load_queries, same_history, selection_mismatches
 
     q = load_queries(Path(data_dir) / "heldout_queries.npz")
+    same_history(q, export_config(gen_dir), Path(data_dir) / "heldout_queries.npz")
     labels = Dataset.load(Path(data_dir) / "heldout.npz").label_g
     res = c_in_the_loop(gen_dir, checkpoint, q, labels)
     every = Path(data_dir) / "all_queries.npz"

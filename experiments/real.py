@@ -325,7 +325,7 @@ def load_queries(path: str | Path) -> Queries:
         raise RealDataError(f"{path}: not a query file of `ns2 real data` ({e})") from None
 
 
-def _same_history(queries: Queries, cfg: Config, what) -> None:
+def same_history(queries: Queries, cfg: Config, what) -> None:
     """The queries carry the lags the model sees (``model.history_ms``), else a one-line error."""
     if queries.lags != len(cfg.history_ms) or queries.nbr_rel.shape[-1] != cfg.input_dim:
         raise RealDataError(f"{what}: model.history_ms {cfg.history_ms} but the queries have {queries.lags} history "
@@ -343,7 +343,7 @@ def c_in_the_loop(gen_dir: str | Path, checkpoint: str | Path, queries: Queries,
     from ns2host.cbuild import CModel
 
     em = from_checkpoint(load_checkpoint(checkpoint))
-    _same_history(queries, em.cfg, checkpoint)
+    same_history(queries, em.cfg, checkpoint)
     cm = CModel(gen_dir)
     c_f, info_f = cm.predict(queries, fixed=False)
     c_q, info_q = cm.predict(queries, fixed=True)
@@ -525,7 +525,7 @@ def selection_mismatches(gen_dir: str | Path, queries: Queries, ds) -> dict:
     from ns2host.cbuild import CModel
 
     cfg = export_config(gen_dir)
-    _same_history(queries, cfg, gen_dir)
+    same_history(queries, cfg, gen_dir)
     _, info = CModel(gen_dir).predict(queries, fixed=True)
     ours = np.diff(ds.nbr_offsets) - 1
     if len(ours) != len(queries):
