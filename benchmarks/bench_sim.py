@@ -17,7 +17,7 @@ from ns2codegen.config import Config
 from ns2codegen.data.analytic import downwash_dataset
 from ns2codegen.export import export
 from ns2codegen.train import train
-from ns2host.sim.cloop import CLoopSwarm, hover_setpoints
+from ns2host.sim.cloop import CLoopSwarm, NS2Controller, hover_setpoints, robots_of
 from ns2host.sim.collect import collect, teams
 
 
@@ -40,7 +40,7 @@ def main() -> None:
         rtf = {}
         for n, duration in ((1, 10.0), (16, 5.0)):
             pos = [[0.35 * (i % 4), 0.35 * (i // 4), 0.6 + 0.3 * (i % 2)] for i in range(n)]
-            sw = CLoopSwarm(cfg, ["small"] * n, gen, pos, aero=True, learned="fixed")
+            sw = CLoopSwarm(cfg, robots_of(["small"] * n, pos, NS2Controller("fixed")), gen, aero=True)
             t0 = time.perf_counter()
             sw.run(duration, hover_setpoints(np.array(pos)), settle_s=0.0)
             rtf[f"{n}_robots"] = round(duration / (time.perf_counter() - t0), 2)

@@ -42,7 +42,7 @@ from ns2codegen.fileio import atomic_write_files
 from ns2codegen.executor import run_map
 
 from ns2host.sim import flightstats as fs
-from ns2host.sim.cloop import CLoopSwarm
+from ns2host.sim.cloop import CLoopSwarm, robots_of
 from ns2host.sim.paramfile import source_commit
 from ns2host.sim.roughness import EFFECTS, Roughness, dump_roughness, hp_share
 from ns2host.sim.scenarios import random_walk
@@ -77,7 +77,7 @@ def probe_flight(cfg: Config, gen_dir, robot_type: str, rough: Roughness | None)
     """One robot's random walk (PROBE) in the simulator on its own battery, as the drone
     logs it."""
     sp, start = random_walk(1, cube=PROBE["cube"], seed=PROBE["seed"])
-    sw = CLoopSwarm(cfg, [robot_type], gen_dir, start, aero=True, rough=rough, seed=PROBE["seed"])
+    sw = CLoopSwarm(cfg, robots_of([robot_type], start), gen_dir, aero=True, rough=rough, seed=PROBE["seed"])
     log = sw.run(PROBE["seconds"], sp)
     return Flight([robot_type], *(log[k] for k in ("t", "p", "v", "q", "pwm", "battery_V")), p_d=log["p_d"])
 

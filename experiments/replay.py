@@ -21,7 +21,7 @@ import numpy as np
 from ns2codegen.config import Config
 from ns2codegen.data.from_logs import Flight
 
-from ns2host.sim.cloop import CLoopSwarm, Setpoints
+from ns2host.sim.cloop import AuthorsController, CLoopSwarm, NS2Controller, Robot, Setpoints
 from ns2host.sim.flightstats import setpoint_derivatives
 from ns2host.sim.roughness import Roughness
 from ns2host.sim.vehicle import G, authors_gains, read_law_gains
@@ -136,9 +136,15 @@ def replay(cfg: Config, pieces: list[Flight], gen_dir, learned: str | None = "fl
     else:
         authors = [authors_gains(t, r) for t, r in zip(types, robots)]
     given = logged_prediction(pieces) if learned == "logged" else None
-    sw = CLoopSwarm(cfg, types, gen_dir, start, aero=True, learned=None if given is not None else learned, seed=seed,
-                    rough=rough, controllers=[controller] * len(types), authors=authors, fa_given=given,
-                    battery_given=logged_battery(pieces) if battery == "logged" else None)
+    own = None if given is not None else learned
+    supply = logged_battery(pieces) if battery == "logged" else None
+
+    def robot(i: int) -> Robot:   # robot i flies column i of the logged prediction and supply voltage
+        ctrl = (NS2Controller(own) if controller == "ns2" else
+                AuthorsController(authors[i], own, None if given is None else lambda t: given(t)[i]))
+        return Robot(types[i], tuple(start[i]), ctrl, battery=3.9 if supply is None else lambda t: supply(t)[i])
+
+    sw = CLoopSwarm(cfg, [robot(i) for i in range(len(types))], gen_dir, aero=True, seed=seed, rough=rough)
     log = sw.run(duration, sp)
     return Flight(types, log["t"] + t0, log["p"], log["v"], log["q"], log["pwm"], log["battery_V"],
                   name=pieces[0].name, p_d=log["p_d"], fa_onboard_g=log["fa_hat"][:, :, 2] * 1e3 / G,

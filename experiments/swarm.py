@@ -26,7 +26,7 @@ import numpy as np
 
 from ns2codegen.config import Config
 
-from ns2host.sim.cloop import CLoopSwarm
+from ns2host.sim.cloop import AuthorsController, CLoopSwarm, MellingerController, NS2Controller, robots_of
 from ns2host.sim.flightstats import NOISE_WINDOW, motor_noise
 from ns2host.sim.roughness import Roughness
 from ns2host.sim.scenarios import RING_SECONDS, intertwined_rings, swap
@@ -82,12 +82,11 @@ def _fly(cfg, team, gen_dir, start, sp, duration, controller: str, tuning, measu
     use = tuning if controller in ("BL-tuned", "NN") else None
     gains = [tuned(vehicle(cfg, t), use) for t in team]
     if controller in AUTHORS_CONTROLLERS:
-        ctrls = ["authors"] * n
+        ctrls = [AuthorsController(read_law_gains(t, law) if law is not None else None, learned) for t in team]
     else:
-        ctrls = ["mellinger" if controller == "Mellinger" and i in measured else "ns2" for i in range(n)]
-    authors = [read_law_gains(t, law) for t in team] if law is not None else None
-    sw = CLoopSwarm(cfg, list(team), gen_dir, start, aero=True, learned=learned, gains=gains, controllers=ctrls,
-                    seed=seed, rough=rough, authors=authors)
+        ctrls = [MellingerController() if controller == "Mellinger" and i in measured else NS2Controller(learned)
+                 for i in range(n)]
+    sw = CLoopSwarm(cfg, robots_of(list(team), start, ctrls, gains), gen_dir, aero=True, seed=seed, rough=rough)
     return sw.run(duration, sp)
 
 
@@ -107,8 +106,8 @@ def run_swaps(cfg: Config, gen_dir, case: str, learned: str | None = None, swaps
     if controller is None:
         from ns2host.sim.vehicle import vehicle
 
-        sw = CLoopSwarm(cfg, list(team), gen_dir, start, aero=True, learned=learned, seed=seed,
-                        gains=[tuned(vehicle(cfg, t), tuning) for t in team], rough=rough)
+        robots = robots_of(list(team), start, NS2Controller(learned), [tuned(vehicle(cfg, t), tuning) for t in team])
+        sw = CLoopSwarm(cfg, robots, gen_dir, aero=True, seed=seed, rough=rough)
         log = sw.run(swaps * period, sp)
     else:
         log = _fly(cfg, team, gen_dir, start, sp, swaps * period, controller, tuning, measured=[0], seed=seed,
@@ -125,7 +124,7 @@ def hover_noise(cfg: Config, gen_dir, tuning: dict | None, seconds: float = 4.0,
     from ns2host.sim.vehicle import vehicle
 
     p0 = [[0.0, 0.0, 1.0]]
-    sw = CLoopSwarm(cfg, ["small"], gen_dir, p0, gains=[tuned(vehicle(cfg, "small"), tuning)], rough=rough)
+    sw = CLoopSwarm(cfg, robots_of(["small"], p0, gains=[tuned(vehicle(cfg, "small"), tuning)]), gen_dir, rough=rough)
     return motor_noise(sw.run(seconds, hover_setpoints(p0))["pwm"])
 
 

@@ -40,9 +40,9 @@ def plan_setpoints(trajs: list, kappa, t_pre: float):
 def track(pb: Problem, trajs: list, gen_dir, t_pre: float = 1.0, t_post: float = 1.0) -> dict:
     """Fly the plan; per robot the worst tracking error max_t ||p - p_d|| (eq. metric)
     and the worst true |f_a,z| (g) from the start of the plan to the end of t_post."""
-    from ns2host.sim.cloop import CLoopSwarm
+    from ns2host.sim.cloop import CLoopSwarm, robots_of
 
-    sw = CLoopSwarm(pb.cfg, [r.type for r in pb.robots], gen_dir, pb.starts(), learned=None, aero=True)
+    sw = CLoopSwarm(pb.cfg, robots_of([r.type for r in pb.robots], pb.starts()), gen_dir, aero=True)
     duration = t_pre + trajs[0].T * trajs[0].dt + t_post
     log = sw.run(duration, plan_setpoints(trajs, pb.kappa(), t_pre))
     w = log["t"] >= t_pre

@@ -235,7 +235,7 @@ class SimSwarm:
     def _start(self) -> None:
         """The simulation, from the last take-off command: every robot hovering at its
         take-off point, the types, gains and switches the mission set."""
-        from ns2host.sim.cloop import CLoopSwarm
+        from ns2host.sim.cloop import CLoopSwarm, NS2Controller, Robot
 
         rs = list(self.robots.values())
         by_name = {r.name: r for r in self.swarm.robots}
@@ -250,8 +250,9 @@ class SimSwarm:
         learned = None if not any(enable) else ("fixed" if int(rs[0].params.get("ns2.fixed", 1)) else "float")
         self.types = types
         self.t0 = self.flown = max(r.when("takeoff") for r in rs)
-        self.sim = CLoopSwarm(self.cfg, types, self.export_dir, self.start_pos, learned=learned, aero=True,
-                              gains=[r.gains() for r in rs], seed=self.seed, ids=ids, type_tables=tables)
+        robots = [Robot(t, tuple(p), NS2Controller(learned), r.gains(), radio_id=i, type_table=tuple(tab))
+                  for t, p, r, i, tab in zip(types, self.start_pos, rs, ids, tables)]
+        self.sim = CLoopSwarm(self.cfg, robots, self.export_dir, aero=True, seed=self.seed)
 
     def _fault(self, f: Fault) -> None:
         if f.kind == "ctrl-c":

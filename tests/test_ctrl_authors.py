@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from ns2codegen.vehicle import vehicle
-from ns2host.sim.cloop import CLoopSwarm, hover_setpoints
+from ns2host.sim.cloop import AuthorsController, CLoopSwarm, NS2Controller, Robot, hover_setpoints, robots_of
 from ns2host.sim.vehicle import AUTHORS_GAINS, authors_gains, read_law_gains
 
 
@@ -104,7 +104,7 @@ def test_authors_law_holds_the_steady_state_of_its_equation(cfg, exported):
 
     def z_error(seconds, **law):
         gains = dict(authors_gains("small"), **law)
-        sw = CLoopSwarm(cfg, ["small"], exported.gen_dir, p0, controllers=["authors"], authors=[gains], seed=1)
+        sw = CLoopSwarm(cfg, robots_of(["small"], p0, AuthorsController(gains)), exported.gen_dir, seed=1)
         return _settled_z_error(sw.run(seconds, hover_setpoints(p0), settle_s=0.5))
 
     no_i = {"ki": [0.0] * 3}
@@ -133,7 +133,7 @@ def test_the_authors_motor_map_realizes_the_force_commanded(cfg, exported, monke
     gains = dict(authors_gains(robot_type), mass_kg=veh.mass, ki=[0.0] * 3)
 
     def hover():
-        sw = CLoopSwarm(cfg, [robot_type], exported.gen_dir, p0, controllers=["authors"], authors=[gains], seed=1)
+        sw = CLoopSwarm(cfg, robots_of([robot_type], p0, AuthorsController(gains)), exported.gen_dir, seed=1)
         return sw.run(6.0, hover_setpoints(p0), settle_s=0.5)
 
     log = hover()
@@ -149,7 +149,7 @@ def test_the_authors_motor_map_realizes_the_force_commanded(cfg, exported, monke
 
 
 def test_a_given_prediction_is_flown_as_the_law_says(cfg, exported):
-    """fa_given (a real flight's logged prediction, experiments/replay.py): a given 0 g flies
+    """AuthorsController's given prediction (a real flight's logged one, ns2exp.replay): a given 0 g flies
     bit for bit as no learned force; a given c g is subtracted from the law's force, so
     without the integral the robot settles where k (m (g + kp e) - k_fa c g0) = m g (k
     from the 0 g run, as above), below the setpoint, for k_fa 1 (the law as written) and
@@ -160,26 +160,26 @@ def test_a_given_prediction_is_flown_as_the_law_says(cfg, exported):
     gains = dict(authors_gains("small"), mass_kg=m, ki=[0.0] * 3)
 
     def fly(fa_given, seconds=6.0, k_fa=1.0):
-        sw = CLoopSwarm(cfg, ["small"], exported.gen_dir, p0, controllers=["authors"], seed=1,
-                        authors=[dict(gains, k_fa=k_fa)], fa_given=fa_given)
+        ctrl = AuthorsController(dict(gains, k_fa=k_fa), given=fa_given)
+        sw = CLoopSwarm(cfg, robots_of(["small"], p0, ctrl), exported.gen_dir, seed=1)
         return sw.run(seconds, hover_setpoints(p0), settle_s=0.5)
 
-    none, zero = fly(None), fly(lambda t: np.zeros(1))
+    none, zero = fly(None), fly(lambda t: 0.0)
     assert np.array_equal(none["p"], zero["p"]) and np.array_equal(none["pwm"], zero["pwm"])
     k = 1.0 / (1.0 + _settled_z_error(zero) * 10.0 / 9.81)
     c = 3.0
-    given = fly(lambda t: np.full(1, c))
+    given = fly(lambda t: c)
     e_pred = (m * 9.81 / k - m * 9.81 + c * 1e-3 * 9.81) / (m * 10.0)
     assert e_pred > 0.03 and _settled_z_error(given) == pytest.approx(e_pred, abs=0.004)
     e_half = (m * 9.81 / k - m * 9.81 + 0.5 * c * 1e-3 * 9.81) / (m * 10.0)
-    assert _settled_z_error(fly(lambda t: np.full(1, c), k_fa=0.5)) == pytest.approx(e_half, abs=0.004)
+    assert _settled_z_error(fly(lambda t: c, k_fa=0.5)) == pytest.approx(e_half, abs=0.004)
     assert e_pred - e_half > 0.03
     assert np.allclose(given["fa_hat"][:, 0, 2], c * 1e-3 * 9.81, rtol=1e-6)
-    step = fly(lambda t: np.full(1, c if t >= 1.0 else 0.0), 2.0)["fa_hat"][:, 0, 2]
+    step = fly(lambda t: c if t >= 1.0 else 0.0, 2.0)["fa_hat"][:, 0, 2]
     t = np.arange(len(step)) / 100.0
     assert np.all(step[t < 0.995] == 0.0) and np.allclose(step[t > 1.005], c * 1e-3 * 9.81, rtol=1e-6)
-    with pytest.raises(ValueError, match="authors"):
-        CLoopSwarm(cfg, ["small"], exported.gen_dir, p0, fa_given=lambda t: np.zeros(1))
+    with pytest.raises(ValueError, match="controller"):   # a controller by name, not an object
+        CLoopSwarm(cfg, [Robot("small", p0[0], "authors")], exported.gen_dir)
 
 
 def test_the_authors_attitude_gains_reach_the_controller_and_it_hovers(cfg, exported):
@@ -189,7 +189,8 @@ def test_the_authors_attitude_gains_reach_the_controller_and_it_hovers(cfg, expo
     from ns2codegen.vehicle import default_gains
 
     p0 = [[0.0, 0.0, 1.0], [1.5, 0.0, 1.0]]
-    sw = CLoopSwarm(cfg, ["small", "large"], exported.gen_dir, p0, controllers=["authors", "ns2"], seed=2)
+    sw = CLoopSwarm(cfg, robots_of(["small", "large"], p0, [AuthorsController(), NS2Controller()]), exported.gen_dir,
+                    seed=2)
     att = AUTHORS_GAINS["CF21SingleMarker"]["att"]
     g0, g1 = sw.robots[0].pilot.ctrl.g, sw.robots[1].pilot.ctrl.g
     for k in ("Lq", "Kw", "Gw", "Kwd"):
@@ -198,6 +199,7 @@ def test_the_authors_attitude_gains_reach_the_controller_and_it_hovers(cfg, expo
     assert g0.int_w_max == pytest.approx(att["int_w_max"])
     log = sw.run(4.0, hover_setpoints(p0), settle_s=1.0)
     assert np.abs(log["truth_p"][:, 0, :2] - log["p_d"][:, 0, :2]).max() < 0.01   # level, on its spot
-    own = CLoopSwarm(cfg, ["small"], exported.gen_dir, p0[:1], controllers=["authors"], gains=[{"Kw": [1e-3] * 3}])
+    own = CLoopSwarm(cfg, robots_of(["small"], p0[:1], AuthorsController(), gains=[{"Kw": [1e-3] * 3}]),
+                     exported.gen_dir)
     assert list(own.robots[0].pilot.ctrl.g.Kw) == pytest.approx([1e-3] * 3)
     assert list(own.robots[0].pilot.ctrl.g.Lq) == pytest.approx(att["Lq"])

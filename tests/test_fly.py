@@ -8,7 +8,7 @@ import pytest
 
 from ns2codegen.vehicle import G
 from ns2host.crazyflie import have_firmware
-from ns2host.sim.cloop import CLoopSwarm, hover_setpoints
+from ns2host.sim.cloop import CLoopSwarm, MellingerController, NS2Controller, hover_setpoints, robots_of
 from ns2host.sim.scenarios import swap
 from ns2host.sim.sensing import Sensing
 
@@ -62,9 +62,9 @@ def test_pilot_in_the_loop_equals_direct_replay(cfg, exported, learned):
     """Bit for bit, every 500 Hz tick of a 3-robot swap with interactions, sensing and
     losses: the PWM and f_a of ns2_pilot in the simulator are those of the app's calls
     replayed on the recorded inputs (estimated state, setpoint, peer samples, clock)."""
-    team = ["small", "large", "small"]
+    types = ["small", "large", "small"]
     sp, start = swap(3, [0.5, 0.8, 1.1], radius=0.4, duration=2.5, rest=0.5, seed=0)
-    sw = CLoopSwarm(cfg, team, exported.gen_dir, start, aero=True, learned=learned, seed=3)
+    sw = CLoopSwarm(cfg, robots_of(types, start, NS2Controller(learned)), exported.gen_dir, aero=True, seed=3)
     log = sw.run(3.0, sp, trace_robot=0, settle_s=0.5)
     trace, n = log["trace"]
     assert n == int(3.5 * 500)
@@ -83,11 +83,11 @@ def test_controllers_see_the_estimate_not_the_truth(cfg, exported):
     """Hover: the EKF estimate (the drone's log) tracks the true position within
     millimetres but is not it; without mocap (every frame lost) it drifts."""
     p0 = [[0.0, 0.0, 1.0]]
-    log = CLoopSwarm(cfg, ["small"], exported.gen_dir, p0, seed=1).run(3.0, hover_setpoints(p0))
+    log = CLoopSwarm(cfg, robots_of(["small"], p0), exported.gen_dir, seed=1).run(3.0, hover_setpoints(p0))
     d = np.abs(log["p"] - log["truth_p"])
     assert 1e-5 < d.max() < 0.01, d.max()
     assert np.abs(log["truth_p"][:, 0, 2] - 1.0).max() < 0.01
-    blind = CLoopSwarm(cfg, ["small"], exported.gen_dir, p0, seed=1, sensing=Sensing(loss=1.0))
+    blind = CLoopSwarm(cfg, robots_of(["small"], p0), exported.gen_dir, seed=1, sensing=Sensing(loss=1.0))
     lb = blind.run(3.0, hover_setpoints(p0), settle_s=0.0)
     assert np.abs(lb["p"] - lb["truth_p"]).max() > 5 * d.max()
 
@@ -96,7 +96,8 @@ def test_firmware_mellinger_flies(cfg, exported):
     """The firmware's Mellinger controller (default gains, thrust through the firmware's
     power distribution and battery compensation) hovers the small robot."""
     p0 = [[0.0, 0.0, 1.0]]
-    log = CLoopSwarm(cfg, ["small"], exported.gen_dir, p0, controllers=["mellinger"]).run(4.0, hover_setpoints(p0))
+    sw = CLoopSwarm(cfg, robots_of(["small"], p0, MellingerController()), exported.gen_dir)
+    log = sw.run(4.0, hover_setpoints(p0))
     late = log["t"] > 2.0
     assert np.abs(log["truth_p"][late, 0] - p0[0]).max() < 0.03
     assert 0.2 < log["pwm"][late].mean() < 0.95

@@ -16,7 +16,7 @@ from ns2codegen.logs.collection import COLLECTION
 from ns2exp.calibrate import MOMENT_KEY, _quadrature, lateral_k_xy, quadrature_fit, thrust_sd
 from ns2host.sim import flightstats as fs
 from ns2host.sim.aero import K_XY
-from ns2host.sim.cloop import CLoopSwarm, hover_setpoints
+from ns2host.sim.cloop import CLoopSwarm, hover_setpoints, robots_of
 from ns2exp.replay import logged_battery, logged_prediction, logged_setpoints, pieces_by_flight, replay
 from ns2host.sim import collect as collect_mod
 from ns2host.sim.roughness import LOW_BATTERY_V, MomentTurbulence, Roughness, Turbulence, hp_share
@@ -28,7 +28,7 @@ SL = [f"{COLLECTION}/swap_sl/cf51_03", f"{COLLECTION}/swap_sl/cf101_03"]
 
 def _fly(cfg, exported, rough, seconds=1.0, seed=4):
     sp, start = swap(2, [0.5, 0.8], radius=0.3, duration=1.0, rest=0.2, seed=seed)
-    sw = CLoopSwarm(cfg, ["small", "large"], exported.gen_dir, start, aero=True, seed=seed, rough=rough)
+    sw = CLoopSwarm(cfg, robots_of(["small", "large"], start), exported.gen_dir, aero=True, seed=seed, rough=rough)
     return sw, sw.run(seconds, sp, settle_s=0.2)
 
 
@@ -106,7 +106,7 @@ def test_the_wakes_moment_turns_the_robot_under_a_wake(cfg, exported):
     the body torque tau_a of the dynamics; gain 0 is no effect, bit for bit."""
     def hover(rough):   # a small robot 0.3 m under a large one, 5 cm off its axis along y
         start = [[0.0, 0.0, 1.0], [0.0, 0.05, 1.3]]
-        sw = CLoopSwarm(cfg, ["small", "large"], exported.gen_dir, start, aero=True, seed=2, rough=rough)
+        sw = CLoopSwarm(cfg, robots_of(["small", "large"], start), exported.gen_dir, aero=True, seed=2, rough=rough)
         return sw.run(0.6, hover_setpoints(np.array(start)), settle_s=0.1)
 
     r = Roughness()
@@ -236,7 +236,7 @@ def test_free_air_statistics_see_the_vibration(cfg, exported):
     p0 = [[0.0, 0.0, 1.0]]
 
     def stats(rough):
-        log = CLoopSwarm(cfg, ["small"], exported.gen_dir, p0, aero=True, seed=2, rough=rough).run(
+        log = CLoopSwarm(cfg, robots_of(["small"], p0), exported.gen_dir, aero=True, seed=2, rough=rough).run(
             4.0, hover_setpoints(p0), settle_s=0.5)
         fl = Flight(["small"], *(log[k] for k in ("t", "p", "v", "q", "pwm", "battery_V")), p_d=log["p_d"])
         return fs.free_air(cfg, [fl])["small"], fs.z_loop(cfg, [fl])

@@ -1,10 +1,12 @@
 """Simulator physics and the firmware controller in the loop (interactions off)."""
+import hashlib
 import math
 
 import numpy as np
 import pytest
 
-from ns2host.sim.cloop import CLoopSwarm, figure_eight, hover_setpoints
+from ns2host.sim.cloop import (AuthorsController, CLoopSwarm, MellingerController, Robot, figure_eight,
+                               hover_setpoints, robots_of)
 from ns2host.sim.collect import CRASH_MARGIN_S, crash_cut
 from ns2host.sim.dynamics import Dynamics, SwarmState
 from ns2host.sim.vehicle import G, vehicle
@@ -67,7 +69,7 @@ def test_firmware_mixer_matches_simulator_B0(exported, vehicles):
 def test_controller_tracks_a_figure_eight(cfg, exported, kind):
     """Interactions off: after a 6 s transient the C controller keeps the robot
     within 5 cm of a 1 m x 0.5 m figure-eight flown in 6 s (peak speed 0.7 m/s)."""
-    sw = CLoopSwarm(cfg, [kind], exported.gen_dir, [[0, 0, 1.0]])
+    sw = CLoopSwarm(cfg, robots_of([kind], [[0, 0, 1.0]]), exported.gen_dir)
     log = sw.run(12.0, figure_eight([0, 0, 1.0]))
     err = np.linalg.norm(log["truth_p"][:, 0] - log["p_d"][:, 0], axis=1)
     assert err[log["t"] > 6.0].max() < 0.05, err.max()
@@ -126,6 +128,35 @@ def test_mixing_capped_as_the_firmware(cfg, exported):
     np.testing.assert_allclose(capped - capped.mean(), free - free.mean(), rtol=0, atol=1e-6)
 
 
+# sha256 (first 16 hex digits) of the logs of three 1 s figure-eight flights of one robot,
+# made at commit 7e89027 (before issue 55 item 5 split ns2_fly_run into its tasks and gave
+# CLoopSwarm controller objects and per-robot specs) through the constructor of that commit
+# (controllers=, fa_given=, battery_given=, battery_V=); a lone robot without the learned term
+# flies the same whatever network the export holds (checked with two trainings).
+GOLDEN = {"ns2": "5d23b8b28fe798f0", "authors": "5a08fc85c3048918", "mellinger": "88fe8582ad890950"}
+GOLDEN_FIELDS = ("p", "v", "q", "w", "pwm", "battery_V", "truth_p", "truth_v", "p_d", "fa_hat")
+
+
+def test_the_simulator_flies_bit_for_bit_as_before_its_refactor(cfg, exported):
+    """Every controller kind (with a given prediction and a supply voltage of its own for
+    the authors' one, a nominal voltage for Mellinger's) logs the same flight, bit for
+    bit, as the simulator before its refactor (GOLDEN)."""
+    p0 = (0.0, 0.0, 1.0)
+    swarms = {"ns2": CLoopSwarm(cfg, [Robot("small", p0)], exported.gen_dir, seed=5),
+              "authors": CLoopSwarm(cfg, [Robot("large", p0, AuthorsController(given=lambda t: 2.0 * np.sin(3 * t)),
+                                                battery=lambda t: 3.8 - 0.2 * t)], exported.gen_dir, seed=6),
+              "mellinger": CLoopSwarm(cfg, [Robot("small", p0, MellingerController(), battery=3.7)],
+                                      exported.gen_dir, seed=7)}
+    got = {}
+    for kind, sw in swarms.items():
+        log = sw.run(1.0, figure_eight(p0, period=3.0), settle_s=0.5)
+        h = hashlib.sha256()
+        for k in GOLDEN_FIELDS:
+            h.update(k.encode() + np.ascontiguousarray(log[k], np.float64).tobytes())
+        got[kind] = h.hexdigest()[:16]
+    assert got == GOLDEN
+
+
 def test_crash_cuts_the_log():
     """A robot below the floor (a crash: the simulator has no floor contact) ends the
     usable log CRASH_MARGIN_S before it; a flight without one is kept whole."""
@@ -137,7 +168,7 @@ def test_crash_cuts_the_log():
 
 
 def test_hover_holds(cfg, exported):
-    sw = CLoopSwarm(cfg, ["small", "large"], exported.gen_dir, [[0, 0, 1.0], [1.0, 0, 1.0]])
+    sw = CLoopSwarm(cfg, robots_of(["small", "large"], [[0, 0, 1.0], [1.0, 0, 1.0]]), exported.gen_dir)
     log = sw.run(4.0, hover_setpoints([[0, 0, 1.0], [1.0, 0, 1.0]]))
     late = log["t"] > 2.0
     assert np.abs(log["truth_p"][late] - log["p_d"][late]).max() < 0.03

@@ -15,7 +15,7 @@ from ns2codegen.config import ConfigError
 from ns2codegen.data.labels import G, V_NORM, psi1_newtons
 from ns2codegen.logs.align import logs_to_flights
 from ns2codegen.sysid import SysidError, fit_lambda, fit_static, lin_features, quad_features
-from ns2host.sim.cloop import CLoopSwarm, hover_setpoints
+from ns2host.sim.cloop import CLoopSwarm, hover_setpoints, robots_of
 from ns2host.sim.dynamics import Dynamics, SwarmState
 from ns2host.sim.usdlogs import write_flight, write_manifest
 from ns2host.sim.vehicle import STRONG, vehicle
@@ -132,10 +132,10 @@ def test_sysid_file_drives_config_labels_and_the_controller(cfg, exported, tmp_p
     np.testing.assert_allclose(vehicle(cfg2, "small").psi1, true.psi1, rtol=0.05, atol=0.3)
     # the controller on the identified psi_2 / f_max hovers a vehicle with the identified psi_1
     hover = hover_setpoints([[0.0, 0.0, 0.6]])
-    log = CLoopSwarm(cfg2, ["small"], exported.gen_dir, [[0.0, 0.0, 0.6]]).run(3.0, hover)
+    log = CLoopSwarm(cfg2, robots_of(["small"], [[0.0, 0.0, 0.6]]), exported.gen_dir).run(3.0, hover)
     assert np.abs(log["truth_p"][-100:, 0, 2] - 0.6).max() < 0.01
     # the strong robot flies (simulator truth); labels with the table's psi_1 vs the identified one
-    log = CLoopSwarm(cfg, ["small*"], exported.gen_dir, [[0.0, 0.0, 0.6]], aero=True).run(3.0, hover)
+    log = CLoopSwarm(cfg, robots_of(["small*"], [[0.0, 0.0, 0.6]]), exported.gen_dir, aero=True).run(3.0, hover)
     root = tmp_path / "logs"
     write_manifest(root, [write_flight(root, "hover", ["small*"], log, seed=1)])
     err = {}

@@ -17,7 +17,7 @@ from ns2codegen.logs import usdlog
 from ns2codegen.logs.align import LogError, PWM_FULL, RobotLog, VARIABLES, align, logs_to_flights
 from ns2codegen.logs.usdlog import UsdLogError, UsdLogWriter
 from ns2codegen.train import train
-from ns2host.sim.cloop import CLoopSwarm
+from ns2host.sim.cloop import CLoopSwarm, robots_of
 from ns2host.sim.scenarios import swap
 from ns2host.sim.usdlogs import write_flight, write_manifest
 
@@ -159,7 +159,7 @@ def sim_logs(cfg, exported, tmp_path_factory):
     """A small and a large robot swapping (6 s, ground truth kept apart), written as
     two uSD files with their own clocks."""
     sp, start = swap(2, [0.5, 0.8], radius=0.4, duration=2.5, rest=0.5, seed=2)
-    log = CLoopSwarm(cfg, ["small", "large"], exported.gen_dir, start, aero=True).run(6.0, sp)
+    log = CLoopSwarm(cfg, robots_of(["small", "large"], start), exported.gen_dir, aero=True).run(6.0, sp)
     root = tmp_path_factory.mktemp("usd")
     write_manifest(root, [write_flight(root, "swap", ["small", "large"], log, seed=5)])
     return root, log

@@ -65,48 +65,110 @@ class FlightLog:
         return {k: np.array(v) for k, v in self.__dict__.items()}
 
 
+LEARNED = (None, "float", "fixed")
+
+
+def _check_learned(learned) -> None:
+    if learned not in LEARNED:
+        raise ValueError(f"learned must be None, 'float' or 'fixed', got {learned!r}")
+
+
+@dataclass(frozen=True)
+class NS2Controller:
+    """The app's code path (ns2_pilot, firmware/src): the project's controller at
+    500/100 Hz with psi_2 PWM.  learned: None (the baseline, f_a = 0, as in the paper),
+    "float" or "fixed": the learned term of the export's network."""
+    learned: str | None = None
+
+    def __post_init__(self):
+        _check_learned(self.learned)
+
+
+@dataclass(frozen=True)
+class AuthorsController:
+    """ns2_pilot with the position law of the controller that flew the real flights
+    (host/ctrl_authors.c), its motor forces realized through the exact inverse of psi_1
+    (vehicle.AUTHORS_PWM_EXACT).  gains: None (vehicle.authors_gains of the robot's
+    type) or a dict of ns2_authors_gains_t, with its attitude gains under "att";
+    learned: as NS2Controller's; given: None, or ``given(t)`` -> the f_a,z-hat (g) the
+    robot flies instead of its network's (read at 100 Hz: a real flight's logged
+    prediction, ns2exp.replay; 0 while settling)."""
+    gains: dict | None = None
+    learned: str | None = None
+    given: Callable | None = None
+
+    def __post_init__(self):
+        _check_learned(self.learned)
+
+
+@dataclass(frozen=True)
+class MellingerController:
+    """The firmware's controller_mellinger.c + power_distribution_quadrotor.c with the
+    stock configuration's battery compensation (a Crazyflie flying the stock firmware)."""
+    learned = None
+
+
+Controller = NS2Controller | AuthorsController | MellingerController
+
+
+@dataclass(frozen=True)
+class Robot:
+    """One simulated robot.  type: a robot type of the config (with vehicle.py's
+    variants, e.g. "small*"); p0: its start position (m; it starts hovering there);
+    controller: NS2Controller (default), AuthorsController or MellingerController;
+    gains: None (default_gains, with the authors' "att" for AuthorsController) or a dict
+    of ns2_gains_t fields replacing some of them; radio_id: None (its index + 1) or its
+    radio id; type_table: None (it knows its peers' true types), or the words of its
+    type table (the app's PARAM ns2type.t0..t15) in which it looks each peer's type up
+    by radio id, as the app does (ns2 fly --sim); battery: its supply voltage (V): a
+    number (the nominal one; the rough simulator's sag applies), or ``battery(t)`` -> V
+    (a real flight's logged one, ns2exp.replay; read every step, the settling reads t = 0)."""
+    type: str
+    p0: tuple
+    controller: Controller = NS2Controller()
+    gains: dict | None = None
+    radio_id: int | None = None
+    type_table: tuple | None = None
+    battery: float | Callable = 3.9
+
+
+def robots_of(types, positions, controller: Controller | list = NS2Controller(), gains=None, **kw) -> list[Robot]:
+    """Robots of these types at these start positions, all with this controller (or one
+    per robot) and gains (None, or one dict or None per robot); ``kw``: Robot's other
+    fields, the same for every robot."""
+    n = len(types)
+    ctrls = list(controller) if isinstance(controller, (list, tuple)) else [controller] * n
+    gains = list(gains) if gains is not None else [None] * n
+    if len(ctrls) != n or len(gains) != n or len(positions) != n:
+        raise ValueError(f"{n} robot types, {len(positions)} positions, {len(ctrls)} controllers, {len(gains)} gains")
+    return [Robot(t, tuple(float(c) for c in p), c, g, **kw) for t, p, c, g in zip(types, positions, ctrls, gains)]
+
+
+_KIND = {NS2Controller: "NS2_FLY_PILOT", AuthorsController: "NS2_FLY_AUTHORS", MellingerController: "NS2_FLY_MELLINGER"}
+
+
 class CLoopSwarm:
-    def __init__(self, cfg: Config, types: list[str], gen_dir, positions, learned: str | None = None,
-                 aero: bool = False, battery_V: float = 3.9, controllers=None, gains=None,
-                 sensing: Sensing | None = None, seed: int = 0, rough: Roughness | None = None,
-                 authors=None, fa_given: Callable | None = None, battery_given: Callable | None = None,
-                 ids=None, type_tables=None):
-        """learned: None (baseline, f_a = 0), "float" or "fixed"; aero: ground-truth
-        interactions (host/sim/aero.py) on or off; controllers: per robot "ns2" (the
-        app's path, default), "mellinger" (the firmware's) or "authors" (the app's path
-        with the position law of the controller that flew the real flights,
-        host/ctrl_authors.c; authors: per robot None (vehicle.authors_gains of its type)
-        or a dict of ns2_authors_gains_t, with its attitude gains under "att"); gains:
-        per robot None (default_gains, with the authors' "att" for "authors") or a
-        dict of ns2_gains_t fields replacing some of them;
-        sensing: the figures of host/sim/sensing.py; seed: noise, biases and losses;
-        rough: a real Crazyflie's unmodelled effects (host/sim/roughness.py; None: the
-        clean simulator); fa_given: None, or ``fa_given(t)`` -> f_a,z-hat [N] in g that
-        the "authors" robots fly instead of their network's (read at 100 Hz: a real
-        flight's logged prediction, ns2exp.replay); battery_given: None (battery_V, or the
-        rough simulator's sag), or ``battery_given(t)`` -> [N] each robot's supply
-        voltage (V; a real flight's logged one, ns2exp.replay; read every step, the
-        settling reads t = 0); ids: per robot its radio id (default 1, 2, ...);
-        type_tables: None (each robot knows its peers' true types), or per robot the
-        words of its type table (the app's PARAM ns2type.t0..t15), in which it looks
-        each peer's type up by radio id, as the app does (ns2 fly --sim)."""
-        if learned not in (None, "float", "fixed"):
-            raise ValueError(f"learned must be None, 'float' or 'fixed', got {learned!r}")
+    def __init__(self, cfg: Config, robots: list[Robot], gen_dir, aero: bool = False,
+                 sensing: Sensing | None = None, rough: Roughness | None = None, seed: int = 0):
+        """robots: one Robot each (type, start, controller, gains, radio id, type table,
+        supply); aero: ground-truth interactions (host/sim/aero.py) on or off; sensing:
+        the figures of host/sim/sensing.py; rough: a real Crazyflie's unmodelled effects
+        (host/sim/roughness.py; None: the clean simulator); seed: noise, biases and losses."""
+        robots = list(robots)
+        if not robots or not all(isinstance(r, Robot) for r in robots):
+            raise ValueError("robots: a non-empty list of cloop.Robot")
+        if any(type(r.controller) not in _KIND for r in robots):
+            raise ValueError(f"controller: one of {[c.__name__ for c in _KIND]} per robot")
         self.cfg = cfg
-        self.types = types
+        self.spec = robots
+        self.types = types = [r.type for r in robots]
         n = len(types)
-        controllers = list(controllers or ["ns2"] * n)
-        if len(controllers) != n or any(c not in CONTROLLERS for c in controllers):
-            raise ValueError(f"controllers: one of {CONTROLLERS} per robot, got {controllers}")
         self.type_idx = np.array([cfg.robot_types.index(base_type(t)) for t in types])
         self.vehicles = [vehicle(cfg, t) for t in types]
         self.dyn = Dynamics(self.vehicles)
-        self.state = SwarmState.hover(positions, self.vehicles)
-        self.learned = learned
+        self.state = SwarmState.hover([r.p0 for r in robots], self.vehicles)
         self.aero = (calibrated(self.vehicles, vehicle(cfg, cfg.robot_types[0]),
                                 **(rough.aero_kwargs(types) if rough is not None else {})) if aero else None)
-        self.battery_V = battery_V
-        self.battery_given = battery_given
         self.sensing = sensing or Sensing()
         self.rng = np.random.default_rng(seed)
         self.ffi, self.lib = load_fly(gen_dir)
@@ -114,7 +176,6 @@ class CLoopSwarm:
         if n > lib.NS2_FLY_MAX_ROBOTS:
             raise ValueError(f"at most {lib.NS2_FLY_MAX_ROBOTS} robots, got {n}")
         self.robots = ffi.new("ns2_fly_robot_t[]", n)
-        ids = list(ids) if ids is not None else [i + 1 for i in range(n)]
         acc_b, acc_scale, gyro_b = self.sensing.biases(self.rng, n)
         se = self.sensing
         self.rough = rough
@@ -124,47 +185,51 @@ class CLoopSwarm:
         self.arms = np.array([v.arm for v in self.vehicles])
         self.moment_turbulence = (MomentTurbulence(rough, self.arms, 1.0 / ATT_HZ, seed)
                                   if rough is not None else None)
-        for i, veh in enumerate(self.vehicles):
+        for i, (rb, veh) in enumerate(zip(robots, self.vehicles)):
+            ctrl = rb.controller
             it = ffi.new("ns2_fly_init_t *")
-            it.kind = {"ns2": lib.NS2_FLY_PILOT, "mellinger": lib.NS2_FLY_MELLINGER,
-                       "authors": lib.NS2_FLY_AUTHORS}[controllers[i]]
-            a = (((authors[i] if authors is not None else None) or authors_gains(types[i]))
-                 if controllers[i] == "authors" else None)
+            it.kind = getattr(lib, _KIND[type(ctrl)])
+            a = (ctrl.gains or authors_gains(rb.type)) if isinstance(ctrl, AuthorsController) else None
             if a is not None:
                 it.authors.mass_kg, it.authors.i_max, it.authors.k_fa = a["mass_kg"], a["i_max"], a.get("k_fa", 1.0)
                 it.authors.kp, it.authors.kd, it.authors.ki = list(a["kp"]), list(a["kd"]), list(a["ki"])
                 it.pwm_exact, it.psi1_nominal = int(AUTHORS_PWM_EXACT), list(veh.psi1)
-            it.id, it.type = ids[i], int(self.type_idx[i])
-            if type_tables is not None:
-                it.use_type_table, it.type_table = 1, list(type_tables[i])
+            it.id, it.type = rb.radio_id if rb.radio_id is not None else i + 1, int(self.type_idx[i])
+            if rb.type_table is not None:
+                it.use_type_table, it.type_table = 1, list(rb.type_table)
             it.par, it.psi1, it.p0 = list(self.dyn.par[i]), list(np.asarray(veh.psi1) * thrust[i]), list(self.state.p[i])
             it.bias_acc_g, it.bias_gyro_dps, it.acc_scale = list(acc_b[i]), list(gyro_b[i]), acc_scale[i]
             sd_acc, sd_gyro = ((se.acc_sd_g, se.gyro_sd_dps) if rough is None
-                               else rough.imu_sd(types[i], se.acc_sd_g, se.gyro_sd_dps))
+                               else rough.imu_sd(rb.type, se.acc_sd_g, se.gyro_sd_dps))
             it.sd_acc_g, it.sd_gyro_dps, it.ext_pos_std_m = sd_acc, sd_gyro, se.ext_pos_std_m
             fill_vehicle(it.veh, veh)
             g = default_gains(veh)
             if a is not None:   # and their attitude gains (vehicle.AUTHORS_GAINS "att")
                 g.update(a.get("att", {}))
-            g.update((gains[i] if gains is not None else None) or {})
+            g.update(rb.gains or {})
             fill_gains(it.gains, g)
             lib.ns2_pilot_default_cfg(ffi.addressof(it, "pilot_cfg"), it.type)
-            it.pilot_cfg.enable = int(learned is not None)
-            it.pilot_cfg.fixed = int(learned != "float")
+            it.pilot_cfg.enable = int(ctrl.learned is not None)
+            it.pilot_cfg.fixed = int(ctrl.learned != "float")
             lib.ns2_fly_init(ffi.addressof(self.robots, i), it)
-        self.controllers = controllers
-        if fa_given is not None and "authors" not in controllers:
-            raise ValueError("fa_given is flown by the 'authors' controller only")
-        self.fa_given = fa_given
+        # the predictions given from outside (AuthorsController.given), by robot
+        self.given = {i: r.controller.given for i, r in enumerate(robots)
+                      if isinstance(r.controller, AuthorsController) and r.controller.given is not None}
         self.sps = np.zeros((n, 13), np.float32)      # ns2_setpoint_t: p, v, a, yaw, w
         self.est = ffi.new("float[13]")
         self._ms, self._k, self._frames = 0, 0, deque()   # where a later run() goes on from
+
+    def _battery_V(self, t: float, k_all: int) -> np.ndarray:
+        """[N] each robot's supply voltage at flight time t (step k_all since the start)."""
+        return np.array([r.battery(max(t, 0.0)) if callable(r.battery)
+                         else (r.battery if self.rough is None else self.rough.battery_V(k_all / ATT_HZ, r.battery))
+                         for r in self.spec], float)
 
     def _fa_flown_g(self, i: int) -> float:
         r = self.robots[i]
         if r.fa_given:
             return float(r.fa_given_g)
-        return float(r.pilot.fa_hat_g) if self.learned else 0.0
+        return float(r.pilot.fa_hat_g) if self.spec[i].controller.learned else 0.0
 
     def _estimate(self, i: int) -> np.ndarray:
         self.lib.ns2_fly_estimate(self.ffi.addressof(self.robots, i), self.est)
@@ -204,11 +269,8 @@ class CLoopSwarm:
                 sp = hover if k < settle else setpoints(t, st)
                 self.sps[:, 0:3], self.sps[:, 3:6], self.sps[:, 6:9] = sp.p, sp.v, sp.a
                 self.sps[:, 9], self.sps[:, 10:13] = sp.yaw, 0.0
-                if self.fa_given is not None:
-                    fg = np.asarray(self.fa_given(t), float) if k >= settle else np.zeros(n)
-                    for i in range(n):
-                        if self.controllers[i] == "authors":
-                            self.robots[i].fa_given, self.robots[i].fa_given_g = 1, float(fg[i])
+                for i, given in self.given.items():
+                    self.robots[i].fa_given, self.robots[i].fa_given_g = 1, float(given(t)) if k >= settle else 0.0
             if ms % frame_every == 0:  # a mocap frame of every marker, broadcast after latency_ms
                 p_meas = (st.p + self.rng.normal(0.0, se.mocap_sd_m, st.p.shape)).astype(np.float32)
                 rx = (self.rng.random(n) >= se.loss).astype(np.uint8)
@@ -230,11 +292,7 @@ class CLoopSwarm:
                 tau = self.moment_turbulence.moment(f_a) + (tau if tau is not None else 0.0)
             if self.turbulence is not None:
                 f_a = f_a + self.turbulence.force(f_a)
-            if self.battery_given is not None:
-                battery_V = np.asarray(self.battery_given(max(t, 0.0)), float).reshape(n)
-            else:
-                battery_V = np.full(n, self.battery_V if self.rough is None
-                                    else self.rough.battery_V((self._ms // STEP_TICKS + k) / ATT_HZ, self.battery_V))
+            battery_V = self._battery_V(t, self._ms // STEP_TICKS + k)
             battery_f32 = battery_V.astype(np.float32)   # what the C reads (kept alive while it does)
             if k >= settle and ms % every_log == 0:
                 est = np.array([self._estimate(i) for i in range(n)])

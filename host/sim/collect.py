@@ -21,7 +21,7 @@ from ns2codegen.data.dataset import Dataset
 from ns2codegen.data.from_logs import Flight, flights_to_dataset
 from ns2codegen.executor import run_map
 
-from .cloop import CLoopSwarm
+from .cloop import CLoopSwarm, NS2Controller, robots_of
 from .roughness import Roughness
 from .scenarios import near_field, random_walk, swap, who_moves, who_moves_bystander
 from .usdlogs import write_flight, write_manifest
@@ -66,7 +66,8 @@ def flight_log(cfg: Config, team, gen_dir, kind: str, duration: float, seed: int
         sp, start = random_walk(n, seed=seed)
     else:
         raise ValueError(f"unknown flight kind {kind!r}: random, swap, near or who")
-    sw = CLoopSwarm(cfg, list(team), gen_dir, start, aero=True, learned=learned, seed=seed, rough=rough)
+    sw = CLoopSwarm(cfg, robots_of(list(team), start, NS2Controller(learned)), gen_dir, aero=True, seed=seed,
+                    rough=rough)
     log = sw.run(duration, sp)
     n_keep = crash_cut(log["t"], log["truth_p"])
     if n_keep < len(log["t"]):
