@@ -1,8 +1,8 @@
 """One executor for many independent jobs (ns2codegen.executor) and the result store of
 long runs (ns2codegen.results): the same seeds give the same results, bit for bit, on
 this process, on forked workers and on a Dask cluster (a LocalCluster of two
-one-thread workers, reached by its address as a remote one is); a run cut short
-resumes from its kept units."""
+one-thread workers, reached by its address as a remote one is): ablation trainings,
+simulated flights, planning trials; a run cut short resumes from its kept units."""
 import json
 import os
 from pathlib import Path
@@ -133,6 +133,28 @@ def test_simulated_flights_are_the_same_here_and_on_a_dask_cluster(cluster, cfg,
         for k in ("t", "p", "v", "q", "pwm", "battery_V", "p_d"):
             assert np.array_equal(getattr(a, k), getattr(b, k)), k
     assert not np.array_equal(here[0].p, here[2].p)                   # other seeds, other flights
+
+
+def test_planning_trials_are_the_same_here_and_on_a_dask_cluster(cluster, cfg, exported, monkeypatch):
+    """Planning trials (ns2exp.planning.runs: plan, check, fly) on the Dask cluster, each
+    worker loading the planning model itself (plan_executor's setup): the same records as
+    in this process, bit for bit."""
+    from ns2exp.planning import runs
+    from ns2plan.problem import RRTParams, SCPParams, SearchParams
+
+    monkeypatch.delenv(SCHEDULER_ENV, raising=False)
+    rrt, scp = RRTParams(SearchParams(max_samples=6000), ao_iterations=1), SCPParams(max_iterations=3)
+    args = [(mode, "SL", 3, 0, 2.0, str(exported.gen_dir), rrt, scp) for mode in ("NN", "BL")]
+    out = {}
+    for name, sched, workers in (("here", None, 1), ("dask", cluster, 2)):
+        with runs.plan_executor(exported.checkpoint, exported.gen_dir, workers, sched) as ex:
+            assert ex.backend == ("inline" if sched is None else "dask")
+            out[name] = [rec for rec, _, _ in ex.map(runs._experiment_trial, args)]
+    for a, b in zip(out["here"], out["dask"]):
+        assert a["error"] == b["error"]
+        if a["error"] is None:
+            assert (a["track"], a["stage1_costs"], a["scp_merit"]) == (b["track"], b["stage1_costs"], b["scp_merit"])
+    assert any(a["error"] is None for a in out["here"])
 
 
 def test_a_rerun_trains_only_what_is_missing(cfg, tmp_path, monkeypatch):
