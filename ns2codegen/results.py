@@ -40,6 +40,7 @@ class ResultStore:
     def __init__(self, folder, experiment: str, version: int, inputs=()):
         self.folder = Path(folder)
         self.experiment, self.version = experiment, int(version)
+        self.inputs = json.loads(_canon(inputs))
         self.base = hashlib.sha256(_canon([experiment, self.version, inputs]).encode()).hexdigest()
 
     def key(self, *unit) -> str:
@@ -55,9 +56,9 @@ class ResultStore:
         return json.loads(p.read_text())["result"] if p.is_file() else None
 
     def put(self, kind: str, value, *unit) -> None:
-        """Keep a finished unit (with what it was, for a reader of the file)."""
+        """Keep a finished unit (with what it was and its inputs, for a reader of the file)."""
         self.folder.mkdir(parents=True, exist_ok=True)
-        doc = {"experiment": self.experiment, "version": self.version, "kind": kind,
+        doc = {"experiment": self.experiment, "version": self.version, "inputs": self.inputs, "kind": kind,
                "unit": json.loads(_canon(list(unit))), "result": value}
         atomic_write_bytes(self.path(kind, *unit), (json.dumps(doc, default=float) + "\n").encode())
 

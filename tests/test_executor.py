@@ -14,7 +14,7 @@ import torch
 from ns2codegen.data.analytic import downwash_dataset
 from ns2codegen.data.dataset import Dataset
 from ns2codegen.executor import LOCAL_CLUSTER, SCHEDULER_ENV, Executor, scheduler_address
-from ns2codegen.results import ResultStore
+from ns2codegen.results import ResultStore, file_hash
 
 CI = os.environ.get("CI", "").lower() == "true"
 
@@ -178,6 +178,7 @@ def test_a_rerun_trains_only_what_is_missing(cfg, tmp_path, monkeypatch):
     assert len(kept) == 4
     doc = json.loads(kept[0].read_text())
     assert doc["experiment"] == "ablation" and doc["version"] == ablation.VERSION and "mse" in doc["result"]
+    assert doc["inputs"][0] == [file_hash(tmp_path / "d.npz")] and doc["unit"][1] in (0, 1)
     # cut short: one unit's file lost; one checkpoint lost (its unit is not complete without it)
     kept[0].unlink()
     (tmp_path / "ck" / "H-20-seed1.pt").unlink()
