@@ -1,7 +1,7 @@
 /*
  * ctrl_authors.h - host-only: the position law of the controller that flew the
  * paper's real flights of 16 June 2020, for the simulator's replay of them
- * (host/sim/replay.py).  That controller is controller_sjc.c of the authors'
+ * (ns2exp.replay, experiments/replay.py).  That controller is controller_sjc.c of the authors'
  * crazyflie-firmware fork (Morgan, Subramanian, Chung, Hadaegh, IJRR 2016, sect. 7);
  * written here from its equation, not copied:
  *   e = p_d - p,  I = clamp(I + e dt, +-i_max)             (per axis)
