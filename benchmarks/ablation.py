@@ -36,6 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ns2codegen.results import stamp
 from ns2exp.ablation import TRAIN_OPTIONS, runs, table, train_all
 
 
@@ -98,7 +99,7 @@ def main() -> None:
            "test_data": args.test_data, "test_samples": sizes["test_samples"],
            "wall_s": round(time.perf_counter() - t_all, 1),
            **table(results, args.axes)}
-    print(json.dumps(out, indent=2))
+    print(json.dumps(stamp(out), indent=2))
 
 
 if __name__ == "__main__":

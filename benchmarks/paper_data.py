@@ -27,6 +27,7 @@ from ns2codegen.checkpoint import save_checkpoint
 from ns2codegen.config import Config
 from ns2codegen.data.analytic import downwash_dataset
 from ns2codegen.export import export
+from ns2codegen.results import stamp
 from ns2codegen.train import train
 from ns2exp import ablation
 from ns2host.sim.cloop import LOG_HZ
@@ -90,7 +91,7 @@ def main() -> None:
         results[(axis, value)] = round(r["validation"]["mse"], 3)
         print(f"  ablation {axis}={value}: {r['validation']['mse']:.3f}", file=sys.stderr)
     out["ablation"].update(ablation.table(results, "H,L,W"))
-    print(json.dumps(out, indent=2))
+    print(json.dumps(stamp(out), indent=2))
 
 
 if __name__ == "__main__":

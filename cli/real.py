@@ -64,6 +64,7 @@ def real_check_c(gen_dir, checkpoint, data_dir, out, as_json):
     from ns2codegen.data.dataset import Dataset
     from ns2codegen.fileio import atomic_write_bytes
     from ns2codegen.export import export_config
+    from ns2codegen.results import stamp
     from ns2exp.real import c_in_the_loop, load_queries, same_history, selection_mismatches
 
     q = load_queries(Path(data_dir) / "heldout_queries.npz")
@@ -75,7 +76,7 @@ def real_check_c(gen_dir, checkpoint, data_dir, out, as_json):
         res["selection_all_flights"] = selection_mismatches(gen_dir, load_queries(every),
                                                             Dataset.load(Path(data_dir) / "all.npz"))
     if out:
-        atomic_write_bytes(Path(out), json.dumps(res, indent=1).encode())
+        atomic_write_bytes(Path(out), json.dumps(stamp(res), indent=1).encode())
     _emit(as_json, res, f"{res['samples']} held-out samples: float C {res['float_mismatches']} and fixed C "
           f"{res['fixed_mismatches']} differ from the references; |fixed - float| max "
           f"{res['abs_fixed_minus_float_g']['max']:.4f} g; labels {res['label_range_g']} g inside the fixed range "
@@ -108,11 +109,12 @@ def real_report(out_dir, checkpoint, unpack_dir, as_json):
 def real_score(checkpoint, data_dir, out, as_json):
     """MSE of a model on every flight and on the held-out flights (both label conventions)."""
     from ns2codegen.fileio import atomic_write_bytes
+    from ns2codegen.results import stamp
     from ns2exp.real import score
 
     res = score(checkpoint, data_dir)
     if out:
-        atomic_write_bytes(Path(out), json.dumps(res, indent=1).encode())
+        atomic_write_bytes(Path(out), json.dumps(stamp(res), indent=1).encode())
     _emit(as_json, res, ", ".join(f"{k} {v:.3f} g^2" for k, v in res.items() if k.endswith("_mse")))
 
 
@@ -179,16 +181,22 @@ def real_adapt(out_dir, gen_dir, unpack_dir, seeds, collections, no_held_out, ch
 def real_memory(now_path, past_path, lags, out, as_json):
     """Does the wake have a memory? The blind scores with and without the neighbours' past states."""
     from ns2codegen.fileio import atomic_write_bytes
+    from ns2codegen.results import stamp
     from ns2exp.blind import memory, memory_table
 
     _parent_ok(out)
+    try:
+        lags_ms = [int(x) for x in lags.split(",")]
+    except ValueError:
+        raise click.BadParameter(f"{lags!r}: comma-separated whole milliseconds", param_hint="--lags") from None
     try:
         now, past = (json.loads(Path(p).read_text()) for p in (now_path, past_path))
         rows = memory(now, past)
     except (OSError, ValueError, KeyError, TypeError) as e:
         raise click.ClickException(f"{now_path}, {past_path}: not two `ns2 real blind` results ({e})") from None
     md = memory_table(rows, lags)
-    atomic_write_bytes(Path(out), json.dumps(rows, indent=1, sort_keys=True).encode())
+    doc = stamp(dict(rows, lags_ms=lags_ms))
+    atomic_write_bytes(Path(out), json.dumps(doc, indent=1, sort_keys=True).encode())
     atomic_write_bytes(Path(out).with_suffix(".md"), (md + "\n").encode())
     _emit(as_json, rows, md)
 

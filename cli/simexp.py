@@ -78,10 +78,8 @@ def sim_calibrate(logs_dir, data_dir, gen_dir, out_dir, per_scenario, refit, wor
     """Measure the real flights' roughness, fit host/sim/roughness.py to it, replay the real
     swaps in the clean and the rough simulator: the calibration and sim-to-real tables, and
     the fitted parameter files (copy them over host/sim/params/ to adopt the fit)."""
-    import shlex
-    import sys
-
     from ns2codegen.logs.align import logs_to_flights
+    from ns2codegen.results import command_line
     from ns2exp.calibrate import calibrate, first_per_folder, swap_flights
     from ns2exp.real import collection_config
     from ns2exp.replay import pieces_by_flight
@@ -96,5 +94,5 @@ def sim_calibrate(logs_dir, data_dir, gen_dir, out_dir, per_scenario, refit, wor
     if per_scenario is not None:
         names = first_per_folder(pieces_by_flight(swap_flights(flights)), per_scenario)
     res = calibrate(cfg, gen_dir, flights, hover, type_of, out_dir, workers=workers, names=names,
-                    rough=None if refit else Roughness(), command=shlex.join(["ns2", *sys.argv[1:]]))
+                    rough=None if refit else Roughness(), command=command_line())
     _emit(as_json, res, (Path(out_dir) / "calibration.md").read_text())

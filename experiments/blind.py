@@ -194,8 +194,9 @@ def table(res: dict) -> str:
 
 def write(res: dict, out: Path) -> None:
     from ns2codegen.fileio import atomic_write_bytes
+    from ns2codegen.results import stamp
 
-    atomic_write_bytes(out, json.dumps(res, indent=1, sort_keys=True).encode())
+    atomic_write_bytes(out, json.dumps(stamp(res), indent=1, sort_keys=True).encode())
     atomic_write_bytes(out.with_suffix(".md"), (table(res) + "\n").encode())
 
 
@@ -223,8 +224,15 @@ def memory(now: dict, past: dict) -> dict:
     return rows
 
 
-def memory_table(rows: dict, lags: list) -> str:
+def memory_rows(doc: dict) -> dict:
+    """The rows (blind split -> row) of ``memory``'s output or of the memory.json that
+    ``ns2 real memory`` writes (beside them: lags_ms, provenance)."""
+    return {k: v for k, v in doc.items() if isinstance(v, dict) and "wake_neutral" in v}
+
+
+def memory_table(rows: dict, lags) -> str:
     f = _fmt
+    rows = memory_rows(rows)
     lines = [f"| blind split | wake, mass-neutral: now / with the past {lags} ms | wake, plain | overall, mass-neutral "
              "| lower in the wake beyond the seeds' spread |", "|---|---|---|---|---|"]
     for name, r in rows.items():

@@ -39,11 +39,11 @@ import numpy as np
 from ns2codegen.config import Config
 from ns2codegen.data.from_logs import Flight
 from ns2codegen.fileio import atomic_write_files
+from ns2codegen.results import commit as source_commit, stamp
 from ns2codegen.executor import run_map
 
 from ns2host.sim import flightstats as fs
 from ns2host.sim.cloop import CLoopSwarm, robots_of
-from ns2host.sim.paramfile import source_commit
 from ns2host.sim.roughness import EFFECTS, Roughness, dump_roughness, hp_share
 from ns2host.sim.scenarios import random_walk
 from ns2host.sim.vehicle import AUTHORS_GAINS, AUTHORS_TYPE, G, READ_LAW, dump_read_law
@@ -676,7 +676,7 @@ def calibrate(cfg: Config, gen_dir, flights: list[Flight], hover_by_robot: dict,
     l2s = paper_l2s(cfg, gen_dir, rough, law=law)
     res = {"roughness": roughness_dict(rough), "read_law": law, "effects": list(EFFECTS), "fit": fit_report,
            "compare": cmp, "paper_l2s": l2s}
-    files = {"calibration.json": json.dumps(res, indent=1, sort_keys=True), "calibration.md": markdown(res)}
+    files = {"calibration.json": json.dumps(stamp(res, command), indent=1, sort_keys=True), "calibration.md": markdown(res)}
     if fit_report is not None:
         files.update(param_files(rough, law, command))
     atomic_write_files(out_dir, files)

@@ -28,6 +28,7 @@ from ns2codegen.data.from_logs import Flight, flight_queries, flights_to_dataset
 from ns2codegen.data.labels import motor_forces
 from ns2codegen.errors import Ns2Error
 from ns2codegen.fileio import atomic_write_bytes
+from ns2codegen.results import stamp
 from ns2codegen.logs.align import logs_to_flights
 from ns2codegen.logs.collection import COLLECTIONS, write_collection_manifest, write_manifest
 from ns2codegen.queries import Queries
@@ -265,7 +266,7 @@ def build(root: str | Path, out_dir: str | Path, cfg: Config | None = None) -> d
               "authors_masses_g": AUTHORS_MASSES_G,
               "labels": label_report(rcfg, flights), "held_out_flights": sorted(held), "data_sets": sizes,
               "alignment": alignment_summary(reports), "cuts": cut_summary(reports)}
-    atomic_write_bytes(out_dir / "data_report.json", json.dumps(report, indent=1, sort_keys=True).encode())
+    atomic_write_bytes(out_dir / "data_report.json", json.dumps(stamp(report), indent=1, sort_keys=True).encode())
     return report
 
 
@@ -411,7 +412,7 @@ def summary(out_dir: str | Path) -> dict:
     out["flights_md"] = flights_table(data["flights"])
     extra = [(d / f).read_text() for f in ("blind.md", "memory.md") if (d / f).is_file()]   # ns2 real blind, memory
     out["blind_md"] = extra
-    atomic_write_bytes(d / "summary.json", json.dumps(out, indent=1).encode())
+    atomic_write_bytes(d / "summary.json", json.dumps(stamp(out), indent=1).encode())
     atomic_write_bytes(d / "summary.md", ("\n".join(lines) + "\n\n" + "\n".join(extra) + "\n" + out["flights_md"]
                                           + "\n").encode())
     return out

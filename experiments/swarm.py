@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from ns2codegen.config import Config
+from ns2codegen.results import stamp
 
 from ns2host.sim.cloop import AuthorsController, CLoopSwarm, MellingerController, NS2Controller, robots_of
 from ns2host.sim.flightstats import NOISE_WINDOW, motor_noise
@@ -157,7 +158,7 @@ def tune_gains(cfg: Config, gen_dir, out: Path | None = None, swaps: int = 6, ro
            "key": _search_key(swaps, rough), "candidates": rows}
     if out is not None:
         Path(out).mkdir(parents=True, exist_ok=True)
-        (Path(out) / "gain_search.json").write_text(json.dumps(res, indent=2) + "\n")
+        (Path(out) / "gain_search.json").write_text(json.dumps(stamp(res), indent=2) + "\n")
     return res
 
 
@@ -250,7 +251,7 @@ def swap_experiments(cfg: Config, gen_dir, out_dir, swaps: int = 6, cases=None, 
             if progress is not None:
                 progress(1)
     res = {"swaps": swaps, "tuning": tuning, "simulator": "clean" if rough is None else "rough", "rows": rows}
-    (out / "swaps.json").write_text(json.dumps(res, indent=2) + "\n")
+    (out / "swaps.json").write_text(json.dumps(stamp(res), indent=2) + "\n")
     (out / "swaps.md").write_text(swap_table(res))
     fig, ax = plt.subplots(figsize=(1.2 * len(cases) * len(controllers) + 2, 3.5))
     data, labels = [], []
@@ -345,7 +346,7 @@ def ring_experiments(cfg: Config, gen_dir, out_dir, duration: float = RING_DURAT
                                     motor_noise(log["pwm"][:, sel])),
                              "mean_worst_z_error_m": float(worst[sel].mean())})
     res = {"duration_s": duration, "tuning": tuning, "simulator": "clean" if rough is None else "rough", "rows": rows}
-    (out / "rings.json").write_text(json.dumps(res, indent=2) + "\n")
+    (out / "rings.json").write_text(json.dumps(stamp(res), indent=2) + "\n")
     lines = ["| experiment | robot type | controller | mean / max worst z error (cm) | z rms (cm) | motor noise (%) |",
              "|---|---|---|---|---|---|"]
     for r in rows:

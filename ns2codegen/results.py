@@ -4,11 +4,18 @@ continued another day, by someone else from the committed files) redoes only wha
 is missing.  A unit's file is named by a key over what its result depends on: the
 experiment, its VERSION (an explicit number the experiment bumps when the meaning
 of its results changes; never a hash of the source files), the content hash of its
-inputs (checkpoint, data), and the unit's own case, seed and parameters."""
+inputs (checkpoint, data), and the unit's own case, seed and parameters.
+
+Every experiment's top-level result (``stamp``) also names the commit and the command
+that made it, so that ``make results`` can say where each table's numbers come from."""
 from __future__ import annotations
 
+import datetime
 import hashlib
 import json
+import shlex
+import subprocess
+import sys
 from pathlib import Path
 
 from .fileio import atomic_write_bytes
@@ -21,6 +28,54 @@ def file_hash(path) -> str:
         for block in iter(lambda: f.read(1 << 20), b""):
             h.update(block)
     return h.hexdigest()
+
+
+REPO = Path(__file__).resolve().parent.parent
+
+
+def commit(repo=REPO) -> str:
+    """The checkout's HEAD (short: 7 hex), + "-dirty" if a tracked file differs from it;
+    "unknown" outside a git checkout (an installed package) or without git: the
+    ``commit`` of every file a run writes."""
+    def git(*args):
+        return subprocess.run(["git", "-C", str(repo), *args], capture_output=True, text=True, timeout=60)
+    try:
+        head = git("rev-parse", "--short=7", "--verify", "HEAD")
+        if head.returncode != 0 or not (Path(repo) / ".git").exists():
+            return "unknown"
+        dirty = git("status", "--porcelain", "--untracked-files=no")
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+    return head.stdout.strip() + ("-dirty" if dirty.returncode != 0 or dirty.stdout.strip() else "")
+
+
+def command_line(argv=None) -> str:
+    """The command line as typed: ``ns2 ...`` for the CLI (``python -m ns2cli`` or the
+    ``ns2`` script), a script by its path in the checkout, arguments shell-quoted."""
+    argv = list(sys.argv if argv is None else argv)
+    prog = Path(argv[0]) if argv and argv[0] else Path("python")
+    if prog.name == "ns2" or (prog.name == "__main__.py" and prog.parent.name in ("cli", "ns2cli")):
+        name = "ns2"
+    else:
+        try:
+            name = prog.resolve().relative_to(REPO).as_posix()
+        except ValueError:
+            name = prog.name
+    return " ".join([name, *(shlex.quote(a) for a in argv[1:])])
+
+
+def provenance(command: str | None = None) -> dict:
+    """What made a result: {"commit", "command", "date" (UTC, ISO 8601)}."""
+    date = datetime.datetime.now(datetime.timezone.utc).replace(microsecond=0).isoformat()
+    return {"commit": commit(), "command": command_line() if command is None else command, "date": date}
+
+
+def stamp(doc: dict, command: str | None = None) -> dict:
+    """``doc`` (an experiment's top-level result) with its ``provenance`` (key
+    "provenance"); the numbers untouched."""
+    if not isinstance(doc, dict):
+        raise TypeError(f"a result to stamp is a JSON object, not {type(doc).__name__}")
+    return dict(doc, provenance=provenance(command))
 
 
 def _canon(value) -> str:

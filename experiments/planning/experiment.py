@@ -11,6 +11,7 @@ from pathlib import Path
 
 from ns2codegen.config import Config
 from ns2codegen.fileio import atomic_write_files
+from ns2codegen.results import stamp
 from ns2plan.forces import load_force_model
 from ns2plan.output import write_plan
 from ns2plan.problem import RRTParams, SCPParams
@@ -115,8 +116,8 @@ def planning_experiments(cfg: Config, checkpoint, gen_dir, out_dir, scenarios=No
              f"Planning margin (given): {fa_margin_g} g\n\n")
           + table(results) + "\n\nWhere the planning time goes (means per trial, PlanResult.profile):\n\n"
           + profile_table(results) + "\n")
-    atomic_write_files(out, {"plan.json": json.dumps({"model_check": check, "margin": rep or {"margin_g": fa_margin_g},
-                                                      "cases": results}, indent=1, default=float) + "\n",
+    atomic_write_files(out, {"plan.json": json.dumps(stamp({"model_check": check, "margin": rep or {"margin_g": fa_margin_g},
+                                                            "cases": results}), indent=1, default=float) + "\n",
                              "plan.md": md})
     for fname, (pb, examples) in figures.items():      # after the results: a figure cannot lose them
         example_figure(pb, examples, out / fname)

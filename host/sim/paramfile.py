@@ -16,7 +16,6 @@ raises ``ParamsError`` (an ``Ns2Error``: one line naming the file and the field)
 from __future__ import annotations
 
 import math
-import subprocess
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -120,15 +119,3 @@ def dump_params(values: dict, schema: dict[str, Param], origin: dict, comment: s
     data = {"origin": dict(origin)}
     data.update({name: {"value": values[name], "unit": p.unit, "source": p.source} for name, p in schema.items()})
     return dump_toml(data, comment)
-
-
-def source_commit(repo: str | Path | None = None) -> str:
-    """The checkout's commit (short; "-dirty" with uncommitted changes), or "unknown"
-    outside a git checkout: the ``commit`` of a file a run writes."""
-    repo = Path(__file__).resolve().parents[2] if repo is None else Path(repo)
-    try:
-        r = subprocess.run(["git", "-C", str(repo), "describe", "--always", "--dirty", "--abbrev=7"],
-                           capture_output=True, text=True, timeout=10)
-    except (OSError, subprocess.SubprocessError):
-        return "unknown"
-    return r.stdout.strip() if r.returncode == 0 and r.stdout.strip() else "unknown"
