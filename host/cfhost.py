@@ -65,7 +65,8 @@ FLY_CDEF = CDEF + """
 typedef struct { uint8_t enable; uint8_t fixed; uint8_t self_type; uint8_t phi_per_tick; uint16_t max_age_ms;
                  float fa_limit_g; } ns2_pilot_cfg_t;
 typedef struct { ns2_pilot_cfg_t cfg; ns2_gains_t gains; ns2_ctrl_t ctrl; ns2_peers_t peers; ns2_job_t job;
-                 uint8_t job_begun; float fa_hat_g; int32_t status; uint16_t n_used; float e[3]; ...; } ns2_pilot_t;
+                 uint8_t job_begun; float fa_hat_g; int32_t status; uint16_t n_used; float e[3];
+                 ns2_label_t label; ns2_adapt_cfg_t adapt_cfg; ns2_adapt_t adapt; float fa_used_g; ...; } ns2_pilot_t;
 void ns2_pilot_default_cfg(ns2_pilot_cfg_t *cfg, uint8_t self_type);
 void ns2_pilot_init(ns2_pilot_t *pl, const ns2_pilot_cfg_t *cfg, const ns2_vehicle_t *veh, const ns2_gains_t *g);
 void ns2_pilot_reset(ns2_pilot_t *pl, const ns2_vehicle_t *veh);
@@ -84,20 +85,22 @@ typedef struct { uint32_t kind; uint8_t id, type; double par[21]; double psi1[5]
                  float bias_acc_g[3], bias_gyro_dps[3]; float acc_scale; float sd_acc_g, sd_gyro_dps; float ext_pos_std_m;
                  ns2_vehicle_t veh; ns2_gains_t gains; ns2_pilot_cfg_t pilot_cfg; ns2_authors_gains_t authors;
                  uint32_t pwm_exact; double psi1_nominal[5]; uint32_t use_type_table;
-                 uint32_t type_table[16]; } ns2_fly_init_t;
+                 uint32_t type_table[16]; ns2_adapt_cfg_t adapt_cfg; } ns2_fly_init_t;
 typedef struct { uint32_t kind; uint8_t id, type; double psi1[5]; float sd_acc_g, sd_gyro_dps; ns2_pilot_t pilot; float pwm[4];
                  uint32_t fa_given; float fa_given_g; uint32_t use_type_table; uint32_t type_table[16]; ...; }
     ns2_fly_robot_t;
 typedef struct { uint32_t tick; const float *p; const uint8_t *rx; } ns2_fly_frame_t;
 typedef struct { ns2_ctrl_state_t s; ns2_setpoint_t sp; uint32_t do_pos, now_ms; float battery_V; uint32_t n_peers;
                  uint8_t peer_id[...]; uint8_t peer_type[...]; uint32_t peer_t[...]; float peer_p[...][3];
-                 float pwm[4]; float fa_hat_g; } ns2_fly_trace_t;
+                 float pwm[4]; float fa_hat_g; uint16_t n_used; float fa_used_g; float label_g; float theta[2]; }
+    ns2_fly_trace_t;
 void ns2_fly_init(ns2_fly_robot_t *r, const ns2_fly_init_t *in);
 uint32_t ns2_fly_run(ns2_fly_robot_t *rob, uint32_t n, double *x, const double *f_a, const double *tau_a,
                      uint32_t ms0, uint32_t ticks,
                      const float *noise, const ns2_setpoint_t *sp, const ns2_fly_frame_t *frame, const float *battery_V,
                      ns2_fly_trace_t *tr, uint32_t tr_robot, uint32_t tr_max);
 void ns2_fly_estimate(const ns2_fly_robot_t *r, float out[13]);
+float ns2_adapt_trace(const ns2_adapt_t *a);
 float motorsCompensateBatteryVoltage(uint32_t id, float iThrust, float supplyVoltage);
 """
 

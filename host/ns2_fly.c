@@ -37,6 +37,8 @@
 #include "power_distribution.h"
 #include "physicalConstants.h"
 
+#include "ns2_vehicles.h"
+
 #define FLY_X 17   /* ns2_sim.c state per robot */
 #define FLY_PAR 21
 #define GYRO_LPF_HZ 80.0f   /* sensors_bmi088_bmp3xx.c GYRO_LPF_CUTOFF_FREQ */
@@ -48,6 +50,8 @@
 
 void ns2_sim_rk4(uint32_t n, double *x, const double *par, const double *u_c, const double *f_a,
                  const double *tau_a, double dt);
+
+static const float psi1_app[NS2_NUM_ROBOT_TYPES][5] = NS2_PSI1_INIT; /* the app's psi_1 per type */
 
 static kalmanCoreParams_t kparams; /* kalmanCoreDefaultParams, shared (read-only after init) */
 
@@ -92,6 +96,10 @@ void ns2_fly_init(ns2_fly_robot_t *r, const ns2_fly_init_t *in)
     kalmanCoreExternalizeState(&r->kc, &r->est, &r->acc_latest);
     r->next_predict_ms = 0u;
     ns2_pilot_init(&r->pilot, &in->pilot_cfg, &in->veh, &in->gains);
+    /* as ns2_app.c controllerOutOfTreeInit: PARAM ns2adapt, reset, the type's psi_1 for the label */
+    r->pilot.adapt_cfg = in->adapt_cfg;
+    ns2_pilot_reset(&r->pilot, &in->veh);
+    ns2_pilot_set_psi1(&r->pilot, psi1_app[in->type < NS2_NUM_ROBOT_TYPES ? in->type : 0u]);
     ns2_authors_init(&r->authors, &in->authors);
     controllerMellingerInit(&r->mel);
     r->mel.mass = in->veh.mass_kg; /* PARAM ctrlMel.mass, as a user sets it for the vehicle */
@@ -206,6 +214,11 @@ static void trace(ns2_fly_trace_t *t, const ns2_fly_robot_t *r, const ns2_ctrl_s
     t->battery_V = battery_V;
     memcpy(t->pwm, r->pwm, sizeof(t->pwm));
     t->fa_hat_g = r->pilot.fa_hat_g;
+    t->n_used = r->pilot.n_used;
+    t->fa_used_g = r->pilot.fa_used_g;
+    t->label_g = r->pilot.label.label_g;
+    t->theta[0] = r->pilot.adapt.theta[0];
+    t->theta[1] = r->pilot.adapt.theta[1];
     t->n_peers = do_pos ? r->n_peers : 0u;
     for (uint32_t j = 0; j < t->n_peers; ++j) {
         t->peer_id[j] = r->peer_id[j];

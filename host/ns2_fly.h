@@ -42,6 +42,7 @@ typedef struct {
     uint32_t use_type_table;   /* 1: each peer's robot type is looked up by its radio id in type_table, as
                                 * the app does (ns2_type_table_get); 0: its true type (any number of types) */
     uint32_t type_table[NS2_TYPE_TABLE_WORDS]; /* the app's PARAM ns2type.t0..t15 */
+    ns2_adapt_cfg_t adapt_cfg; /* the app's PARAM ns2adapt (NS2_FLY_PILOT: label and adaptation in ns2_pilot) */
 } ns2_fly_init_t;
 
 typedef struct {
@@ -95,6 +96,10 @@ typedef struct {
     float peer_p[NS2_FLY_MAX_PEERS][3];
     float pwm[4];
     float fa_hat_g;
+    uint16_t n_used;           /* the prediction's neighbours used (the adaptation's wake flag) */
+    float fa_used_g;           /* the network's f_a,z with the adapted term (ns2_pilot's fa_used_g) */
+    float label_g;             /* the on-board label of this tick (ns2_label_t label_g) */
+    float theta[2];            /* the adaptation's bias (g) and scale after this tick */
 } ns2_fly_trace_t;
 
 void ns2_fly_init(ns2_fly_robot_t *r, const ns2_fly_init_t *in);

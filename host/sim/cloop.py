@@ -15,6 +15,7 @@ from typing import Callable
 import numpy as np
 
 from ns2codegen.config import Config
+from ns2codegen.onboard import ADAPT_FIELDS, AdaptCfg, adapt_cfg_ok
 
 from ..cbuild import fill_gains, fill_vehicle
 from ..cfhost import load_fly
@@ -60,6 +61,14 @@ class FlightLog:
     fa_hat: list = field(default_factory=list)
     status: list = field(default_factory=list)
     pilot_status: list = field(default_factory=list)   # ns2_pilot's status (the app's LOG ns2.status)
+    # the app's LOG ns2adapt (NS2Controller): bias (g), scale, trP, label (g), term (g), status, lstatus
+    adapt_bias: list = field(default_factory=list)
+    adapt_scale: list = field(default_factory=list)
+    adapt_trP: list = field(default_factory=list)
+    adapt_label: list = field(default_factory=list)
+    adapt_term: list = field(default_factory=list)
+    adapt_status: list = field(default_factory=list)
+    adapt_lstatus: list = field(default_factory=list)
 
     def arrays(self) -> dict:
         return {k: np.array(v) for k, v in self.__dict__.items()}
@@ -77,11 +86,18 @@ def _check_learned(learned) -> None:
 class NS2Controller:
     """The app's code path (ns2_pilot, firmware/src): the project's controller at
     500/100 Hz with psi_2 PWM.  learned: None (the baseline, f_a = 0, as in the paper),
-    "float" or "fixed": the learned term of the export's network."""
+    "float" or "fixed": the learned term of the export's network; adapt: None (the app's
+    PARAM ns2adapt at boot: off) or the on-board adaptation's parameters (an
+    ns2codegen.onboard.AdaptCfg, enable 1 to fly it; docs/adaptation.md): the on-board
+    label and the adaptation run in ns2_pilot as in the app (only with a learned term
+    does the adapted f_a reach the controller, as ns2.enable = 0 in the app)."""
     learned: str | None = None
+    adapt: AdaptCfg | None = None
 
     def __post_init__(self):
         _check_learned(self.learned)
+        if self.adapt is not None and not (isinstance(self.adapt, AdaptCfg) and adapt_cfg_ok(self.adapt)):
+            raise ValueError(f"adapt: None or an AdaptCfg within ns2_adapt.h's ranges, got {self.adapt!r}")
 
 
 @dataclass(frozen=True)
@@ -122,7 +138,10 @@ class Robot:
     type table (the app's PARAM ns2type.t0..t15) in which it looks each peer's type up
     by radio id, as the app does (ns2 fly --sim); battery: its supply voltage (V): a
     number (the nominal one; the rough simulator's sag applies), or ``battery(t)`` -> V
-    (a real flight's logged one, ns2exp.replay; read every step, the settling reads t = 0)."""
+    (a real flight's logged one, ns2exp.replay; read every step, the settling reads t = 0);
+    payload_g: an unmodelled payload (g): the true mass grows by it, the controller, the
+    label and the network keep the vehicle's; thrust_scale: this robot's psi_1 (PWM ->
+    force) times this, on top of the rough simulator's thrust scatter."""
     type: str
     p0: tuple
     controller: Controller = NS2Controller()
@@ -130,6 +149,14 @@ class Robot:
     radio_id: int | None = None
     type_table: tuple | None = None
     battery: float | Callable = 3.9
+    payload_g: float = 0.0
+    thrust_scale: float = 1.0
+
+    def __post_init__(self):
+        if not (np.isfinite(self.payload_g) and -100.0 < self.payload_g < 1000.0):
+            raise ValueError(f"payload_g: a finite mass in (-100, 1000) g, got {self.payload_g!r}")
+        if not (np.isfinite(self.thrust_scale) and 0.5 <= self.thrust_scale <= 2.0):
+            raise ValueError(f"thrust_scale: in [0.5, 2], got {self.thrust_scale!r}")
 
 
 def robots_of(types, positions, controller: Controller | list = NS2Controller(), gains=None, **kw) -> list[Robot]:
@@ -197,7 +224,10 @@ class CLoopSwarm:
             it.id, it.type = rb.radio_id if rb.radio_id is not None else i + 1, int(self.type_idx[i])
             if rb.type_table is not None:
                 it.use_type_table, it.type_table = 1, list(rb.type_table)
-            it.par, it.psi1, it.p0 = list(self.dyn.par[i]), list(np.asarray(veh.psi1) * thrust[i]), list(self.state.p[i])
+            par = np.array(self.dyn.par[i], float)
+            par[0] += rb.payload_g / 1000.0     # the true mass only (ns2_sim.c par[0])
+            it.par, it.p0 = list(par), list(self.state.p[i])
+            it.psi1 = list(np.asarray(veh.psi1) * (thrust[i] * rb.thrust_scale))
             it.bias_acc_g, it.bias_gyro_dps, it.acc_scale = list(acc_b[i]), list(gyro_b[i]), acc_scale[i]
             sd_acc, sd_gyro = ((se.acc_sd_g, se.gyro_sd_dps) if rough is None
                                else rough.imu_sd(rb.type, se.acc_sd_g, se.gyro_sd_dps))
@@ -211,6 +241,9 @@ class CLoopSwarm:
             lib.ns2_pilot_default_cfg(ffi.addressof(it, "pilot_cfg"), it.type)
             it.pilot_cfg.enable = int(ctrl.learned is not None)
             it.pilot_cfg.fixed = int(ctrl.learned != "float")
+            ad = getattr(ctrl, "adapt", None) or AdaptCfg(enable=0)   # the app's PARAM ns2adapt at boot
+            for k in ADAPT_FIELDS:
+                setattr(it.adapt_cfg, k, getattr(ad, k))
             lib.ns2_fly_init(ffi.addressof(self.robots, i), it)
         # the predictions given from outside (AuthorsController.given), by robot
         self.given = {i: r.controller.given for i, r in enumerate(robots)
@@ -229,7 +262,21 @@ class CLoopSwarm:
         r = self.robots[i]
         if r.fa_given:
             return float(r.fa_given_g)
-        return float(r.pilot.fa_hat_g) if self.spec[i].controller.learned else 0.0
+        if not self.spec[i].controller.learned:
+            return 0.0
+        # the app's path flies f_a,z with the adapted term (= the network's bit for bit with it off)
+        return float(r.pilot.fa_used_g if isinstance(self.spec[i].controller, NS2Controller) else r.pilot.fa_hat_g)
+
+    def _log_adapt(self, log: FlightLog) -> None:
+        """The app's LOG ns2adapt of every robot (ns2_app.c: the pilot's label and adaptation)."""
+        pl = [self.robots[i].pilot for i in range(len(self.spec))]
+        log.adapt_bias.append([p.adapt.theta[0] for p in pl])
+        log.adapt_scale.append([p.adapt.theta[1] for p in pl])
+        log.adapt_trP.append([self.lib.ns2_adapt_trace(self.ffi.addressof(p, "adapt")) for p in pl])
+        log.adapt_label.append([p.label.label_g for p in pl])
+        log.adapt_term.append([p.adapt.term_g for p in pl])
+        log.adapt_status.append([p.adapt.status for p in pl])
+        log.adapt_lstatus.append([p.label.status for p in pl])
 
     def _estimate(self, i: int) -> np.ndarray:
         self.lib.ns2_fly_estimate(self.ffi.addressof(self.robots, i), self.est)
@@ -310,6 +357,7 @@ class CLoopSwarm:
                 log.fa_hat.append([[0.0, 0.0, self._fa_flown_g(i) * G / 1000.0] for i in range(n)])
                 log.status.append([self.robots[i].pilot.ctrl.status for i in range(n)])
                 log.pilot_status.append([self.robots[i].pilot.status for i in range(n)])
+                self._log_adapt(log)
             noise = self.rng.standard_normal((STEP_TICKS, n, 6), dtype=np.float32)
             fa = np.ascontiguousarray(f_a, float)
             n_tr += lib.ns2_fly_run(self.robots, n, ptr("double *", x), ptr("double *", fa),
