@@ -79,6 +79,7 @@ def test_ablation_trainings_side_by_side_give_the_same_results(tmp_path, cfg):
         d = json.loads(out.stdout)
         assert d.pop("workers") == workers
         d.pop("wall_s")
+        assert d.pop("provenance")["command"].startswith("benchmarks/ablation.py --data")   # its own run's
         for axis in ("H", "V"):
             for r in d[axis].values():
                 assert len(r.pop("wall_s")) == 2
