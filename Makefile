@@ -22,7 +22,7 @@ DEFAULT := build/default
 ONBOARD := build/onboard
 CHECKPOINT ?= $(DEFAULT)/model.pt
 
-.PHONY: all deps export export-onboard test bench firmware app flash fuzz sim paper-data ablation real calibrate clean
+.PHONY: all deps export export-onboard test bench firmware app flash fuzz sim paper-data ablation real calibrate results clean
 
 all: export
 
@@ -232,6 +232,13 @@ $(REAL)/authors-gen/ns2_model_config.h: $(REAL)/authors.pt
 calibrate: $(REAL)/all.npz $(REAL)/authors-gen/ns2_model_config.h
 	$(NS2) sim calibrate --logs build/neural-swarm-data --data-dir $(REAL) --gen $(REAL)/authors-gen \
 		$(if $(CALIBRATE_PER_SCENARIO),--per-scenario $(CALIBRATE_PER_SCENARIO)) --workers 2 --out $(SIM)/calibration
+
+# README's results table and the docs' tables rewritten from the committed result files
+# (docs/results/runs/, ns2 results, docs/experiments.md); COLLECT="sim real ..." first copies those
+# experiments' stamped JSONs from build/ into docs/results/runs/ (then commit them with the tables)
+COLLECT ?=
+results: | deps
+	$(NS2) results $(foreach e,$(COLLECT),--collect $(e))
 
 clean:
 	rm -rf build

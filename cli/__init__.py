@@ -11,11 +11,11 @@ One convention for every command:
 
 One module per command group (``common`` holds what they share); importing them
 registers their commands on ``main``.  The experiment commands (the paper's
-reproduction: ``real``, ``simexp``, ``planexp``) are the only modules that import
+reproduction: ``real``, ``simexp``, ``planexp``, ``results``) are the only modules that import
 ns2exp (tests/test_layers.py).
 """
 from . import core, flights, fly, plan, real, sim, target  # noqa: F401  (registers the commands)
-from . import planexp, simexp  # noqa: F401  (the experiment commands: the only modules that import ns2exp, with real)
+from . import planexp, results, simexp  # noqa: F401  (the experiment commands: the only modules that import ns2exp, with real)
 from .common import main
 
 __all__ = ["main"]

@@ -31,6 +31,7 @@ from .real import AUTHORS_MASSES_G, RealDataError
 from .realscore import both_conventions, gain
 
 ONBOARD_COLLECTION = "2020-06-16"
+MODEL_ORDER = ["ours", "authors", "zero", "onboard"]     # the rows of a split in the tables
 
 
 def load_samples(path: Path) -> dict:
@@ -181,7 +182,8 @@ def table(res: dict) -> str:
         return f"{f(a)} ({f(b)})"
 
     for name, s in splits(res).items():
-        for mname, m in s["models"].items():
+        for mname in sorted(s["models"], key=lambda k: (MODEL_ORDER + [k]).index(k)):   # as scored, or read back
+            m = s["models"][mname]
             wt = m["labels"]["wake_by_type"]
             lines.append(f"| {name} | {label.get(mname, mname)} | {s['scored']} "
                          f"(wake {_mean(m['labels']['wake']['samples']):.0f}) | "

@@ -140,6 +140,7 @@ def _missing_input_calls(tmp_path):
         ("real", "score"): ["--checkpoint", nope / "m.pt", "--data-dir", nope],
         ("real", "blind"): ["--dir", nope, "--out", tmp_path / "blind.json"],
         ("real", "memory"): ["--now", nope / "a.json", "--past", nope / "b.json", "--out", tmp_path / "m.json"],
+        ("results",): ["--root", nope],
         ("swarm-params",): [nope, nope / "crazyflies.yaml"],
         ("fly",): [nope, nope / "crazyflies.yaml", "--plan", nope, "--log", tmp_path / "f.jsonl"],
         ("flash",): [nope / "cf2.bin", "--uri", "radio://0/80/2M/E7E7E7E701"],

@@ -24,9 +24,9 @@ LAYERS = {
 }
 ALL = set(LAYERS)
 # the CLI modules of the experiment commands, the only ones that may import ns2exp: `ns2 real ...`,
-# `ns2 sim swaps|rings|calibrate` and `ns2 plan` without --problem (the paper's planning experiments);
-# ns2cli (its __init__) imports them to register their commands
-EXPERIMENT_COMMANDS = {"ns2cli.real", "ns2cli.simexp", "ns2cli.planexp"}
+# `ns2 sim swaps|rings|calibrate`, `ns2 plan` without --problem (the paper's planning experiments) and
+# `ns2 results` (their tables); ns2cli (its __init__) imports them to register their commands
+EXPERIMENT_COMMANDS = {"ns2cli.real", "ns2cli.simexp", "ns2cli.planexp", "ns2cli.results"}
 # the one way into them from a product command: `ns2 plan` hands the run without --problem to planexp
 EXPERIMENT_DISPATCH = {("ns2cli.plan", "ns2cli.planexp")}
 

@@ -1,0 +1,165 @@
+"""`ns2 results` (`make results`): README's results table and the docs' tables are what the
+command writes from the committed result files; the provenance stamp; the renderer on small
+synthetic result files (an experiment without files is "not run", never a number)."""
+from __future__ import annotations
+
+import json
+import re
+import shutil
+import subprocess
+from pathlib import Path
+
+import pytest
+from click.testing import CliRunner
+
+from ns2cli import main
+from ns2codegen.results import command_line, commit, stamp
+from ns2exp import tables
+from ns2exp.blind import table
+
+REPO = Path(__file__).resolve().parent.parent
+
+
+def test_readme_and_docs_are_what_ns2_results_writes():
+    r = CliRunner().invoke(main, ["results", "--check", "--root", str(REPO)])
+    assert r.exit_code == 0, r.output
+    readme = (REPO / "README.md").read_text()
+    block = readme.split("<!-- results:begin -->")[1].split("<!-- results:end -->")[0]
+    rows = [line for line in block.splitlines() if line.startswith("| ") and not line.startswith("| experiment")]
+    assert len(rows) == len(tables.EXPERIMENTS)
+    for e, row in zip(tables.EXPERIMENTS, rows):     # a row names its command, and its commits or "not run"
+        assert f"`{e.command}`" in row, row
+        assert re.search(r" at ([0-9a-f]{7}|commit not recorded)", row) or "not run on a commit of this round" in row
+    real = rows[0]                                   # the committed real flights, their commits from the docs
+    assert "**3.33 +- 0.09 g^2**" in real and "`make real` at 76a0573, 1b959af" in real
+    assert "65 % / 37 % lower MSE overall" in real and "72 % / 43 % / 63 % / 35 % below the flown network" in real
+    flights = (REPO / "docs/real-flights.md").read_text()
+    for name in ("blind", "memory", "memory-blind"):
+        assert f"<!-- results:{name}:begin -->\nMade by `" in flights
+
+
+def _git(repo, *args):
+    subprocess.run(["git", "-C", str(repo), *args], check=True, capture_output=True)
+
+
+def test_stamp_names_commit_command_and_date(tmp_path):
+    doc = {"mse": 0.1 + 0.2, "rows": [1, 2]}
+    s = stamp(doc, "make sim")
+    assert {k: v for k, v in s.items() if k != "provenance"} == doc and "provenance" not in doc
+    p = s["provenance"]
+    assert p["command"] == "make sim" and re.fullmatch(r"[0-9a-f]{7}(-dirty)?", p["commit"]), p
+    assert re.fullmatch(r"\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d\+00:00", p["date"])
+    with pytest.raises(TypeError):
+        stamp([1, 2])
+    assert commit(tmp_path) == "unknown"                      # not a checkout
+    repo = tmp_path / "repo"
+    repo.mkdir()
+    _git(repo, "init", "-q")
+    (repo / "a.txt").write_text("a\n")
+    _git(repo, "add", "a.txt")
+    _git(repo, "-c", "user.name=t", "-c", "user.email=t@t", "commit", "-q", "-m", "a")
+    head = subprocess.run(["git", "-C", str(repo), "rev-parse", "HEAD"], capture_output=True, text=True).stdout
+    assert commit(repo) == head[:7]
+    (repo / "new.txt").write_text("untracked\n")              # untracked files do not make it dirty
+    assert commit(repo) == head[:7]
+    (repo / "a.txt").write_text("b\n")
+    assert commit(repo) == head[:7] + "-dirty"
+    assert command_line([str(REPO / "cli" / "__main__.py"), "real", "blind", "--out", "a b.json"]) \
+        == "ns2 real blind --out 'a b.json'"
+    assert command_line([str(REPO / "benchmarks" / "ablation.py"), "--seeds", "3"]) == "benchmarks/ablation.py --seeds 3"
+
+
+def _swaps(nn, bl):
+    return {"swaps": 6, "tuning": {}, "simulator": "rough", "rows": [
+        {"case": "L2S", "controller": "NN", "median_worst_z_error_m": nn, "max_worst_z_error_m": nn},
+        {"case": "L2S", "controller": "BL-tuned", "median_worst_z_error_m": bl, "max_worst_z_error_m": bl}]}
+
+
+def _checkout(tmp_path) -> Path:
+    """A checkout with the generated blocks' markers and no result file."""
+    root = tmp_path / "co"
+    (root / "docs").mkdir(parents=True)
+    (root / "README.md").write_text("# x\n\nbefore\n<!-- results:begin -->\nold row\n<!-- results:end -->\nafter\n")
+    (root / "docs/real-flights.md").write_text("".join(
+        f"## {n}\n<!-- results:{n}:begin -->\n<!-- results:{n}:end -->\ntext\n" for n in ("blind", "memory", "memory-blind")))
+    return root
+
+
+def test_renderer_on_synthetic_results(tmp_path):
+    root = _checkout(tmp_path)
+    runs = root / tables.RUNS
+    (runs / "sim").mkdir(parents=True)
+    doc = stamp(_swaps(0.004, 0.012), "make sim")
+    doc["provenance"]["commit"] = "abcdef1"
+    (runs / "sim/swaps.json").write_text(json.dumps(doc))
+    assert tables.write(root) == ["README.md", "docs/real-flights.md"]
+    readme = (root / "README.md").read_text()
+    assert readme.startswith("# x\n\nbefore\n<!-- results:begin -->\n| experiment |") and readme.endswith(
+        "<!-- results:end -->\nafter\n") and "old row" not in readme
+    row = {e.key: line for e in tables.EXPERIMENTS for line in readme.splitlines() if line.startswith(f"| {e.title} |")}
+    assert "L2S 0.40 vs 1.20 cm (3.00x)" in row["sim"] and "`make sim` at abcdef1" in row["sim"]
+    assert "not run on a commit of this round: `sim/rings.json`" in row["sim"]       # the file missing
+    for key in ("calibrate", "planning", "paper-data", "ablation"):
+        e = next(x for x in tables.EXPERIMENTS if x.key == key)
+        assert f"| not run on a commit of this round: `{e.command}` | - |" in row[key]
+        assert not re.search(r"\d\.\d", row[key].split("|")[2])                    # no number made up
+    flights = root / "docs/real-flights.md"
+    assert "Not run on a commit of this round (`docs/results/runs/real/blind.json`)" in flights.read_text()
+    # a result of before the stamps (its commit only where a doc records it), without its lags: refused
+    (runs / "real").mkdir()
+    shutil.copyfile(REPO / tables.RUNS / "real/memory.json", runs / "real/memory.json")
+    with pytest.raises(tables.ResultsError, match="lags_ms"):
+        tables.write(root)
+
+    (runs / "real/memory.json").write_text(json.dumps(dict(json.loads((runs / "real/memory.json").read_text()),
+                                                           lags_ms=[50, 100, 200])))
+    tables.write(root)
+    text = flights.read_text()
+    assert "at commit not recorded; `docs/results/runs/real/memory.json`" in text
+    assert "| collection 2020-06-16 left out | 11.53 +- 0.86 / 8.92 +- 0.29 |" in text
+    assert "commit not recorded" in (root / "README.md").read_text()
+    (runs / "real/provenance.json").write_text(json.dumps({"memory.json": {
+        "provenance": {"commit": "1b959af", "command": "ns2 real memory"}, "source": "docs/x.md section 1"}}))
+    tables.write(root)
+    assert "Made by `ns2 real memory` at 1b959af (as docs/x.md section 1 records)" in flights.read_text()
+
+    # deterministic, and --check says when a generated block was edited by hand
+    assert tables.write(root, check=True) == []
+    assert CliRunner().invoke(main, ["results", "--check", "--root", str(root)]).exit_code == 0
+    (root / "README.md").write_text((root / "README.md").read_text().replace("3.00x", "3.10x"))
+    r = CliRunner().invoke(main, ["results", "--check", "--root", str(root)])
+    assert r.exit_code == 1 and "README.md" in r.output
+    assert "3.10x" in (root / "README.md").read_text()                              # --check wrote nothing
+    assert CliRunner().invoke(main, ["results", "--root", str(root)]).exit_code == 0
+    assert "3.00x" in (root / "README.md").read_text()
+
+
+def test_markers_and_collect(tmp_path):
+    root = _checkout(tmp_path)
+    (root / "README.md").write_text("no markers\n")
+    r = CliRunner().invoke(main, ["results", "--root", str(root)])
+    assert r.exit_code == 1 and "needs one <!-- results:begin -->" in r.output
+    root = _checkout(tmp_path / "b")
+    made = root / "build/sim/results"
+    made.mkdir(parents=True)
+    (made / "swaps.json").write_text(json.dumps(_swaps(0.01, 0.02)))             # not stamped: refused
+    r = CliRunner().invoke(main, ["results", "--root", str(root), "--collect", "sim"])
+    assert r.exit_code == 1 and "no provenance" in r.output
+    assert not (root / tables.RUNS / "sim/swaps.json").exists()
+    (made / "swaps.json").write_text(json.dumps(stamp(_swaps(0.01, 0.02), "make sim")))
+    r = CliRunner().invoke(main, ["results", "--root", str(root), "--collect", "sim"])
+    assert r.exit_code == 0, r.output
+    assert (root / tables.RUNS / "sim/swaps.json").read_bytes() == (made / "swaps.json").read_bytes()
+    assert "L2S 1.00 vs 2.00 cm (2.00x)" in (root / "README.md").read_text()
+    assert CliRunner().invoke(main, ["results", "--root", str(root), "--collect", "nope"]).exit_code == 1
+
+
+def test_blind_table_is_the_same_read_back():
+    """The table of a blind result as scored (models in scoring order) equals the table of
+    its JSON read back (keys sorted): the docs' generated tables are the run's."""
+    res = json.loads((REPO / tables.RUNS / "real/blind.json").read_text())
+    scored = json.loads(json.dumps(res))
+    for s in list(scored["leave_one_collection_out"].values()) + [scored["held_out_flights"]]:
+        s["models"] = {k: s["models"][k] for k in ("ours", "authors", "zero", "onboard") if k in s["models"]}
+    assert table(scored) == table(res)
+    assert table(res).splitlines()[2].startswith("| collection 2019-12-11 left out | ours (blind) |")
