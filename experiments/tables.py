@@ -188,8 +188,9 @@ def ablation_summary(d: dict) -> str:
     a = d["ablation/ablation.json"]
     ref = a["H"]["20"]
     parts = [f"validation MSE of H = 20, L = 4: {_pm(ref)} g^2 ({a['samples']:,} samples, {a['seeds']} seeds)"]
-    for axis, label in (("V", "without"), ("T", "type-agnostic"), ("P", "pairwise sum")):
-        r = a.get(axis, {}).get(label)
+    for axis, key, label in (("V", "without", "without relative velocity"), ("T", "type-agnostic", "type-agnostic"),
+                             ("P", "pairwise sum", "the sum of pairwise models")):
+        r = a.get(axis, {}).get(key)
         if r:
             text = f"{label}: {100 * (r['mean'] / ref['mean'] - 1):+.0f} %"
             if "larger_teams" in r and "larger_teams" in ref:
