@@ -194,6 +194,20 @@ def table(res: dict) -> str:
     return "\n".join(lines)
 
 
+def gains_table(res: dict, split: str, ref: str = "onboard") -> str:
+    """Markdown: 1 - ours / ``ref`` on ``split`` (a name of ``splits``), the four headline
+    MSEs, under the labels' masses and relabelled with the other convention (negative:
+    ours worse)."""
+    g = splits(res)[split]["gains"][ref]
+    keys = ("overall_plain", "overall_neutral", "wake_plain", "wake_neutral")
+    lines = ["| | overall plain | overall mass-neutral | wake plain | wake mass-neutral |", "|---|---|---|---|---|"]
+    for conv, masses, fmt in (("labels", "masses_g", ".1f"), ("other_masses", "other_masses_g", "g")):
+        name = ("labels with the hover masses" if conv == "labels" else "labels with the authors' masses")
+        m = " / ".join(f"{res[masses][t]:{fmt}}" for t in res["robot_types"])
+        lines.append(f"| {name} ({m} g) | " + " | ".join(f"{100 * g[conv][k]:.0f} %" for k in keys) + " |")
+    return "\n".join(lines)
+
+
 def write(res: dict, out: Path) -> None:
     from ns2codegen.fileio import atomic_write_bytes
     from ns2codegen.results import stamp

@@ -25,7 +25,7 @@ from typing import Callable
 
 from ns2codegen.errors import Ns2Error
 
-from .blind import memory_rows, memory_table, table
+from .blind import gains_table, memory_rows, memory_table, table
 
 RUNS = Path("docs/results/runs")
 SIDECAR = "provenance.json"
@@ -284,6 +284,8 @@ class DocTable:
 
 DOC_TABLES = (
     DocTable("docs/real-flights.md", "blind", "real/blind.json", table),
+    DocTable("docs/real-flights.md", "blind-gains", "real/blind.json",
+             lambda doc: gains_table(doc, "collection 2020-06-16 left out")),
     DocTable("docs/real-flights.md", "memory", "real/memory.json",
              lambda doc: memory_table(doc, ",".join(map(str, doc["lags_ms"])))),
     DocTable("docs/real-flights.md", "memory-blind", "real-mem/blind.json", table),

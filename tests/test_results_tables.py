@@ -34,9 +34,8 @@ def test_readme_and_docs_are_what_ns2_results_writes():
         for rel in e.files:
             doc = tables.load(REPO, rel)
             assert doc is None or tables.origin(doc)[0][:7] in row, (rel, row)
-    flights = (REPO / "docs/real-flights.md").read_text()
-    for name in ("blind", "memory", "memory-blind"):
-        assert f"<!-- results:{name}:begin -->\nMade by `" in flights
+    for t in tables.DOC_TABLES:
+        assert f"<!-- results:{t.name}:begin -->\nMade by `" in (REPO / t.doc).read_text()
 
 
 def _git(repo, *args):
@@ -82,7 +81,7 @@ def _checkout(tmp_path) -> Path:
     (root / "docs").mkdir(parents=True)
     (root / "README.md").write_text("# x\n\nbefore\n<!-- results:begin -->\nold row\n<!-- results:end -->\nafter\n")
     (root / "docs/real-flights.md").write_text("".join(
-        f"## {n}\n<!-- results:{n}:begin -->\n<!-- results:{n}:end -->\ntext\n" for n in ("blind", "memory", "memory-blind")))
+        f"## {t.name}\n<!-- results:{t.name}:begin -->\n<!-- results:{t.name}:end -->\ntext\n" for t in tables.DOC_TABLES))
     return root
 
 
