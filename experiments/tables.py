@@ -112,21 +112,25 @@ def real_summary(d: dict) -> str:
             now, w = _mean(r["wake_neutral"]["now"]), _mean(r["wake_neutral"]["with_past"])
             beyond = "beyond" if r["wake_lower_beyond_spread"] else "not beyond"
             text = (f"**the wake's memory** ({name}): seeing each neighbour's state {_lags(mem['lags_ms'])} ms ago "
-                    f"changes the blind wake MSE (mass-neutral) by {100 * (w / now - 1):+.0f} %, {beyond} the seeds' "
-                    "spread")
+                    f"{'lowers' if w < now else 'raises'} the blind wake MSE (mass-neutral) {abs(100 * (w / now - 1)):.0f} "
+                    f"%, {beyond} the seeds' spread")
             if past and name == "collection 2020-06-16 left out":
                 g = past["leave_one_collection_out"]["2020-06-16"]["gains"]["onboard"]["labels"]
                 text += (f"; {_pct(g['overall_plain'])} / {_pct(g['overall_neutral'])} / {_pct(g['wake_plain'])} / "
                          f"{_pct(g['wake_neutral'])} below the flown network")
             parts.append(text)
     if cc:
-        same = cc["float_mismatches"] == 0 and cc["fixed_mismatches"] == 0
-        text = (f"the exported network (trained on every flight) {'equals' if same else 'differs from'} the "
-                f"references in C (float {cc['float_mismatches']}, fixed point {cc['fixed_mismatches']} of "
-                f"{cc['samples']:,} held-out samples differ)")
+        if cc["float_mismatches"] == 0 and cc["fixed_mismatches"] == 0:
+            text = (f"the exported network (trained on every flight) equals the references bit for bit in C, float "
+                    f"and fixed point, on all {cc['samples']:,} held-out samples")
+        else:
+            text = (f"the exported network (trained on every flight) differs from the references in C on "
+                    f"{cc['float_mismatches']} (float) and {cc['fixed_mismatches']} (fixed point) of "
+                    f"{cc['samples']:,} held-out samples")
         sel = cc.get("selection_all_flights")
         if sel:
-            text += f"; its neighbour selection differs from the data's on {sel['mismatches']} of {sel['samples']:,}"
+            text += (f", and its neighbour selection the data's on all {sel['samples']:,}" if sel["mismatches"] == 0
+                     else f"; its neighbour selection differs from the data's on {sel['mismatches']} of {sel['samples']:,}")
         parts.append(text)
     return "; ".join(parts)
 

@@ -187,3 +187,16 @@ def test_rows_of_each_command_s_results():
                          "NN-authors": {"median_worst_z_error_m": 0.074, "paper_m": 0.07}}}
     assert tables.calibrate_summary({"calibrate/calibration.json": cal}).endswith(
         "BL-authors 16.1 cm (paper 17), NN-authors 7.4 cm (paper 7)")
+
+
+def test_real_row_says_what_the_files_say():
+    """The real row's words follow the numbers: a C mismatch, a memory that does not help."""
+    cc = {"samples": 10, "float_mismatches": 0, "fixed_mismatches": 2,
+          "selection_all_flights": {"samples": 20, "mismatches": 1}}
+    row = tables.real_summary({"real/c_check.json": cc})
+    assert "differs from the references in C on 0 (float) and 2 (fixed point) of 10" in row and "bit for bit" not in row
+    assert "neighbour selection differs from the data's on 1 of 20" in row
+    now, past = {"mean": 10.0, "std": 0.5}, {"mean": 10.4, "std": 0.5}
+    mem = {"lags_ms": [50], "s": {"wake_neutral": {"now": now, "with_past": past}, "wake_lower_beyond_spread": False}}
+    row = tables.real_summary({"real/memory.json": mem})
+    assert "state 50 ms ago raises the blind wake MSE (mass-neutral) 4 %, not beyond the seeds' spread" in row
