@@ -223,6 +223,7 @@ class Experiment:
     files: dict            # committed name under RUNS -> where the command writes it
     summary: Callable[[dict], str]
     details: str
+    also: tuple = ()       # further files of the command that --collect copies beside (committed name, made at)
 
 
 EXPERIMENTS = (
@@ -231,7 +232,11 @@ EXPERIMENTS = (
                {"real/paper.json": "build/real/paper.json", "real/blind.json": "build/real/blind.json",
                 "real/memory.json": "build/real/memory.json", "real-mem/blind.json": "build/real-mem/blind.json",
                 "real/c_check.json": "build/real/c_check.json"},
-               real_summary, "[docs/real-flights.md](docs/real-flights.md)"),
+               real_summary, "[docs/real-flights.md](docs/real-flights.md)",
+               (("real/heldout.json", "build/real/heldout.json"), ("real/authors.json", "build/real/authors.json"),
+                ("real/data_report.json", "build/real/data_report.json"),
+                *((f"real/loco-{c}.json", f"build/real/loco-{c}.json") for c in ("2019-12-11", "2019-12-20", "2020-06-16")),
+                ("real-mem/loco-2020-06-16.json", "build/real-mem/loco-2020-06-16.json"))),
     Experiment("sim", "simulated swaps and rings under Crazyflie sensing", "make sim",
                {"sim/swaps.json": "build/sim/results/swaps.json", "sim/rings.json": "build/sim/results/rings.json"},
                sim_summary, "below, [docs/simulator.md](docs/simulator.md)"),
@@ -366,7 +371,7 @@ def collect(root: Path, key: str) -> list[str]:
     if key not in by_key:
         raise ResultsError(f"experiment {key!r}: not one of {', '.join(by_key)}")
     copied = []
-    for rel, made in by_key[key].files.items():
+    for rel, made in [*by_key[key].files.items(), *by_key[key].also]:
         src = Path(root) / made
         if not src.is_file():
             continue
