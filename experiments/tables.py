@@ -8,7 +8,7 @@ stamped JSONs from where its command wrote them (``build/...``) into
 the part of a Markdown file between ``<!-- results:begin -->`` and ``<!-- results:end -->``
 (README's table: one row per experiment) or ``<!-- results:NAME:begin -->`` and
 ``<!-- results:NAME:end -->`` (a docs table), and nothing else.  An experiment whose files
-are not committed is a row "not run on a commit of this round: <command>", never a number.
+are not committed is a row "no committed result: <command>", never a number.
 
 A committed file made before results were stamped takes its provenance from the folder's
 ``provenance.json`` (file name -> the ``provenance`` and any other fact, e.g. ``lags_ms``,
@@ -268,7 +268,7 @@ def readme_table(root: Path, experiments=EXPERIMENTS) -> str:
     for e in experiments:
         docs = {rel: doc for rel in e.files if (doc := load(root, rel)) is not None}
         if not docs:
-            lines.append(f"| {e.title} | not run on a commit of this round: `{e.command}` | - | {e.details} |")
+            lines.append(f"| {e.title} | no committed result: `{e.command}` | - | {e.details} |")
             continue
         missing = [rel for rel in e.files if rel not in docs]
         try:
@@ -277,7 +277,7 @@ def readme_table(root: Path, experiments=EXPERIMENTS) -> str:
             raise ResultsError(f"{root / RUNS}: the files of `{e.command}` ({', '.join(docs)}) lack "
                                f"{err!r}: not that command's results") from None
         if missing:
-            cell += "; not run on a commit of this round: " + ", ".join(f"`{m}`" for m in missing)
+            cell += "; no committed result: " + ", ".join(f"`{m}`" for m in missing)
         lines.append(f"| {e.title} | {cell} | {_made_by(docs, e.command)} | {e.details} |")
     return "\n".join(lines)
 
@@ -305,7 +305,7 @@ def doc_block(root: Path, t: DocTable) -> str:
     """A docs table with the line that names its command and commit."""
     doc = load(root, t.file)
     if doc is None:
-        return f"Not run on a commit of this round (`{RUNS / t.file}`)."
+        return f"No committed result (`{RUNS / t.file}`)."
     commit, command, source = origin(doc)
     said = f" (as {source} records)" if source else ""
     try:

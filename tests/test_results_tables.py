@@ -29,7 +29,7 @@ def test_readme_and_docs_are_what_ns2_results_writes():
     assert len(rows) == len(tables.EXPERIMENTS)
     for e, row in zip(tables.EXPERIMENTS, rows):     # a row names its command, and its commits or "not run"
         assert f"`{e.command}`" in row, row
-        assert re.search(r" at ([0-9a-f]{7}|commit not recorded)", row) or "not run on a commit of this round" in row
+        assert re.search(r" at ([0-9a-f]{7}|commit not recorded)", row) or "no committed result" in row
     for e, row in zip(tables.EXPERIMENTS, rows):     # every commit a committed file (or its folder's record) names
         for rel in e.files:
             doc = tables.load(REPO, rel)
@@ -98,13 +98,13 @@ def test_renderer_on_synthetic_results(tmp_path):
         "<!-- results:end -->\nafter\n") and "old row" not in readme
     row = {e.key: line for e in tables.EXPERIMENTS for line in readme.splitlines() if line.startswith(f"| {e.title} |")}
     assert "L2S 0.40 vs 1.20 cm (3.00x)" in row["sim"] and "`make sim` at abcdef1" in row["sim"]
-    assert "not run on a commit of this round: `sim/rings.json`" in row["sim"]       # the file missing
+    assert "no committed result: `sim/rings.json`" in row["sim"]       # the file missing
     for key in ("calibrate", "planning", "paper-data", "ablation"):
         e = next(x for x in tables.EXPERIMENTS if x.key == key)
-        assert f"| not run on a commit of this round: `{e.command}` | - |" in row[key]
+        assert f"| no committed result: `{e.command}` | - |" in row[key]
         assert not re.search(r"\d\.\d", row[key].split("|")[2])                    # no number made up
     flights = root / "docs/real-flights.md"
-    assert "Not run on a commit of this round (`docs/results/runs/real/blind.json`)" in flights.read_text()
+    assert "No committed result (`docs/results/runs/real/blind.json`)" in flights.read_text()
     # a result of before the stamps (its commit only where a doc records it), without its lags: refused
     (runs / "real").mkdir()
     shutil.copyfile(REPO / tables.RUNS / "real/memory.json", runs / "real/memory.json")
@@ -167,21 +167,21 @@ def test_blind_table_is_the_same_read_back():
 
 def test_rows_of_each_command_s_results():
     """Each experiment's row read off that command's own output (committed results of
-    earlier rounds, docs/results/*.json; a calibration made up in its form): the numbers
+    earlier rounds, docs/results/runs/; a calibration made up in its form): the numbers
     the hand-written rows of those rounds stated."""
-    old = REPO / "docs/results"
+    old = REPO / "docs/results/runs"
     read = lambda name: json.loads((old / name).read_text())  # noqa: E731
-    sim = tables.sim_summary({"sim/swaps.json": read("sim-swaps.json"), "sim/rings.json": read("sim-rings.json")})
+    sim = tables.sim_summary({"sim/swaps.json": read("sim/swaps.json"), "sim/rings.json": read("sim/rings.json")})
     assert "L2S 0.36 vs 1.15 cm (3.19x)" in sim and "5-robot rings: BL 8.2 / BL-tuned 1.5 / NN 1.4" in sim
     assert "16-robot three rings: BL 11.5 / BL-tuned 1.8 / NN 1.8" in sim
-    abl = tables.ablation_summary({"ablation/ablation.json": read("ablation-paper-rough.json")})
+    abl = tables.ablation_summary({"ablation/ablation.json": read("ablation/ablation.json")})
     assert abl.startswith("validation MSE of H = 20, L = 4: 1.99 +- 0.02 g^2 (1,392,285 samples, 3 seeds)")
     assert "without relative velocity: +28 %" in abl and "type-agnostic: +23 % (teams of 4-5 robots +98 %)" in abl
     assert "the sum of pairwise models: +1 % (teams of 4-5 robots +18 %)" in abl
-    plan = tables.planning_summary({"planning/plan.json": read("plan-issue24-default-pipeline.json")})
+    plan = tables.planning_summary({"planning/plan.json": read("planning/plan.json")})
     assert plan.startswith("3D: NN 125 of 125 planned, 125 within the force limits in flight; BL 125 of 125 planned, "
                            "86 within") and "2D: NN 94 of 125 planned, 91 within" in plan
-    pd = tables.paper_data_summary({"paper-data/paper_data.json": read("paper-data-rough.json")})
+    pd = tables.paper_data_summary({"paper-data/paper_data.json": read("paper-data/paper_data.json")})
     assert pd.startswith("1,392,285 samples of the rough simulator; the network's validation MSE 2.09 g^2")
     cal = {"paper_l2s": {"BL-authors": {"median_worst_z_error_m": 0.161, "paper_m": 0.17},
                          "NN-authors": {"median_worst_z_error_m": 0.074, "paper_m": 0.07}}}
