@@ -269,10 +269,20 @@ static void phi2_add_f32(float h[NS2_HIDDEN], uint8_t t, const float xa[NS2_INPU
     /* pair blocks: per group of four inputs the four of xa, then the four of xb
      * (the last group zero-padded) */
     float xab[2 * NS2_PAD4(NS2_INPUT_DIM)];
-    for (int i = 0; i < NS2_PAD4(NS2_INPUT_DIM); ++i) {
-        xab[8 * (i / 4) + i % 4] = i < NS2_INPUT_DIM ? xa[i] : 0.0f;
-        xab[8 * (i / 4) + 4 + i % 4] = i < NS2_INPUT_DIM ? xb[i] : 0.0f;
+#define NS2_XAB(i) (xab[8 * ((i) / 4) + (i) % 4] = xa[i], xab[8 * ((i) / 4) + 4 + (i) % 4] = xb[i])
+    for (int k = 0; k < NS2_INPUT_DIM; k += 6) { /* six at a time: NS2_INPUT_DIM = 6 (1 + lags) */
+        NS2_XAB(k);
+        NS2_XAB(k + 1);
+        NS2_XAB(k + 2);
+        NS2_XAB(k + 3);
+        NS2_XAB(k + 4);
+        NS2_XAB(k + 5);
     }
+#undef NS2_XAB
+#if NS2_INPUT_DIM % 4 != 0 /* the last group's two padding inputs */
+    xab[2 * NS2_PAD4(NS2_INPUT_DIM) - 6] = xab[2 * NS2_PAD4(NS2_INPUT_DIM) - 5] = 0.0f;
+    xab[2 * NS2_PAD4(NS2_INPUT_DIM) - 2] = xab[2 * NS2_PAD4(NS2_INPUT_DIM) - 1] = 0.0f;
+#endif
     float buf[2][2 * NS2_F32_BUF];
     const ns2_f32_net_t *net = &ns2_f32_phi[t];
     const float *in = xab;

@@ -442,15 +442,20 @@ static const int32_t *hidden_q15(const ns2_q15_net_t *net, const int32_t *x, int
     return in;
 }
 
-/* Clamped phi input -> NS2_IN_WORDS packed words xq[0], xq[step], ... (inputs
- * beyond NS2_INPUT_DIM are zero padding; step 2: one neighbour of an interleaved pair). */
+/* Clamped phi input -> NS2_IN_WORDS packed words xq[0], xq[step], ... (NS2_INPUT_DIM
+ * is a multiple of 6: three words per time, then zero padding to a multiple of four
+ * inputs; step 2: one neighbour of an interleaved pair). */
 static void quantize_input(const float x[NS2_INPUT_DIM], float scale, int32_t *xq, int step)
 {
-    for (int k = 0; k < NS2_IN_WORDS; ++k) {
-        const int32_t lo = 2 * k < NS2_INPUT_DIM ? quantize(x[2 * k], scale) : 0;
-        const int32_t hi = 2 * k + 1 < NS2_INPUT_DIM ? quantize(x[2 * k + 1], scale) : 0;
-        xq[k * step] = pack16(lo, hi);
+    int w = 0;
+    for (int k = 0; k < NS2_INPUT_DIM; k += 6, w += 3) {
+        xq[w * step] = pack16(quantize(x[k], scale), quantize(x[k + 1], scale));
+        xq[(w + 1) * step] = pack16(quantize(x[k + 2], scale), quantize(x[k + 3], scale));
+        xq[(w + 2) * step] = pack16(quantize(x[k + 4], scale), quantize(x[k + 5], scale));
     }
+#if NS2_INPUT_DIM % 4 != 0
+    xq[w * step] = 0; /* inputs NS2_INPUT_DIM and NS2_INPUT_DIM + 1 */
+#endif
 }
 
 /* h = phi_t(x) (first input) or h += phi_t(x), x clamped (int32 sums: exact).

@@ -99,14 +99,12 @@ int32_t ns2_prepare(uint8_t robot_type, const float p[3], const float v[3], cons
     } else if (n_neighbors > 0 && neighbors == NULL) {
         info->status = NS2_ERR_NULL;
     } else {
-        float env[NS2_INPUT_DIM];
-        for (int a = 0; a < 3; ++a) {
-            env[a] = -p[a];
-            env[3 + a] = -v[a];
-        }
+        float env[NS2_INPUT_DIM] = {-p[0], -p[1], -p[2], -v[0], -v[1], -v[2]};
+#if NS2_HISTORY_LAGS > 0
         for (int k = 6; k < NS2_INPUT_DIM; ++k) { /* the own past, [p; v] at each lag */
             env[k] = -own_past[k - 6];
         }
+#endif
         ns2_clamp_input(NS2_ENV_TYPE, env, x_env);
         *n_used = ns2_select_neighbors(robot_type, neighbors, n_neighbors, idx, info);
     }
