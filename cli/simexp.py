@@ -1,4 +1,4 @@
-"""`ns2 sim swaps|rings|calibrate`: the paper's swap and ring experiments and the
+"""`ns2 sim swaps|rings|adapt|calibrate`: the paper's swap and ring experiments and the
 simulator's calibration against the real flights (ns2exp), on the group `ns2 sim`."""
 from __future__ import annotations
 
@@ -52,6 +52,37 @@ def sim_rings(gen_dir, out_dir, duration, learned, simulator, quiet, as_json):
         res = ring_experiments(cfg, gen_dir, out_dir, duration=duration or RING_DURATION_S, learned=learned,
                                progress=update, rough=_rough(simulator))
     _emit(as_json, res, (Path(out_dir) / "rings.md").read_text())
+
+
+@_sim_experiment("adapt")
+@click.option("--tuning", "tuning_file", type=click.Path(dir_okay=False, exists=True),
+              default="docs/results/sim-gain_search.json", show_default=True,
+              help="BL-tuned's gains: the \"tuning\" of a gain search (`ns2 sim swaps`' gain_search.json)")
+@click.option("--swaps", type=click.IntRange(min=1), default=6, show_default=True, help="swaps per flight")
+@click.option("--seed", "seeds", type=int, multiple=True, default=(0, 1, 2), show_default=True,
+              help="seeds of the swap and ring flights (repeat)")
+@click.option("--case", "cases", type=click.Choice(["S2S", "L2S", "SS2L", "SL2S", "LL2S", "LL2S*"]), multiple=True,
+              default=("S2S", "L2S", "SS2L"), show_default=True, help="swap cases (repeat)")
+@click.option("--rings/--no-rings", default=True, show_default=True, help="the 5-robot rings too")
+@click.option("--workers", type=click.IntRange(min=1), default=1, show_default=True,
+              help="fly this many flights at once (processes)")
+def sim_adapt(gen_dir, out_dir, learned, simulator, quiet, as_json, tuning_file, swaps, seeds, cases, rings, workers):
+    """The on-board adaptation judged in flight (issue 53 item 5): the swaps (plain, and
+    after the bottom robot hovered alone) with the bottom robot carrying an unmodelled 3 g,
+    the 5-robot rings with one small robot carrying it, and S2S swaps with the supply falling
+    to the low-battery voltage; BL-tuned, NN, NN+adapt; adapt.json and adapt.md in OUT."""
+    import json
+
+    from ns2exp.simadapt import experiment, jobs
+
+    tuning = json.loads(Path(tuning_file).read_text()).get("tuning")
+    if not isinstance(tuning, dict):
+        raise click.ClickException(f"{tuning_file}: no \"tuning\" mapping of a gain search")
+    kw = {"seeds": seeds, "swaps": swaps, "learned": learned, "rough": _rough(simulator), "cases": cases,
+          "rings": ["5-robot rings"] if rings else [], "battery_seeds": (seeds[0],)}
+    with _progress(quiet, len(jobs(gen_dir, tuning, **kw)), "flight", "sim adapt") as update:
+        res = experiment(gen_dir, out_dir, tuning, workers=workers, progress=update, **kw)
+    _emit(as_json, res, (Path(out_dir) / "adapt.md").read_text())
 
 
 @sim.command("calibrate")

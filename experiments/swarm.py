@@ -62,6 +62,23 @@ GAIN_GRID_XY = {"Lp_xy": (2.0, 3.0, 4.5), "Kv_xy": (4.0, 6.0)}
 DEFAULT_TUNING = {"Lp_xy": 2.0, "Lp_z": 2.5, "Kv_xy": 4.0, "Kv_z": 4.0}
 
 
+def swap_flight(case: str, seed: int = 0):
+    """(team from the bottom up, start positions, setpoints) of the swap ``case``."""
+    team = SWAP_CASES[case]
+    heights = BOTTOM_M + SPACING_M * np.arange(len(team))
+    sp, start = swap(len(team), heights, radius=SWAP_RADIUS_M, duration=SWAP_S, rest=REST_S, seed=seed)
+    return team, start, sp
+
+
+def bottom_worst_z(log: dict, swaps: int) -> tuple[list, np.ndarray]:
+    """The paper's metric: the bottom robot's worst |z error| in each swap period, and its
+    |z error| over the flight."""
+    period = SWAP_S + REST_S
+    z_err = np.abs(log["truth_p"][:, 0, 2] - log["p_d"][:, 0, 2])
+    worst = [float(z_err[(log["t"] >= k * period) & (log["t"] < (k + 1) * period)].max()) for k in range(swaps)]
+    return worst, z_err
+
+
 def tuned(veh, tuning: dict | None) -> dict | None:
     """ns2_gains_t overrides of one vehicle for a tuning (None: the default gains)."""
     if tuning is None:
@@ -98,9 +115,7 @@ def run_swaps(cfg: Config, gen_dir, case: str, learned: str | None = None, swaps
     BL, "fixed"/"float": NN with default gains); ``law``: AUTHORS_CONTROLLERS fly the z
     law read off the real logs (vehicle.read_law_gains).  Worst z error of the bottom
     robot per swap, its z error rms and motor-command noise."""
-    team = SWAP_CASES[case]
-    heights = BOTTOM_M + SPACING_M * np.arange(len(team))
-    sp, start = swap(len(team), heights, radius=SWAP_RADIUS_M, duration=SWAP_S, rest=REST_S, seed=seed)
+    team, start, sp = swap_flight(case, seed)
     period = SWAP_S + REST_S
     if law is not None and controller not in AUTHORS_CONTROLLERS:
         raise ValueError(f"law is flown by {AUTHORS_CONTROLLERS} only, not {controller!r}")
@@ -113,8 +128,7 @@ def run_swaps(cfg: Config, gen_dir, case: str, learned: str | None = None, swaps
     else:
         log = _fly(cfg, team, gen_dir, start, sp, swaps * period, controller, tuning, measured=[0], seed=seed,
                    learned=learned or "fixed", rough=rough, law=law)
-    z_err = np.abs(log["truth_p"][:, 0, 2] - log["p_d"][:, 0, 2])
-    worst = [float(z_err[(log["t"] >= k * period) & (log["t"] < (k + 1) * period)].max()) for k in range(swaps)]
+    worst, z_err = bottom_worst_z(log, swaps)
     return {"worst_z_error_m": worst, "z_error_rms_m": float(np.sqrt((z_err ** 2).mean())),
             "motor_cmd_rms": motor_noise(log["pwm"][:, 0]), "log": log}
 
@@ -309,6 +323,24 @@ RING_SETTLE_S = 2.0   # s of hover at the start positions before the rings start
 RING_DURATION_S = RING_SETTLE_S + RING_SECONDS + 1.0   # the authors log until 1 s after the rings stop
 
 
+def ring_flight(robots: int):
+    """(team, start positions, setpoints) of the intertwined rings of ``robots`` robots, the
+    rings starting after RING_SETTLE_S of hover at the start positions."""
+    team, rings, start, _ = intertwined_rings(robots)
+
+    def sp(t, state=None):
+        return rings(t - RING_SETTLE_S, state)
+
+    return team, start, sp
+
+
+def ring_worst_z(log: dict) -> tuple[np.ndarray, np.ndarray]:
+    """Every robot's worst |z error| once the rings start, and the |z errors| [T, N] then."""
+    late = log["t"] > RING_SETTLE_S
+    z_err = np.abs(log["truth_p"][late, :, 2] - log["p_d"][late, :, 2])
+    return z_err.max(axis=0), z_err
+
+
 def ring_experiments(cfg: Config, gen_dir, out_dir, duration: float = RING_DURATION_S, controllers=CONTROLLERS,
                      learned: str = "fixed", progress=None, rough: Roughness | None = None,
                      tune_swaps: int = 6) -> dict:
@@ -323,20 +355,14 @@ def ring_experiments(cfg: Config, gen_dir, out_dir, duration: float = RING_DURAT
     tuning = load_or_tune(cfg, gen_dir, out, tune_swaps, rough)
     rows = []
     for name, robots in RING_CASES.items():
-        team, rings, start, _ = intertwined_rings(robots)
+        team, start, sp = ring_flight(robots)
         small = [i for i, t in enumerate(team) if base_type(t) == "small"]
-
-        def sp(t, state=None, rings=rings):
-            return rings(t - RING_SETTLE_S, state)
-
         for ctrl in controllers:
             log = _fly(cfg, team, gen_dir, start, sp, duration, ctrl, tuning, measured=small, learned=learned,
                        rough=rough)
             if progress is not None:
                 progress(1)
-            late = log["t"] > RING_SETTLE_S
-            z_err = np.abs(log["truth_p"][late, :, 2] - log["p_d"][late, :, 2])
-            worst = z_err.max(axis=0)
+            worst, z_err = ring_worst_z(log)
             for kind in sorted(set(team)):
                 if ctrl == "Mellinger" and base_type(kind) != "small":
                     continue  # flown by BL

@@ -38,7 +38,7 @@ import numpy as np
 from ns2codegen.vehicle import G
 from ns2codegen.logs.align import PWM_FULL
 from ns2plan.output import DEG, TRAJECTORY_MEMORY_BYTES, read_poly4d
-from .swarm import GAIN1, GAIN3, TYPE_PARAMS, Swarm
+from .swarm import ADAPT, GAIN1, GAIN3, TYPE_PARAMS, Swarm
 
 LOG_EVERY = 5           # the simulator logs at 100 Hz; the radio log blocks run at 20 Hz
 GROUND_Z = 0.03         # where a landing ends (m)
@@ -173,6 +173,20 @@ class SimRobot:
         return g
 
 
+def _adapt(params: dict):
+    """The on-board adaptation's parameters a robot was given (PARAM ns2adapt, the app's boot
+    values for the others) as an ns2codegen.onboard.AdaptCfg, or None when it is off
+    (enable not 1) or a value is out of range (the app then flies the network alone, status
+    BAD_PARAM; `ns2 swarm-params` refuses such a file)."""
+    from ns2codegen.onboard import AdaptCfg, adapt_cfg_ok
+
+    if int(params.get("ns2adapt.enable", 0)) != 1:
+        return None
+    cfg = AdaptCfg(**{f: float(params[f"ns2adapt.{p}"]) for p, f in ADAPT.items()
+                      if p != "enable" and f"ns2adapt.{p}" in params})
+    return cfg if adapt_cfg_ok(cfg) else None
+
+
 def _eval(pieces, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """p, v, a of poly4d pieces at time t (held at the end), as pptraj.c evaluates them."""
     for d, c in pieces:
@@ -250,7 +264,8 @@ class SimSwarm:
         learned = None if not any(enable) else ("fixed" if int(rs[0].params.get("ns2.fixed", 1)) else "float")
         self.types = types
         self.t0 = self.flown = max(r.when("takeoff") for r in rs)
-        robots = [Robot(t, tuple(p), NS2Controller(learned), r.gains(), radio_id=i, type_table=tuple(tab))
+        robots = [Robot(t, tuple(p), NS2Controller(learned, _adapt(r.params)), r.gains(), radio_id=i,
+                        type_table=tuple(tab))
                   for t, p, r, i, tab in zip(types, self.start_pos, rs, ids, tables)]
         self.sim = CLoopSwarm(self.cfg, robots, self.export_dir, aero=True, seed=self.seed)
 
@@ -297,7 +312,9 @@ class SimSwarm:
                     "pm.vbat": float(log["battery_V"][k, i]), "ns2.ctrlStatus": int(log["status"][k, i]),
                     **{f"stateEstimate.{c}": float(x) for c, x in zip(("x", "y", "z", "vx", "vy", "vz"), (*p, *v))},
                     **{f"stateEstimate.q{c}": float(x) for c, x in zip("wxyz", q)},
-                    **{f"motor.m{j + 1}": int(pwm[j]) for j in range(4)}}
+                    **{f"motor.m{j + 1}": int(pwm[j]) for j in range(4)},
+                    **{f"ns2adapt.{v}": float(log[f"adapt_{v}"][k, i]) for v in ("bias", "scale", "trP", "label")},
+                    **{f"ns2adapt.{v}": int(log[f"adapt_{v}"][k, i]) for v in ("status", "lstatus")}}
             data.update(self.reports.get(r.name, {}))
             r.log_cb(r.name, t_ms, data)
 

@@ -214,3 +214,28 @@ def test_fly_sim_flies_large_robots_with_radio_ids_above_31(exported, tmp_path, 
     monkeypatch.setattr(gsim, "TYPE_PARAMS", ("t_unwritten",) * 16)
     fa0 = fly(tmp_path / "untyped.jsonl")
     assert seen["tables"][0] == [0] * 16 and fa0.min() > 0.7 * fa.min(), (fa.min(), fa0.min())   # -4.8 g, -9.7 g
+
+
+def test_fly_sim_flies_the_adaptation_a_robot_is_given(exported, tmp_path):
+    """Issue 53 item 5: a robot whose swarm file turns the on-board adaptation on flies it
+    (ns2adapt.* of the swarm file reach the simulated app), and the radio log's block ns2e
+    has its bias, trace of P, label and statuses; the other robot's stays off (status OFF,
+    bias 0) with its label still logged."""
+    swarm = SWARM.replace("    type: cf21\n  cf4:", "    type: cf21\n    firmware_params: {ns2adapt: {enable: 1}}\n  cf4:", 1)
+    (tmp_path / "crazyflies.yaml").write_text(swarm)
+    plan = tmp_path / "plan"
+    plan.mkdir()
+    hold = 3.0
+    (plan / "robot0_small.bin").write_bytes(poly4d_bytes([_swap_piece((0.0, -0.5, 0.4), (0.0, -0.5, 0.4), hold)]))
+    (plan / "robot1_large.bin").write_bytes(poly4d_bytes([_swap_piece((0.0, 0.5, 0.8), (0.0, 0.5, 0.8), hold)]))
+    log = tmp_path / "flight.jsonl"
+    r = CliRunner().invoke(main, ["fly", str(exported.gen_dir), str(tmp_path / "crazyflies.yaml"), "--plan", str(plan),
+                                  "--log", str(log), "--sim", "--takeoff-s", "1", "--land-s", "1.5", "--json"])
+    assert r.exit_code == 0, r.output
+    rows = [json.loads(x) for x in log.read_text().splitlines()[1:]]
+    on, off = ([x for x in rows if x["robot"] == n] for n in ("cf3", "cf4"))
+    updated = 1   # NS2_ADAPT_UPDATED
+    assert sum(x["ns2adapt.status"] & updated for x in on) > len(on) // 2
+    assert any(x["ns2adapt.bias"] != 0.0 for x in on) and all(0.0 < x["ns2adapt.trP"] <= 20.0 for x in on)
+    assert all(x["ns2adapt.bias"] == 0.0 and x["ns2adapt.status"] == 2 for x in off)   # NS2_ADAPT_OFF
+    assert any(x["ns2adapt.label"] != 0.0 for x in off)
