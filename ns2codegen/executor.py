@@ -19,6 +19,7 @@ importable and picklable on the workers (a module of an installed package)."""
 from __future__ import annotations
 
 import os
+import pickle
 import sys
 import threading
 from concurrent.futures import Future
@@ -73,9 +74,19 @@ def _worker_start(setup) -> None:
 
 
 def _task(setup, fn, args):
-    """One job on a Dask worker: the worker's start (once), then fn(*args)."""
+    """One job on a worker: the worker's start (once), then fn(*args); an error that cannot
+    be pickled back (a cffi error) comes back as a RuntimeError with its type and message."""
     _worker_start(setup)
-    return fn(*args)
+    try:
+        return fn(*args)
+    except Exception as e:
+        try:
+            pickle.loads(pickle.dumps(e))
+        except Exception:
+            msg = f"{type(e).__module__}.{type(e).__qualname__}: {e}"
+        else:
+            raise
+    raise RuntimeError(msg)                 # outside the handler: nothing unpicklable attached
 
 
 class _Deferred(Future):
@@ -184,7 +195,7 @@ class Executor:
         if backend == "dask":
             return self._dask().submit(_task, self.setup, fn, args, pure=False)
         if backend == "local":
-            return self._local().submit(fn, *args)
+            return self._local().submit(_task, self.setup, fn, args)
         self._deferred.append(_Deferred(self.setup, fn, args))
         return self._deferred[-1]
 

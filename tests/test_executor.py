@@ -82,6 +82,22 @@ def test_a_job_that_fails_keeps_what_finished_before_it(cluster, monkeypatch):
             assert seen == {0: 0, 1: 1}
 
 
+class _Unpicklable(Exception):
+    def __reduce__(self):
+        raise TypeError("not picklable")
+
+
+def _raise_unpicklable():
+    raise _Unpicklable("the C said no")
+
+
+def test_an_error_that_cannot_be_pickled_reaches_the_caller_with_its_message(cluster, monkeypatch):
+    monkeypatch.delenv(SCHEDULER_ENV, raising=False)
+    for ex in (Executor(2), Executor(2, cluster)):
+        with pytest.raises(RuntimeError, match="_Unpicklable: the C said no"), ex:
+            ex.map(_raise_unpicklable, [(), ()])
+
+
 def _spec(tmp_path, cfg, save_dir=None):
     downwash_dataset(cfg, 60, seed=0).save(tmp_path / "d.npz")
     downwash_dataset(cfg, 40, seed=1).save(tmp_path / "t.npz")
