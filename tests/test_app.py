@@ -432,6 +432,15 @@ def test_app_with_wake_memory(history, tmp_path_factory, tmp_path):
     _app_equals_pilot(exe, history, tmp_path, 1, 0, PEER_IDS)
 
 
+def test_app_with_wake_memory_fits_the_real_firmware(history, app, stock):
+    """The app with a history network builds in the real firmware (cf2) within the flash
+    budget and leaves RAM free; the rings cost RAM (docs/app.md: about 11 KB for 3 lags)."""
+    s, d = cfapp.sizes(stock / "cf2.elf"), cfapp.sizes(app / "cf2.elf")
+    h = cfapp.sizes(cfapp.build_app(history.gen_dir) / "cf2.elf")
+    assert 0 < h["flash"] - s["flash"] <= cfapp.FLASH_BUDGET and h["ram_free"] > 0 and h["ccm_free"] >= 0
+    assert 10_000 < h["ram"] - d["ram"] < 12_000   # 16 peers x 21 ticks x 24 B, the own ring, job, list
+
+
 def _app_equals_pilot(harness, exported, tmp_path, fixed, self_type, ids):
     from ns2host.cbuild import fill_gains, fill_vehicle
     from ns2host.cfhost import load_fly
