@@ -192,3 +192,17 @@ def test_missing_extra_names_it(monkeypatch):
 
 if __name__ == "__main__":
     pytest.main([__file__])
+
+
+def test_real_check_c_refuses_queries_without_the_models_lags(history, cfg, tmp_path):
+    """ns2 real check-c of a network with wake memory on a query file made without the
+    lags (a data folder of before): one line naming the query file and the field."""
+    from ns2codegen.queries import random_queries
+    from ns2exp.real import save_queries
+
+    save_queries(tmp_path / "heldout_queries.npz", random_queries(cfg, 10, seed=0))
+    r = ns2("real", "check-c", "--gen", history.gen_dir, "--checkpoint", history.checkpoint,
+            "--data-dir", tmp_path)
+    lines = r.stderr.strip().splitlines()
+    assert r.returncode == 1 and len(lines) == 1 and "Traceback" not in r.stderr, r.stderr
+    assert f"{tmp_path / 'heldout_queries.npz'}: model.history_ms [50, 100, 200] but the queries have 0" in lines[0]
