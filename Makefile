@@ -198,8 +198,9 @@ $(REAL)/adapt.json: $(REAL)/blind.json $(REAL)/adapt-gen/ns2_model_config.h
 # left out: 276,468 samples of 2019 to train on); the 2019 days left out train on 3.5x more
 # (REAL_MEM_SPLITS="2019-12-11 2019-12-20 2020-06-16", and heldout for the held-out flights)
 REAL_MEM_SPLITS ?= 2020-06-16
+REAL_MEM_LAGS ?= 50,100,200
 $(REAL)-mem/blind.json: $(REAL)/authors.pt
-	$(MAKE) REAL=$(REAL)-mem REAL_HISTORY=50,100,200 $(foreach c,$(filter-out heldout,$(REAL_MEM_SPLITS)),$(REAL)-mem/loco-$(c).json) \
+	$(MAKE) REAL=$(REAL)-mem REAL_HISTORY=$(REAL_MEM_LAGS) $(foreach c,$(filter-out heldout,$(REAL_MEM_SPLITS)),$(REAL)-mem/loco-$(c).json) \
 		$(if $(filter heldout,$(REAL_MEM_SPLITS)),$(REAL)-mem/heldout.json)
 	$(NS2) real blind --dir $(REAL)-mem --authors $(REAL)/authors.pt --seeds $(REAL_SEEDS) \
 		$(foreach c,$(filter-out heldout,$(REAL_MEM_SPLITS)),--collection $(c)) --out $@
@@ -210,11 +211,15 @@ $(REAL)/authors.pt: $(REAL)/all.npz
 	$(NS2) real import-authors build/neural-swarm-data/models/models/output --out $@
 $(REAL)/authors.json: $(REAL)/authors.pt
 	$(NS2) real score --checkpoint $< --data-dir $(REAL) --out $@
-# the export: the paper's network trained on every flight of all three collections (seed 0)
-$(REAL)/gen/ns2_model_config.h: $(REAL)/paper.json
-	$(NS2) export $(REAL)/paper/H-20-seed0.pt --out $(REAL)/gen --quiet
+# the export: the network with the wake's memory (REAL_MEM_LAGS; section 10 of docs/real-flights.md)
+# trained under the paper's protocol on every flight of all three collections (one seed), and its C
+# checked on every held-out sample of that data
+$(REAL)-mem/paper.json: | deps
+	$(MAKE) REAL=$(REAL)-mem REAL_HISTORY=$(REAL_MEM_LAGS) REAL_SEEDS=1 $@
+$(REAL)/gen/ns2_model_config.h: $(REAL)-mem/paper.json
+	$(NS2) export $(REAL)-mem/paper/H-20-seed0.pt --out $(REAL)/gen --quiet
 $(REAL)/c_check.json: $(REAL)/gen/ns2_model_config.h
-	$(NS2) real check-c --gen $(REAL)/gen --checkpoint $(REAL)/paper/H-20-seed0.pt --data-dir $(REAL) --out $@
+	$(NS2) real check-c --gen $(REAL)/gen --checkpoint $(REAL)-mem/paper/H-20-seed0.pt --data-dir $(REAL)-mem --out $@
 real: $(REAL)/paper.json $(REAL)/heldout.json $(foreach a,$(REAL_AXES),$(REAL)/ablation-$(a).json) \
 		$(REAL)/authors.json $(REAL)/c_check.json $(REAL)/blind.json $(REAL)/memory.json $(REAL)/adapt.json
 	$(NS2) real report --dir $(REAL) --checkpoint $(REAL)/heldout/H-20-seed0.pt
