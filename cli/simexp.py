@@ -62,7 +62,7 @@ def sim_rings(gen_dir, out_dir, duration, learned, simulator, quiet, as_json):
 @click.option("--seed", "seeds", type=int, multiple=True, default=(0, 1, 2), show_default=True,
               help="seeds of the swap and ring flights (repeat)")
 @click.option("--case", "cases", type=click.Choice(["S2S", "L2S", "SS2L", "SL2S", "LL2S", "LL2S*"]), multiple=True,
-              default=("S2S", "L2S", "SS2L"), show_default=True, help="swap cases (repeat)")
+              default=("S2S", "L2S"), show_default=True, help="swap cases (repeat)")
 @click.option("--rings/--no-rings", default=True, show_default=True, help="the 5-robot rings too")
 @click.option("--workers", type=click.IntRange(min=1), default=1, show_default=True,
               help="fly this many flights at once (processes)")

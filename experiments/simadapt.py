@@ -148,14 +148,17 @@ def jobs(gen_dir, tuning: dict, seeds=SEEDS, swaps: int = 6, learned: str = "fix
     battery flight for ``battery_seeds``."""
     base = {"gen_dir": str(gen_dir), "tuning": tuning, "learned": learned, "rough": rough, "swaps": swaps,
             "payload_g": payload_g}
-    out = [{**base, "kind": w, "case": c, "controller": k, "seed": s}
-           for w in SWAP_KINDS for c in (SWAP_CASES if cases is None else cases) for s in seeds for k in CONTROLLERS]
-    out += [{**base, "kind": "ring", "case": c, "controller": k, "seed": s}
-            for c in (RING_CASES if rings is None else rings) for s in seeds for k in CONTROLLERS]
+
+    def swap(w):
+        return [{**base, "kind": w, "case": c, "controller": k, "seed": s}
+                for c in (SWAP_CASES if cases is None else cases) for s in seeds for k in CONTROLLERS]
     n = int(BATTERY_S // (SWAP_S + REST_S))
-    out += [{**base, "kind": "battery", "case": BATTERY_CASE, "controller": k, "seed": s, "swaps": n}
-            for s in battery_seeds for k in CONTROLLERS]
-    return out
+    return (swap("swap-solo")
+            + [{**base, "kind": "battery", "case": BATTERY_CASE, "controller": k, "seed": s, "swaps": n}
+               for s in battery_seeds for k in CONTROLLERS]
+            + [{**base, "kind": "ring", "case": c, "controller": k, "seed": s}
+               for c in (RING_CASES if rings is None else rings) for s in seeds for k in CONTROLLERS]
+            + swap("swap"))
 
 
 def summarize(rows: list[dict]) -> dict:
@@ -228,15 +231,23 @@ def table(summary: dict) -> str:
 
 
 def experiment(gen_dir, out_dir, tuning: dict, workers: int = 1, progress=None, **kw) -> dict:
-    """Fly every job (run_map over ``workers``), write out_dir/adapt.json and adapt.md."""
+    """Fly every job (run_map over ``workers``), write out_dir/adapt.json and adapt.md (and
+    each flight's row to out_dir/adapt.partial.jsonl as it lands)."""
     js = jobs(gen_dir, tuning, **kw)
-    rows = run_map(fly, [(j,) for j in js], workers=workers, progress=progress)
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    partial = out / "adapt.partial.jsonl"
+    partial.write_text("")
+
+    def done(i, row):
+        with partial.open("a") as f:
+            f.write(json.dumps(row) + "\n")
+
+    rows = run_map(fly, [(j,) for j in js], workers=workers, progress=progress, on_done=done)
     rough = kw.get("rough")
     res = {"controllers": list(CONTROLLERS), "payload_g": js[0]["payload_g"], "seeds": list(kw.get("seeds", SEEDS)),
            "swaps": js[0]["swaps"], "tuning": tuning, "simulator": "clean" if rough is None else "rough",
            "adapt": AdaptCfg(enable=1).as_dict(), "summary": summarize(rows), "flights": rows}
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
     (out / "adapt.json").write_text(json.dumps(res, indent=2) + "\n")
     (out / "adapt.md").write_text(table(res["summary"]))
     return res
