@@ -2,11 +2,16 @@
 flights of before bit for bit (tests/test_sim.py's digests), on = the C of the app's path,
 equal bit for bit to the float32 reference ns2codegen/onboard.py on the simulator's own
 inputs, and it learns an unmodelled payload."""
+import json
+
 import numpy as np
 import pytest
 
+from conftest import FIRMWARE, needs
 from ns2codegen.onboard import ADAPT_UPDATED, AdaptCfg, LabelCfg, adapt_f32, label_f32
 from ns2host.sim.cloop import CLoopSwarm, NS2Controller, Robot, hover_setpoints
+
+pytestmark = needs(FIRMWARE)   # the simulator's EKF comes from the firmware
 
 P0 = (0.0, 0.0, 1.0)
 PAYLOAD_G = 3.0
@@ -77,3 +82,29 @@ def test_adapt_parameters_are_checked():
         NS2Controller("fixed", AdaptCfg(forget=7.0))
     with pytest.raises(ValueError, match="payload_g"):
         Robot("small", P0, payload_g=float("nan"))
+
+
+def test_the_experiment_flies_every_controller_and_reads_the_adaptation(cfg, exported, tmp_path, monkeypatch):
+    """`ns2exp.simadapt` at a tiny size (S2S, one swap, seed 0, a 3 s battery flight): a row
+    per flight; in the paper's swap the bottom robot never updates (always in a wake),
+    after hovering alone it has learned the payload (bias below -1 g) before the swaps;
+    BL-tuned and NN never adapt; the supply reaches the low-battery voltage's side."""
+    from ns2exp import simadapt
+
+    monkeypatch.setattr(simadapt, "BATTERY_S", 3.0)
+    tuning = {"Lp_xy": 2.0, "Lp_z": 2.5, "Kv_xy": 4.0, "Kv_z": 4.0}
+    res = simadapt.experiment(exported.gen_dir, tmp_path, tuning, seeds=(0,), swaps=1, cases=("S2S",), rings=[],
+                              battery_seeds=(0,))
+    rows = res["flights"]
+    assert sorted((r["kind"], r["controller"]) for r in rows) == sorted(
+        (k, c) for k in ("swap", "swap-solo", "battery") for c in simadapt.CONTROLLERS)
+    by = {(r["kind"], r["controller"]): r for r in rows}
+    assert by["swap", "NN+adapt"]["bottom_updated_share"] == 0.0
+    solo = by["swap-solo", "NN+adapt"]
+    assert solo["bottom_updated_share"] > 0.1 and solo["bottom_bias_g_at_swaps"] < -1.0
+    assert all(by[k, c]["bottom_bias_g_end"] == 0.0 for k in ("swap", "swap-solo") for c in ("BL-tuned", "NN"))
+    v0, v1 = by["battery", "NN"]["battery_V_start_end"]
+    assert v0 == pytest.approx(4.2) and 3.2 <= v1 < 3.3   # the clean simulator starts full
+    assert json.loads((tmp_path / "adapt.json").read_text())["summary"] == res["summary"]
+    assert "| S2S |" in (tmp_path / "adapt.md").read_text()
+    assert len((tmp_path / "adapt.partial.jsonl").read_text().splitlines()) == len(rows)
