@@ -164,6 +164,8 @@ def real_adapt(out_dir, gen_dir, unpack_dir, seeds, collections, no_held_out, ch
     from ns2exp.adaptation import adaptation, tables, write
 
     _parent_ok(out)
+    if choose_on and not no_held_out:
+        raise click.UsageError("--choose-on needs --no-held-out (the laws are chosen on the held-out flights)")
     res = adaptation(out_dir, gen_dir, unpack_dir, seeds, collections or None, not no_held_out, choose_on,
                      progress=None if quiet else (lambda msg: click.echo(msg, err=True)))
     write(res, Path(out))
