@@ -588,6 +588,7 @@ def tables(res: dict) -> str:
 
 def write(res: dict, out: Path) -> None:
     from ns2codegen.fileio import atomic_write_bytes
+    from ns2codegen.results import stamp
 
-    atomic_write_bytes(out, json.dumps(res, indent=1, sort_keys=True).encode())
+    atomic_write_bytes(out, json.dumps(stamp(res), indent=1, sort_keys=True).encode())
     atomic_write_bytes(out.with_suffix(".md"), (tables(res) + "\n").encode())

@@ -235,6 +235,7 @@ EXPERIMENTS = (
                real_summary, "[docs/real-flights.md](docs/real-flights.md)",
                (("real/heldout.json", "build/real/heldout.json"), ("real/authors.json", "build/real/authors.json"),
                 ("real/data_report.json", "build/real/data_report.json"),
+                ("real/adapt.json", "build/real/adapt.json"),
                 *((f"real/loco-{c}.json", f"build/real/loco-{c}.json") for c in ("2019-12-11", "2019-12-20", "2020-06-16")),
                 ("real-mem/loco-2020-06-16.json", "build/real-mem/loco-2020-06-16.json"))),
     Experiment("sim", "simulated swaps and rings under Crazyflie sensing", "make sim",
