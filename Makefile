@@ -22,7 +22,7 @@ DEFAULT := build/default
 ONBOARD := build/onboard
 CHECKPOINT ?= $(DEFAULT)/model.pt
 
-.PHONY: all deps export export-onboard test bench firmware app flash fuzz sim paper-data ablation real calibrate results clean
+.PHONY: all deps export export-onboard test bench firmware app flash fuzz sim paper-data ablation real calibrate sim-adapt results clean
 
 all: export
 
@@ -237,6 +237,14 @@ $(REAL)/authors-gen/ns2_model_config.h: $(REAL)/authors.pt
 calibrate: $(REAL)/all.npz $(REAL)/authors-gen/ns2_model_config.h
 	$(NS2) sim calibrate --logs build/neural-swarm-data --data-dir $(REAL) --gen $(REAL)/authors-gen \
 		$(if $(CALIBRATE_PER_SCENARIO),--per-scenario $(CALIBRATE_PER_SCENARIO)) --workers 2 --out $(SIM)/calibration
+
+# The on-board adaptation judged in flight, in the simulator (docs/adaptation.md, issue 53
+# item 5): the authors' network in the rough simulator, BL-tuned / NN / NN+adapt with an
+# unmodelled 3 g, swaps, 5-robot rings and a battery to the low-voltage limit (48 flights,
+# about 12 min on 2 cores): build/sim-adapt/adapt.json, adapt.md
+sim-adapt: export OMP_NUM_THREADS ?= 1
+sim-adapt: $(REAL)/authors-gen/ns2_model_config.h
+	$(NS2) sim adapt --sim $(SIMULATOR) --gen $(REAL)/authors-gen --out build/sim-adapt --workers 2
 
 # README's results table and the docs' tables rewritten from the committed result files
 # (docs/results/runs/, ns2 results, docs/experiments.md); COLLECT="sim real ..." first copies those
