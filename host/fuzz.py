@@ -24,7 +24,7 @@ from .cbuild import BUILD_ROOT, GENERATED, REPO, BuildError, cached, compile_err
 DRIVER = REPO / "fuzz" / "ns2_fuzz.c"
 TARGETS = ("infer", "sliced", "peers", "ctrl", "adapt", "hil")
 # share of the inputs of `--count` per target (cheap targets get more)
-SHARE = {"infer": 0.25, "sliced": 0.10, "peers": 0.25, "ctrl": 0.30, "hil": 0.10}
+SHARE = {"infer": 0.25, "sliced": 0.10, "peers": 0.20, "ctrl": 0.25, "adapt": 0.10, "hil": 0.10}
 SANITIZE = ["-fsanitize=address,undefined,float-cast-overflow", "-fno-sanitize-recover=all",
             "-fno-omit-frame-pointer", "-g", "-O1"]
 ENV = {"ASAN_OPTIONS": "abort_on_error=0:halt_on_error=1:detect_leaks=1:exitcode=86",

@@ -27,3 +27,9 @@ def test_a_failed_check_is_reported(exe, tmp_path):
     """The runner does fail: an unknown target exits non-zero."""
     with pytest.raises(fuzz.FuzzFailure, match="exit 2"):
         fuzz.run(exe, "no-such-target", 1, 0)
+
+
+def test_make_fuzz_gives_every_target_its_share():
+    """`make fuzz` (ns2host.fuzz's main) splits --count over every target: each has a share."""
+    assert set(fuzz.SHARE) == set(fuzz.TARGETS)
+    assert sum(fuzz.SHARE.values()) == pytest.approx(1.0)
