@@ -71,6 +71,7 @@ def real_check_c(gen_dir, checkpoint, data_dir, out, as_json):
     same_history(q, export_config(gen_dir), Path(data_dir) / "heldout_queries.npz")
     labels = Dataset.load(Path(data_dir) / "heldout.npz").label_g
     res = c_in_the_loop(gen_dir, checkpoint, q, labels)
+    res["history_ms"] = export_config(gen_dir).history_ms
     every = Path(data_dir) / "all_queries.npz"
     if every.is_file():   # issue 29: the selection of every sample of the collection against the C
         res["selection_all_flights"] = selection_mismatches(gen_dir, load_queries(every),

@@ -91,12 +91,17 @@ def _lags(ms) -> str:
 
 def real_summary(d: dict) -> str:
     """The paper's own flights: the paper's protocol, the blind day, the wake's memory, the C."""
-    paper, blind, mem, past, cc = (d.get(k) for k in ("real/paper.json", "real/blind.json", "real/memory.json",
-                                                        "real-mem/blind.json", "real/c_check.json"))
+    paper, blind, mem, past, cc, paper_past = (
+        d.get(k) for k in ("real/paper.json", "real/blind.json", "real/memory.json", "real-mem/blind.json",
+                           "real/c_check.json", "real-mem/paper.json"))
     parts = []
     if paper:
         parts.append(f"the paper's network **{_pm(paper['H']['20'])} g^2** under the paper's random split over "
                      f"{paper['samples']:,} samples of all three collections (paper 6.42 +- 0.18)")
+    if paper_past:
+        n = paper_past["seeds"]
+        parts.append(f"with the wake's memory (the exported network) {_pm(paper_past['H']['20'])} g^2 under the same "
+                     f"split ({n} seed{'s' if n > 1 else ''})")
     if blind:
         g, o = (blind["leave_one_collection_out"]["2020-06-16"]["gains"]["onboard"][c] for c in ("labels", "other_masses"))
         parts.append(f"**blind**, trained on 2019 only and scored on 16 June 2020 against the network that flew "
@@ -120,11 +125,14 @@ def real_summary(d: dict) -> str:
                          f"{_pct(g['wake_neutral'])} below the flown network")
             parts.append(text)
     if cc:
+        lags = cc.get("history_ms")
+        net = "the exported network (trained on every flight" + (
+            f", with each neighbour's state {', '.join(map(str, lags))} ms ago)" if lags else ")")
         if cc["float_mismatches"] == 0 and cc["fixed_mismatches"] == 0:
-            text = (f"the exported network (trained on every flight) equals the references bit for bit in C, float "
+            text = (f"{net} equals the references bit for bit in C, float "
                     f"and fixed point, on all {cc['samples']:,} held-out samples")
         else:
-            text = (f"the exported network (trained on every flight) differs from the references in C on "
+            text = (f"{net} differs from the references in C on "
                     f"{cc['float_mismatches']} (float) and {cc['fixed_mismatches']} (fixed point) of "
                     f"{cc['samples']:,} held-out samples")
         sel = cc.get("selection_all_flights")
@@ -231,7 +239,7 @@ EXPERIMENTS = (
                "make real",
                {"real/paper.json": "build/real/paper.json", "real/blind.json": "build/real/blind.json",
                 "real/memory.json": "build/real/memory.json", "real-mem/blind.json": "build/real-mem/blind.json",
-                "real/c_check.json": "build/real/c_check.json"},
+                "real/c_check.json": "build/real/c_check.json", "real-mem/paper.json": "build/real-mem/paper.json"},
                real_summary, "[docs/real-flights.md](docs/real-flights.md)",
                (("real/heldout.json", "build/real/heldout.json"), ("real/authors.json", "build/real/authors.json"),
                 ("real/data_report.json", "build/real/data_report.json"),
