@@ -30,14 +30,17 @@ tables score): static (NN alone) and adapted (the C's output f = NN + term), pla
 mass-neutral, overall, in the wake (``realscore.WAKE``), per receiving type and per
 scenario, with the labels' masses (``real.toml``, 32.1 / 62.5 g).
 
-Laws (``variants``): the default (bias alone, the app's parameters), bias + scale (the
-C with ``scale_max`` ``SCALE_MAX``), the forgetting factor (``FORGETS``), the wake
-gated by |NN| > wakeG alone without the app's flag (``WAKE_G``), and Neural-Fly's
-last-layer basis psi = [1, rho's last hidden layer] (``rls_last_layer``: float64 RLS in
-Python only, gated exactly as the C's default run; ``LAST_LAYER``).  Every law runs on
-the held-out flights; the best bias law and the best last-layer law there (plain
-overall MSE) are judged on the collections left out beside the default and bias +
-scale: nothing is chosen on the split it is judged on.
+Laws (``variants``, every one the C with its parameters; the app's wake flag
+``n_used > 0`` is always passed, as the pilot passes it): the default (bias alone, the
+app's parameters: only |NN| > wakeG stops updates, ``gate_neighbours`` 0), the
+neighbour gate (``gate_neighbours`` 1: the flag stops updates too, the default before
+this judgement), bias + scale (``scale_max`` ``SCALE_MAX``), the forgetting factor
+(``FORGETS``), wakeG (``WAKE_G``), and Neural-Fly's last-layer basis psi = [1, rho's last
+hidden layer] (``rls_last_layer``: float64 RLS in Python only, gated exactly as the C's
+default run; ``LAST_LAYER``).  Every law runs on the held-out flights; the best bias law
+and the best last-layer law there (plain overall MSE) are judged on the collections left
+out beside the default, the neighbour gate and bias + scale: nothing is chosen on the
+split it is judged on.
 
 The mass test (``mass_offset``): each robot's config 3 g lighter than the robot (the
 label cfg's mass - 3 g: every on-board label moves by -3 g times the load factor, the
@@ -62,7 +65,8 @@ from .realscore import relabel, score
 
 SCALE_MAX = 0.5
 FORGETS = (0.98, 0.99, 0.995, 0.998, 0.999)
-WAKE_G = (15.0, 5.0, 2.0)      # without the app's flag: a wake is |NN| > wakeG alone
+WAKE_G = (5.0, 2.0)            # wakeG other than the default's 15 g
+NEIGHBOUR_GATE = "bias, neighbour gate (gateNbr 1)"   # the app's wake flag stops updates too
 LAST_LAYER = ((0.995, 1.0), (0.999, 1.0), (0.999, 0.1), (0.999, 0.01), (0.9995, 0.01))   # (forget, p0)
 OFFSET_G, RECOVER_G = 3.0, 0.5
 GOAL = {"held_out_flights": 0.15, "collection_left_out": 0.30}
@@ -289,14 +293,13 @@ class Split:
         return score(lab[k], pred[k], sub, self.ds.robot_type[k], types, self.ds.scenario[k],
                      self.ds.scenario_names)
 
-    def run(self, gen_dir, cfg, nn: np.ndarray, acfg: AdaptCfg, wake_flag: bool = True,
+    def run(self, gen_dir, cfg, nn: np.ndarray, acfg: AdaptCfg,
             mass_delta_g: float | dict = 0.0) -> tuple[np.ndarray, list]:
-        """The C's adapted prediction per sample and its outputs per track; without
-        ``wake_flag`` the app's wake flag is never raised (only |NN| > wake_g gates)."""
+        """The C's adapted prediction per sample and its outputs per track (the app's wake
+        flag passed; whether it stops updates is the law's ``gate_neighbours``)."""
         out, runs = np.zeros(len(self.ds)), []
-        wake = self.wake if wake_flag else np.zeros(len(self.ds), bool)
         for tr in self.tracks:
-            c = replay(gen_dir, cfg, tr, nn, wake, acfg, mass_delta_g)
+            c = replay(gen_dir, cfg, tr, nn, self.wake, acfg, mass_delta_g)
             out[tr.samples] = c["out_g"][tr.tick]
             runs.append(c)
         return out, runs
@@ -317,16 +320,14 @@ def _gain(adapted: dict, static: dict) -> dict:
             "wake_neutral": g(adapted["wake"]["neutral"], static["wake"]["neutral"])}
 
 
-def mass_offset(gen_dir, cfg, sp: Split, nn: np.ndarray, base_runs: list, acfg: AdaptCfg, types,
-                wake_flag: bool = True) -> dict:
-    """The 3 g test on a split (module docstring) of the law ``acfg`` (with or without the
-    app's wake flag; ``base_runs`` its unperturbed runs): scores with the offset, and
+def mass_offset(gen_dir, cfg, sp: Split, nn: np.ndarray, base_runs: list, acfg: AdaptCfg, types) -> dict:
+    """The 3 g test on a split (module docstring) of the law ``acfg`` (``base_runs`` its
+    unperturbed runs): scores with the offset, and
     recovery times from take-off (C) and from a step in the middle of each robot's flight."""
     masses = {t: cfg.vehicle(t)["mass_g"] for t in types}
     lighter = {t: m - OFFSET_G for t, m in masses.items()}
     label = relabel(sp.ds.label_g, sp.info, sp.ds.robot_type, masses, lighter, types)
-    adapted, runs = sp.run(gen_dir, cfg, nn, acfg, wake_flag, mass_delta_g=-OFFSET_G)
-    wake = sp.wake if wake_flag else np.zeros(len(sp.ds), bool)
+    adapted, runs = sp.run(gen_dir, cfg, nn, acfg, mass_delta_g=-OFFSET_G)
     takeoff, step = [], []
     for tr, c0, c1 in zip(sp.tracks, base_runs, runs):
         takeoff.append(recovery_times(tr, c1["term_g"] - c0["term_g"], int(tr.tick[0]), -OFFSET_G, RECOVER_G))
@@ -334,7 +335,7 @@ def mass_offset(gen_dir, cfg, sp: Split, nn: np.ndarray, base_runs: list, acfg: 
         lab = c0["label_g"].copy()
         valid = np.flatnonzero(np.arange(len(tr)) >= mid + 2)       # labels of samples from the step on
         lab[valid] = (lab[valid] - np.float32(OFFSET_G)).astype(np.float32)
-        t = track_ticks(tr, nn, wake, acfg)
+        t = track_ticks(tr, nn, sp.wake, acfg)
         r = adapt_f32(acfg, t.nn_g, t.wake, lab, c0["label_status"], t.reset)
         if not np.array_equal(r["term_g"][:mid + 2].view(np.uint32), c0["term_g"][:mid + 2].view(np.uint32)):
             raise AssertionError(f"{tr.name}: the float32 reference differs from the C before the step")
@@ -364,11 +365,12 @@ def last_layer_cost(width: int) -> dict:
 
 
 def variants() -> dict:
-    """name -> ("c", AdaptCfg overrides, app's wake flag) or ("last_layer", forget, p0):
-    every law tried on the held-out flights."""
-    v = {"bias": ("c", {}, True), "bias + scale": ("c", {"scale_max": SCALE_MAX}, True)}
-    v.update({f"bias, no wake flag, wakeG {g}": ("c", {"wake_g": g}, False) for g in WAKE_G})
-    v.update({f"bias, forget {f}": ("c", {"forget": f}, True) for f in FORGETS if f != AdaptCfg().forget})
+    """name -> ("c", AdaptCfg overrides) or ("last_layer", forget, p0): every law tried on
+    the held-out flights."""
+    v = {"bias": ("c", {}), NEIGHBOUR_GATE: ("c", {"gate_neighbours": 1}),
+         "bias + scale": ("c", {"scale_max": SCALE_MAX})}
+    v.update({f"bias, wakeG {g}": ("c", {"wake_g": g}) for g in WAKE_G})
+    v.update({f"bias, forget {f}": ("c", {"forget": f}) for f in FORGETS if f != AdaptCfg().forget})
     v.update({f"last layer, forget {f}, p0 {p}": ("last_layer", f, p) for f, p in LAST_LAYER})
     return v
 
@@ -426,7 +428,7 @@ def adaptation(data_dir, gen_dir, root, seeds: int = 3, collections=None, held_o
                 if v == "bias":
                     pred = adapted
                 elif kind == "c":
-                    pred = sp.run(gen_dir, cfg, nn, replace(base, **par[0]), wake_flag=par[1])[0]
+                    pred = sp.run(gen_dir, cfg, nn, replace(base, **par[0]))[0]
                 else:
                     feats = last_hidden(ck, sp.ds, nn) if feats is None else feats
                     pred = sp.last_layer(nn, feats, runs, *par)
@@ -438,10 +440,10 @@ def adaptation(data_dir, gen_dir, root, seeds: int = 3, collections=None, held_o
             row["other_masses"] = {"static": sp.score(nn, other, types), "bias": sp.score(moved, other, types)}
             if mass_test:
                 row["mass_offset"] = mass_offset(gen_dir, cfg, sp, nn, runs, base, types)
-                for g in WAKE_G:      # the laws without the app's wake flag
-                    law = replace(base, wake_g=g)
-                    row[f"mass_offset, no wake flag, wakeG {g}"] = mass_offset(
-                        gen_dir, cfg, sp, nn, sp.run(gen_dir, cfg, nn, law, False)[1], law, types, False)
+                for v in [NEIGHBOUR_GATE] + [f"bias, wakeG {g}" for g in WAKE_G]:   # the other gates
+                    law = replace(base, **every[v][1])
+                    row[f"mass_offset, {v}"] = mass_offset(gen_dir, cfg, sp, nn, sp.run(gen_dir, cfg, nn, law)[1],
+                                                           law, types)
             row["gain"] = {v: _gain(s, row["static"]) for v, s in row["variants"].items()}
             res["seeds"].append(row)
         return res
@@ -464,7 +466,7 @@ def adaptation(data_dir, gen_dir, root, seeds: int = 3, collections=None, held_o
     for key in keys:
         if not held_out and key == choose_on:
             continue
-        names = ["bias", "bias + scale"] + [c for c in chosen if c not in ("bias", "bias + scale")]
+        names = list(dict.fromkeys(["bias", NEIGHBOUR_GATE, "bias + scale"] + chosen))
         out["splits"][f"collection {key} left out"] = one_split(
             f"{key} left out", f"c-{key}", f"loco-{key}", names, key == ONBOARD_COLLECTION, False)
     out["verdict"] = verdict(out)
@@ -487,7 +489,7 @@ def verdict(res: dict) -> dict:
     for name, s in res["splits"].items():
         need = GOAL["held_out_flights"] if name == "held_out_flights" else GOAL["collection_left_out"]
         out[name] = {}
-        for law in dict.fromkeys(["bias"] + res.get("chosen", [])):
+        for law in dict.fromkeys(["bias", NEIGHBOUR_GATE] + res.get("chosen", [])):
             rows = []
             for r in s["seeds"]:
                 g = r["gain"][law]

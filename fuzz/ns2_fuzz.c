@@ -548,6 +548,10 @@ static void check_adapt(const ns2_adapt_t *a, const ns2_adapt_cfg_t *c, float nn
     for (int i = 0; i < 3; ++i) {
         check(isfinite(a->P[i]), "P not finite");
     }
+    check(c->gate_neighbours <= 1u || !ns2_adapt_cfg_ok(c), "gate_neighbours not 0 or 1 accepted");
+    if (!ns2_adapt_cfg_ok(c) && isfinite(nn) && fabsf(nn) <= 1e30f) {
+        check(a->status == NS2_ADAPT_BAD_PARAM, "bad parameters but no NS2_ADAPT_BAD_PARAM alone");
+    }
     if (!ns2_adapt_cfg_ok(c) || !c->enable) {
         check(out == nn || !isfinite(nn) || fabsf(nn) > 1e30f, "adaptation off or bad parameters but f != NN");
         return;
@@ -556,6 +560,10 @@ static void check_adapt(const ns2_adapt_t *a, const ns2_adapt_cfg_t *c, float nn
         check(fabsf(a->term_g) <= c->fa_max_g, "adapted term beyond fa_max_g");
     }
     if (a->status & NS2_ADAPT_UPDATED) {
+        /* never learns where |NN| > wake_g, nor on a flagged tick with gate_neighbours = 1 */
+        check(fabsf(a->nn[0]) <= c->wake_g, "updated on a tick with |NN| > wake_g");
+        check(!(c->gate_neighbours && ((a->wake >> NS2_ADAPT_NN_DELAY) & 1u)),
+              "updated on a tick with the wake flag and gate_neighbours = 1");
         check(fabsf(a->theta[0]) <= c->bias_max_g && fabsf(a->theta[1]) <= c->scale_max, "theta outside its set");
         check(a->P[0] >= NS2_ADAPT_P_MIN && a->P[2] >= NS2_ADAPT_P_MIN, "P diagonal below NS2_ADAPT_P_MIN");
         check(a->P[0] <= c->p_max + NS2_ADAPT_P_MIN && a->P[2] <= c->p_max + NS2_ADAPT_P_MIN, "P beyond p_max");
@@ -572,10 +580,16 @@ static void random_adapt_cfg(ns2_adapt_cfg_t *c, uint32_t p_bad)
     c->wake_g = uniform(0.0f, 20.0f);
     c->scale_max = below(2) ? 0.0f : uniform(0.0f, 1.0f);
     c->enable = (uint8_t)(below(8) != 0u);
+    c->gate_neighbours = (uint8_t)below(2);
     if (below(100) < p_bad) {
         float *f[] = {&c->forget, &c->p0, &c->p_max, &c->bias_max_g, &c->scale_max, &c->fa_max_g,
                       &c->label_max_g, &c->wake_g};
-        *f[below(8)] = below(2) ? special() : uniform(-10.0f, 10.0f);
+        const uint32_t which = below(9);
+        if (which == 8u) {
+            c->gate_neighbours = (uint8_t)(2u + below(254)); /* not 0 or 1 */
+        } else {
+            *f[which] = below(2) ? special() : uniform(-10.0f, 10.0f);
+        }
     }
 }
 

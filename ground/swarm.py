@@ -51,7 +51,9 @@ from ns2host.cbuild import TYPE_TABLE_MAX_TYPES, TYPE_TABLE_WORDS, type_table
 GROUPS = ("ns2", "ns2type", "ns2gain", "ns2adapt")   # the app's parameter groups (firmware/app/src/ns2_app.c)
 # ns2adapt.<name>: the on-board adaptation's parameters (ns2_adapt.h, docs/adaptation.md) -> AdaptCfg field
 ADAPT = {"enable": "enable", "forget": "forget", "p0": "p0", "pMax": "p_max", "biasMax": "bias_max_g",
-         "scaleMax": "scale_max", "faMax": "fa_max_g", "labelMax": "label_max_g", "wakeG": "wake_g"}
+         "scaleMax": "scale_max", "faMax": "fa_max_g", "labelMax": "label_max_g", "wakeG": "wake_g",
+         "gateNbr": "gate_neighbours"}
+ADAPT_SWITCHES = ("enable", "gateNbr")   # 0 or 1 (uint8_t)
 ADAPT_ENABLE = 0   # off unless the swarm file says ns2adapt: {enable: 1}, as the app boots (not yet judged in flight)
 GAIN3 = ("Lp", "Kv", "Gv", "Lq", "Kw", "Gw", "Kwd")   # ns2gain.<name>x/y/z
 GAIN1 = {"intVMax": "int_v_max", "intWMax": "int_w_max", "faMaxN": "fa_max_N"}
@@ -349,11 +351,12 @@ def params(swarm: Swarm, cfg: Config, robot: Robot) -> dict[str, dict[str, float
     d = {**AdaptCfg().as_dict(), "enable": ADAPT_ENABLE}
     adapt = {p: d[f] for p, f in ADAPT.items()}
     adapt.update(_user_values(swarm, robot, "ns2adapt", adapt, "a parameter of the adaptation"))
-    adapt["enable"] = int(adapt["enable"])
-    if adapt["enable"] not in (0, 1) or not adapt_cfg_ok(AdaptCfg(**{f: adapt[p] for p, f in ADAPT.items()})):
+    if any(adapt[p] not in (0, 1) for p in ADAPT_SWITCHES) \
+            or not adapt_cfg_ok(AdaptCfg(**{f: adapt[p] for p, f in ADAPT.items()})):
         raise SwarmFileError(f"{swarm.path}: robots.{robot.name}.firmware_params.ns2adapt: {adapt} out of range "
-                             f"(enable 0 or 1, forget in [0.5, 1], 0 < p0 <= pMax <= 1000, limits in [0, 1000]; "
-                             f"docs/adaptation.md)")
+                             f"(enable and gateNbr 0 or 1, forget in [0.5, 1], 0 < p0 <= pMax <= 1000, limits in "
+                             f"[0, 1000]; docs/adaptation.md)")
+    adapt.update({p: int(adapt[p]) for p in ADAPT_SWITCHES})
     return {"ns2": {"selfType": types.index(robot.ns2_type)},
             "ns2type": dict(zip(TYPE_PARAMS, table)),
             "ns2gain": gains,

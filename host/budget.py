@@ -117,7 +117,7 @@ def adapt_runs(gen: Path, cfg: Config) -> dict[str, cm4_count.Run]:
     """One position tick of the on-board label (ns2_label_step) and of the adaptation
     (ns2_adapt_step) of a small robot hovering, on the library's target image: the
     adaptation with a recursive least-squares update (its costliest path, tick 18) and
-    in a wake (no update, tick 21), the label's history full."""
+    in a wake (|NN| > wakeG: no update, tick 21), the label's history full."""
     from ns2codegen.onboard import AdaptCfg, LabelCfg
 
     from . import onboard
@@ -126,7 +126,7 @@ def adapt_runs(gen: Path, cfg: Config) -> dict[str, cm4_count.Run]:
     ffi = host.ffi
     lc, ac = ffi.new("ns2_label_cfg_t *"), ffi.new("ns2_adapt_cfg_t *")
     onboard._fill_label_cfg(lc, LabelCfg.of_vehicle(cfg.vehicle("small")))
-    onboard._fill_adapt_cfg(ac, AdaptCfg())
+    onboard.fill_adapt_cfg(ac, AdaptCfg())
     cm = cm4_count.Cm4(onboard.build_image(gen))
     lab, ad = cm.write(bytes(ffi.sizeof("ns2_label_t"))), cm.write(bytes(ffi.sizeof("ns2_adapt_t")))
     ac_addr = cm.write(bytes(ffi.buffer(ac)))
@@ -137,8 +137,8 @@ def adapt_runs(gen: Path, cfg: Config) -> dict[str, cm4_count.Run]:
     runs = {}
     for k in range(22):
         _, _, lab_run = cm.call("ns2_label_step", lab, q, pwm, float_args=(0.01 * np.sin(k), 1.0, 3.9))
-        wake = int(k >= 19)         # the labelled tick (two back) is in a wake from k = 21 on
-        _, _, ad_run = cm.call("ns2_adapt_step", ad, ac_addr, wake, 0, float_args=(0.5, -1.0))
+        wake = int(k >= 19)         # the labelled tick (two back) is in a wake from k = 21 on: |NN| > wakeG
+        _, _, ad_run = cm.call("ns2_adapt_step", ad, ac_addr, wake, 0, float_args=(20.0 if wake else 0.5, -1.0))
         runs["label_step"] = lab_run
         if k in (18, 21):
             runs["adapt_step_wake" if k == 21 else "adapt_step_update"] = ad_run

@@ -9,7 +9,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from ns2codegen.onboard import ADAPT_FIELDS, AdaptCfg, LabelCfg
+from ns2codegen.onboard import ADAPT_FIELDS, ADAPT_U8_FIELDS, AdaptCfg, LabelCfg, u8
 
 from . import cbuild, target
 
@@ -46,9 +46,9 @@ def _fill_label_cfg(c, cfg: LabelCfg) -> None:
     setattr(c, "lambda", cfg.lam)
 
 
-def _fill_adapt_cfg(c, cfg: AdaptCfg) -> None:
+def fill_adapt_cfg(c, cfg: AdaptCfg) -> None:
     for k in ADAPT_FIELDS:
-        setattr(c, k, getattr(cfg, k))
+        setattr(c, k, u8(getattr(cfg, k)) if k in ADAPT_U8_FIELDS else getattr(cfg, k))
 
 
 def _inputs(ffi, t: Ticks):
@@ -59,7 +59,7 @@ def _inputs(ffi, t: Ticks):
     coff = {k: off["cfg"] + ffi.offsetof("ns2_adapt_cfg_t", k) for k in ADAPT_FIELDS}
     names = ["vz", "z", "q", "pwm", "battery_V", "nn_g", "flags"] + ADAPT_FIELDS
     fmts = ["<f4", "<f4", ("<f4", 4), ("<f4", 4), "<f4", "<f4", "<u4"] + \
-        ["u1" if k == "enable" else "<f4" for k in ADAPT_FIELDS]
+        ["u1" if k in ADAPT_U8_FIELDS else "<f4" for k in ADAPT_FIELDS]
     dt = np.dtype({"names": names, "formats": fmts, "offsets": [off[k] for k in names[:7]] +
                    [coff[k] for k in ADAPT_FIELDS], "itemsize": ffi.sizeof("ns2_adapt_in_t")})
     n = len(t)
@@ -72,8 +72,8 @@ def _inputs(ffi, t: Ticks):
     cfgs = {i: c for c in t.cfgs for i in [uniq[id(c)]]}
     for k in ADAPT_FIELDS:
         col = np.array([getattr(cfgs[i], k) for i in range(len(cfgs))], np.float64)
-        if k == "enable":       # uint8_t: the C conversion keeps the low byte of an integer
-            col = np.array([int(getattr(cfgs[i], k)) & 0xFF for i in range(len(cfgs))], np.uint8)
+        if k in ADAPT_U8_FIELDS:    # uint8_t: the C conversion keeps the low byte of an integer
+            col = np.array([u8(getattr(cfgs[i], k)) for i in range(len(cfgs))], np.uint8)
         rec[k][:n] = col[which] if n else rec[k][:0]
     buf = ffi.new("ns2_adapt_in_t[]", max(n, 1))
     ffi.buffer(buf)[:] = rec.tobytes()
@@ -98,7 +98,7 @@ def run_host(gen_dir, label_cfg: LabelCfg, t: Ticks) -> dict:
     ffi, lib = cbuild.load(gen_dir)
     lc, ac = ffi.new("ns2_label_cfg_t *"), ffi.new("ns2_adapt_cfg_t *")
     _fill_label_cfg(lc, label_cfg)
-    _fill_adapt_cfg(ac, t.cfgs[0] if len(t) else AdaptCfg())
+    fill_adapt_cfg(ac, t.cfgs[0] if len(t) else AdaptCfg())
     lab, ad = ffi.new("ns2_label_t *"), ffi.new("ns2_adapt_t *")
     lib.ns2_label_init(lab, lc)
     lib.ns2_adapt_reset(ad, ac)
@@ -122,7 +122,7 @@ def run_qemu(gen_dir, elf: Path, label_cfg: LabelCfg, t: Ticks, timeout: float =
     ffi, _ = cbuild.load(gen_dir)
     lc, ac = ffi.new("ns2_label_cfg_t *"), ffi.new("ns2_adapt_cfg_t *")
     _fill_label_cfg(lc, label_cfg)
-    _fill_adapt_cfg(ac, t.cfgs[0] if len(t) else AdaptCfg())
+    fill_adapt_cfg(ac, t.cfgs[0] if len(t) else AdaptCfg())
     data = b"NS2A" + np.uint32(len(t)).tobytes() + bytes(ffi.buffer(lc)) + bytes(ffi.buffer(ac)) \
         + bytes(ffi.buffer(_inputs(ffi, t)))[:len(t) * ffi.sizeof("ns2_adapt_in_t")]
     with tempfile.TemporaryDirectory() as tmp:

@@ -44,6 +44,7 @@ class LabelCfg:
 @dataclass
 class AdaptCfg:
     enable: int = 1
+    gate_neighbours: int = 0    # 1: the caller's wake flag also stops updates (ns2_adapt.h)
     forget: float = 0.995
     p0: float = 1.0
     p_max: float = 10.0
@@ -58,6 +59,12 @@ class AdaptCfg:
 
 
 ADAPT_FIELDS = [f.name for f in fields(AdaptCfg)]
+ADAPT_U8_FIELDS = ("enable", "gate_neighbours")    # uint8_t in ns2_adapt_cfg_t, the others float
+
+
+def u8(x) -> int:
+    """A value stored into a uint8_t field (C keeps the low byte of the integer)."""
+    return int(x) & 0xFF
 
 
 def _in(x, lo, hi) -> bool:
@@ -149,7 +156,7 @@ def label_f32(cfg: LabelCfg, vz, z, q, pwm, battery_V) -> tuple[np.ndarray, np.n
 
 def adapt_cfg_ok(c: AdaptCfg) -> bool:
     pm = F(c.p_max)
-    return (_in(F(c.forget), FORGET_MIN, F(1.0)) and _in(pm, P_MIN, LIMIT_MAX) and _in(F(c.p0), P_MIN, pm)
+    return (u8(c.gate_neighbours) <= 1 and _in(F(c.forget), FORGET_MIN, F(1.0)) and _in(pm, P_MIN, LIMIT_MAX) and _in(F(c.p0), P_MIN, pm)
             and all(_in(F(getattr(c, k)), 0, LIMIT_MAX) for k in ("bias_max_g", "scale_max", "fa_max_g",
                                                                    "label_max_g", "wake_g")))
 
@@ -222,7 +229,7 @@ class AdaptF32:
             st |= ADAPT_LABEL
         elif not _in(label_g, -F(c.label_max_g), F(c.label_max_g)):
             st |= ADAPT_LABEL_BOUND
-        elif self.wake[0] or not _in(n, -F(c.wake_g), F(c.wake_g)):
+        elif (u8(c.gate_neighbours) and self.wake[0]) or not _in(n, -F(c.wake_g), F(c.wake_g)):
             st |= ADAPT_WAKE
         else:
             st = self._rls(c, n, label_g, st)

@@ -77,13 +77,14 @@ def wild_ticks(cfg, seed: int, n: int) -> tuple[LabelCfg, host.Ticks]:
         r = rng.random()
         if r < 0.01:
             field = str(rng.choice(ob.ADAPT_FIELDS))
-            value = int(rng.choice([0, 1, 2, 255])) if field == "enable" else \
+            value = int(rng.choice([0, 1, 2, 255])) if field in ob.ADAPT_U8_FIELDS else \
                 float(rng.choice([np.nan, np.inf, -1.0, 0.0, 0.3, 2.0, 1e6, 0.99, 5.0, 1e-7]))
             cur = AdaptCfg(**{**cur.as_dict(), field: value})
         elif r < 0.02:
             cur = AdaptCfg(**{**base.as_dict(), "forget": float(rng.uniform(0.9, 1.0)),
                               "p_max": float(rng.uniform(1, 100)), "wake_g": float(rng.uniform(0, 5)),
-                              "scale_max": float(rng.choice([0.0, rng.uniform(0, 1)]))})
+                              "scale_max": float(rng.choice([0.0, rng.uniform(0, 1)])),
+                              "gate_neighbours": int(rng.integers(0, 2))})
         cfgs.append(cur)
     lc = label_cfg(cfg, min_z_m=0.2)
     return lc, host.ticks(vz, z, q, pwm, bat, nn, cfgs, rng.random(n) < 0.002, rng.random(n) < 0.1)
@@ -113,6 +114,11 @@ def test_random_and_hostile_sequences_bit_exact(cfg, exported, seed):
     st = c["adapt_status"]
     for bit in (ob.ADAPT_UPDATED, ob.ADAPT_BAD_PARAM, ob.ADAPT_BAD_INPUT, ob.ADAPT_LABEL, ob.ADAPT_WAKE):
         assert (st & bit).any(), bit
+    # both gates flown, each updating on some ticks; a gate value other than 0/1 written
+    gate = np.array([cf.gate_neighbours for cf in t.cfgs])
+    for g in (0, 1):
+        assert ((gate == g) & ((st & ob.ADAPT_UPDATED) != 0)).any(), g
+    assert ((gate > 1) & (st == ob.ADAPT_BAD_PARAM)).any()
     for bit in (ob.LABEL_BAD_INPUT, ob.LABEL_WARMUP, ob.LABEL_GROUND, ob.LABEL_TILTED, ob.LABEL_SATURATED):
         assert (c["label_status"] & bit).any(), bit
     for k in ("label_N", "out_g", "term_g", "theta", "P"):
@@ -185,10 +191,12 @@ def test_bad_input_defined_status_and_recovery(cfg, exported):
     assert abs(th[-1, 0] + 2.0) < 0.3
 
 
-def test_wake_is_never_learned(cfg, exported):
-    """In a wake (the caller's flag, or |NN| > wake_g) theta never moves, whatever the
-    labels say (here 6 g of downwash the network does not know); the adapted term
-    there stays within fa_max_g."""
+@pytest.mark.parametrize("gate", [0, 1])
+def test_wake_is_never_learned(cfg, exported, gate):
+    """Where |NN| > wake_g (and with gate_neighbours = 1 where the caller's flag is up)
+    theta never moves, whatever the labels say (here 6 g of downwash the network does not
+    know); the adapted term there stays within fa_max_g.  With gate_neighbours = 0 (the
+    default) the flag alone does not stop the updates."""
     rng = np.random.default_rng(7)
     n = 600
     vz, z, q, pwm, bat = hover_ticks(cfg, rng, n, offset_g=0.0, noise=0.01)
@@ -197,18 +205,56 @@ def test_wake_is_never_learned(cfg, exported):
     nn = np.where(phase == 3, -20.0, 0.0)                           # beyond wake_g
     pwm[phase >= 1] *= 0.93                                         # the wake's unexplained downforce
     lc = label_cfg(cfg)
-    t = host.ticks(vz, z, q, pwm, bat, nn, wake=flag)
+    acfg = AdaptCfg(gate_neighbours=gate)
+    t = host.ticks(vz, z, q, pwm, bat, nn, acfg, wake=flag)
     c = host.run_host(exported.gen_dir, lc, t)
     assert_bits(c, reference(lc, t))
     delayed = lambda a: np.concatenate([[False, False], a[:-2]])   # noqa: E731 (the labelled sample)
-    wake_pairs = np.flatnonzero(delayed(flag) | delayed(phase == 3))
-    assert wake_pairs.size > 200
+    flagged = np.flatnonzero(delayed(flag) & (c["label_status"] == 0))
+    if gate:
+        wake_pairs = np.flatnonzero(delayed(flag) | delayed(phase == 3))
+        assert wake_pairs.size > 200
+    else:
+        wake_pairs = np.flatnonzero(delayed(phase == 3))
+        assert wake_pairs.size > 100
+        assert not (c["adapt_status"][flagged] & ob.ADAPT_WAKE).any()
+        assert (c["adapt_status"][flagged] & ob.ADAPT_UPDATED).mean() > 0.8     # the flag alone: learned
     assert (c["adapt_status"][wake_pairs] & ob.ADAPT_WAKE).all()
     assert not (c["adapt_status"][wake_pairs] & ob.ADAPT_UPDATED).any()
     for k in wake_pairs:
         assert np.array_equal(c["theta"][k], c["theta"][k - 1])
     assert (c["adapt_status"][delayed(phase == 2)] & ob.ADAPT_UPDATED).mean() > 0.8  # learns outside wakes
     assert (np.abs(c["term_g"]) <= AdaptCfg().fa_max_g).all()
+
+
+def test_neighbour_gate_default_and_bad_values(cfg, exported):
+    """gate_neighbours is 0 by default (the C's ns2_adapt_default_cfg and the reference);
+    a value other than 0 or 1 is refused (BAD_PARAM: f = NN, theta held) until a good one
+    returns, then it learns again; the C's check equals the reference's."""
+    from ns2host import cbuild
+
+    ffi, lib = cbuild.load(exported.gen_dir)
+    c_cfg = ffi.new("ns2_adapt_cfg_t *")
+    lib.ns2_adapt_default_cfg(c_cfg)
+    assert c_cfg.gate_neighbours == 0 == AdaptCfg().gate_neighbours
+    for g in range(256):
+        c_cfg.gate_neighbours = g
+        assert bool(lib.ns2_adapt_cfg_ok(c_cfg)) == ob.adapt_cfg_ok(AdaptCfg(gate_neighbours=g)) == (g <= 1), g
+    rng = np.random.default_rng(8)
+    n = 300
+    vz, z, q, pwm, bat = hover_ticks(cfg, rng, n, offset_g=3.0, noise=0.01)
+    cfgs = [AdaptCfg()] * n
+    for k in range(100, 150):
+        cfgs[k] = AdaptCfg(gate_neighbours=2 if k < 125 else 255)
+    lc = label_cfg(cfg)
+    t = host.ticks(vz, z, q, pwm, bat, np.full(n, 1.5), cfgs, wake=rng.random(n) < 0.5)
+    c = host.run_host(exported.gen_dir, lc, t)
+    assert_bits(c, reference(lc, t))
+    st, th = c["adapt_status"], c["theta"]
+    assert (st[100:150] == ob.ADAPT_BAD_PARAM).all()
+    assert np.array_equal(c["out_g"][100:150], np.full(50, 1.5, np.float32)) and np.array_equal(th[99], th[149])
+    assert (st[20:100] & ob.ADAPT_UPDATED).all() and (st[150:] & ob.ADAPT_UPDATED).all()   # flag up or not
+    assert abs(th[-1, 0] + 4.5) < 0.3                    # the label (-3 g) less NN (1.5 g)
 
 
 SWAPS = "neural-swarm-2020-06-16-swaps.tar.xz"
@@ -263,6 +309,25 @@ def test_label_on_real_flights_equals_the_pipeline(exported, real_robots):
     assert worst < REAL_LABEL_TOLERANCE_G, worst
 
 
+@needs(REAL_DATA)
+@pytest.mark.parametrize("gate", [0, 1])
+def test_real_flights_bit_exact_with_either_gate(exported, real_robots, gate):
+    """The real flights with a wake flag (here: where the flown network's |f_a,z| > 3 g,
+    a stand-in for a neighbour in range) through the host C with gate_neighbours 0 and 1:
+    bit for bit the float32 reference; with 1 it never learns from a flagged tick, with 0 it
+    does."""
+    on_flagged = updates = 0
+    for lc, t, _ in real_robots:
+        flag = np.abs(t.nn_g) > 3.0
+        tw = host.ticks(t.vz, t.z, t.q, t.pwm, t.battery_V, t.nn_g, AdaptCfg(gate_neighbours=gate), wake=flag)
+        c = host.run_host(exported.gen_dir, lc, tw)
+        assert_bits(c, reference(lc, tw))
+        upd = np.flatnonzero(c["adapt_status"] & ob.ADAPT_UPDATED)
+        on_flagged += int(flag[upd - ob.LABEL_DELAY].sum())
+        updates += upd.size
+    assert updates > 1000 and ((on_flagged == 0) if gate else (on_flagged > 100)), (updates, on_flagged)
+
+
 @needs(ARM, QEMU)
 def test_qemu_stm32f405_bit_exact(cfg, exported):
     lc, t = wild_ticks(cfg, 11, 4000)
@@ -294,7 +359,8 @@ def test_replay_of_real_flights_for_the_judgement(cfg, exported, real_flights):
     sample once, each robot's in time order, its flight's pieces joined by one non-finite
     tick that restarts the label and NN history and holds theta; the take-off reset; the C
     bit for bit the float32 reference across the joins; a robot 3 g heavier than its
-    config recovers, found by the recovery detection, unless the wake flag never lets it learn."""
+    config recovers, found by the recovery detection, unless it never learns; with the
+    neighbour gate (gate_neighbours 1) it never learns from a flagged tick, by default it does."""
     from ns2codegen.data.from_logs import flights_to_dataset, sample_info
     from ns2exp import adaptation as ad
     from ns2exp.real import RealDataError
@@ -319,13 +385,16 @@ def test_replay_of_real_flights_for_the_judgement(cfg, exported, real_flights):
             assert c["label_status"][j] == ob.LABEL_BAD_INPUT and c["adapt_status"][j] == ob.ADAPT_BAD_INPUT
             assert np.array_equal(c["theta"][j - 1], c["theta"][j + 4])   # held until the label is warm again
             assert not (c["adapt_status"][j:j + 5] & ob.ADAPT_UPDATED).any()
-    for t, c in zip(trs, runs):
+    gated = sp.run(exported.gen_dir, cfg, nn, AdaptCfg(gate_neighbours=1))[1]
+    on_flagged = {0: 0, 1: 0}
+    for t, c, cg in zip(trs, runs, gated):
         first = t.tick[0]
         assert first == 2 and c["updates"][first] == 0 and adapted[t.samples[0]] == np.float32(nn[t.samples[0]])
-        upd = np.flatnonzero(c["adapt_status"] & ob.ADAPT_UPDATED)
         flagged = np.zeros(len(t), bool)
         flagged[t.tick] = sp.wake[t.samples]
-        assert not flagged[upd - 2].any()                    # never learns from a flagged tick
+        for g, r in ((0, c), (1, cg)):
+            on_flagged[g] += int(flagged[np.flatnonzero(r["adapt_status"] & ob.ADAPT_UPDATED) - 2].sum())
+    assert on_flagged[1] == 0 and on_flagged[0] > 100, on_flagged   # the neighbour gate: never from a flagged tick
     m = ad.mass_offset(exported.gen_dir, cfg, sp, nn, runs, acfg, cfg.robot_types)
     assert m["adapted"]["plain"] < m["static"]["plain"]
     assert sum(r["wake_flag_share"] < 0.5 for r in m["per_robot"].values()) >= 1

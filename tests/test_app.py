@@ -87,7 +87,8 @@ def test_param_and_log_groups_in_the_elf(app):
         assert [n for n, _, _ in gains[:3]] == ["Lpx", "Lpy", "Lpz"] and len(gains) == 7 * 3 + 3
         assert all(t == PARAM_FLOAT and where(a) == "gains" for _, t, a in gains)
         adapt = {n: (t, where(a)) for n, t, a in params["ns2adapt"]}
-        assert adapt == {"enable": (PARAM_UINT8, "adaptCfg"), "reset": (PARAM_UINT8, "adaptReset"),
+        assert adapt == {"enable": (PARAM_UINT8, "adaptCfg"), "gateNbr": (PARAM_UINT8, "adaptCfg"),
+                     "reset": (PARAM_UINT8, "adaptReset"),
                          **{n: (PARAM_FLOAT, "adaptCfg") for n in ("forget", "p0", "pMax", "biasMax", "scaleMax",
                                                                    "faMax", "labelMax", "wakeG")}}
         assert [n for n, _, _ in logs["ns2adapt"]] == ["bias", "scale", "trP", "label", "term", "status", "lstatus"]
@@ -286,12 +287,14 @@ def _adapt(harness, *steps) -> list[dict]:
 def test_app_adaptation_params_log_bad_writes_and_resets(harness):
     """Issue 53: PARAM ns2adapt switches the adaptation on (off at boot: f = NN bit for
     bit), LOG ns2adapt shows what the pilot holds; an absurd forgetting factor gives
-    f = NN with NS2_ADAPT_BAD_PARAM and theta held, a good one resumes; ns2adapt.reset
-    and a stay on the ground reset theta and P."""
+    f = NN with NS2_ADAPT_BAD_PARAM and theta held, a good one resumes; so does a
+    neighbour gate (ns2adapt.gateNbr) other than 0 or 1; ns2adapt.reset and a stay on the
+    ground reset theta and P."""
     BAD_PARAM, UPDATED = 4, 1
-    off, on, bad, good, reset, ground = _adapt(
+    off, on, bad, good, bad_gate, gate, reset, ground = _adapt(
         harness, "tick:2000", "show", "ns2adapt.enable=1", "ns2adapt.biasMax=3", "tick:3000", "show",
         "ns2adapt.forget=7", "tick:500", "show", "ns2adapt.forget=0.99", "tick:500", "show",
+        "ns2adapt.gateNbr=2", "tick:500", "show", "ns2adapt.gateNbr=1", "tick:500", "show",
         "ns2adapt.reset=1", "tick:1", "show", "tick:1000", "ground:10", "show")
     assert off["enable"] == 0 and off["updates"] == 0 and off["fa_used_g"] == off["fa_hat_g"]
     assert off["log"]["status"] == 2 and off["log"]["lstatus"] == 0        # NS2_ADAPT_OFF, the label sane
@@ -302,6 +305,9 @@ def test_app_adaptation_params_log_bad_writes_and_resets(harness):
     assert bad["forget"] == 7.0 and bad["log"]["status"] == BAD_PARAM and bad["theta"] == on["theta"]
     assert bad["fa_used_g"] == bad["fa_hat_g"] and bad["log"]["term"] == 0 and bad["updates"] == on["updates"]
     assert good["log"]["status"] & UPDATED and good["updates"] > bad["updates"]
+    assert bad_gate["log"]["status"] == BAD_PARAM and bad_gate["updates"] == good["updates"]
+    assert bad_gate["fa_used_g"] == bad_gate["fa_hat_g"] and bad_gate["theta"] == good["theta"]
+    assert gate["log"]["status"] & UPDATED and gate["updates"] > good["updates"]     # no neighbour: learns
     assert reset["reset"] == 0 and reset["updates"] <= 1
     assert ground["theta"] == [0.0, 0.0] and ground["updates"] == 0 and ground["trP"] == 2.0      # p0 I
 

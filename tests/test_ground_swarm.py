@@ -292,12 +292,15 @@ def test_adaptation_params_defaults_user_values_and_absurd_ones(swarm_file, cfg)
     p = sw.params(s, cfg, s.robots[0])["ns2adapt"]
     d = {**AdaptCfg().as_dict(), "enable": 0}
     assert p == {k: d[f] for k, f in sw.ADAPT.items()} and p["enable"] == 0 and p["forget"] == 0.995
+    assert p["gateNbr"] == 0 and type(p["gateNbr"]) is int          # the neighbour gate off (docs/adaptation.md)
     swarm_file.write_text(SWARM.replace("stabilizer: {estimator: 2, controller: 5}",
-                                        "ns2adapt: {enable: 1, forget: 0.99}"))
+                                        "ns2adapt: {enable: 1, forget: 0.99, gateNbr: 1.0}"))
     s = sw.load(swarm_file, cfg)
     p = sw.params(s, cfg, s.robots[0])["ns2adapt"]
+    assert p["gateNbr"] == 1 and type(p["gateNbr"]) is int
     assert p["enable"] == 1 and p["forget"] == 0.99 and sw.params(s, cfg, s.robots[1])["ns2adapt"]["forget"] == 0.995
     for bad, msg in (("{forget: 7.0}", "out of range"), ("{enable: 3}", "out of range"),
+                     ("{gateNbr: 2}", "out of range"), ("{gateNbr: 0.5}", "out of range"),
                      ("{forget: .nan}", "not a finite number"), ("{gain: 1.0}", "not a parameter of the adaptation")):
         swarm_file.write_text(SWARM.replace("stabilizer: {estimator: 2, controller: 5}", f"ns2adapt: {bad}"))
         s = sw.load(swarm_file, cfg)

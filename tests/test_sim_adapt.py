@@ -86,7 +86,8 @@ def test_adapt_parameters_are_checked():
 
 def test_the_experiment_flies_every_controller_and_reads_the_adaptation(cfg, exported, tmp_path, monkeypatch):
     """`ns2exp.simadapt` at a tiny size (S2S, one swap, seed 0, a 3 s battery flight): a row
-    per flight; in the paper's swap the bottom robot never updates (always in a wake),
+    per flight; in the paper's swap the bottom robot updates (a neighbour in range does not
+    stop it by default; |NN| stays below wakeG),
     after hovering alone it has learned the payload (bias below -1 g) before the swaps;
     BL-tuned and NN never adapt; the supply reaches the low-battery voltage's side."""
     from ns2exp import simadapt
@@ -99,7 +100,8 @@ def test_the_experiment_flies_every_controller_and_reads_the_adaptation(cfg, exp
     assert sorted((r["kind"], r["controller"]) for r in rows) == sorted(
         (k, c) for k in ("swap", "swap-solo", "battery") for c in simadapt.CONTROLLERS)
     by = {(r["kind"], r["controller"]): r for r in rows}
-    assert by["swap", "NN+adapt"]["bottom_updated_share"] == 0.0
+    # the neighbour gate off (the default, gateNbr 0): under the other robot it still learns, |NN| < wakeG
+    assert by["swap", "NN+adapt"]["bottom_updated_share"] > 0.5
     solo = by["swap-solo", "NN+adapt"]
     assert solo["bottom_updated_share"] > 0.1 and solo["bottom_bias_g_at_swaps"] < -1.0
     assert all(by[k, c]["bottom_bias_g_end"] == 0.0 for k in ("swap", "swap-solo") for c in ("BL-tuned", "NN"))

@@ -25,6 +25,7 @@ static float adapt_clamp(float x, float lim, uint32_t *st)
 void ns2_adapt_default_cfg(ns2_adapt_cfg_t *cfg)
 {
     cfg->enable = 1u;
+    cfg->gate_neighbours = 0u;
     cfg->forget = 0.995f;
     cfg->p0 = 1.0f;
     cfg->p_max = 10.0f;
@@ -37,7 +38,7 @@ void ns2_adapt_default_cfg(ns2_adapt_cfg_t *cfg)
 
 int ns2_adapt_cfg_ok(const ns2_adapt_cfg_t *c)
 {
-    return adapt_in(c->forget, NS2_ADAPT_FORGET_MIN, 1.0f) && adapt_in(c->p_max, NS2_ADAPT_P_MIN, NS2_ADAPT_LIMIT_MAX)
+    return c->gate_neighbours <= 1u && adapt_in(c->forget, NS2_ADAPT_FORGET_MIN, 1.0f) && adapt_in(c->p_max, NS2_ADAPT_P_MIN, NS2_ADAPT_LIMIT_MAX)
         && adapt_in(c->p0, NS2_ADAPT_P_MIN, c->p_max) && adapt_in(c->bias_max_g, 0.0f, NS2_ADAPT_LIMIT_MAX)
         && adapt_in(c->scale_max, 0.0f, NS2_ADAPT_LIMIT_MAX) && adapt_in(c->fa_max_g, 0.0f, NS2_ADAPT_LIMIT_MAX)
         && adapt_in(c->label_max_g, 0.0f, NS2_ADAPT_LIMIT_MAX) && adapt_in(c->wake_g, 0.0f, NS2_ADAPT_LIMIT_MAX);
@@ -137,7 +138,7 @@ float ns2_adapt_step(ns2_adapt_t *a, const ns2_adapt_cfg_t *c, float nn_g, int w
         st |= NS2_ADAPT_LABEL;
     } else if (!adapt_in(label_g, -c->label_max_g, c->label_max_g)) {
         st |= NS2_ADAPT_LABEL_BOUND;
-    } else if ((a->wake >> NS2_ADAPT_NN_DELAY) & 1u || !adapt_in(n, -c->wake_g, c->wake_g)) {
+    } else if ((c->gate_neighbours && ((a->wake >> NS2_ADAPT_NN_DELAY) & 1u)) || !adapt_in(n, -c->wake_g, c->wake_g)) {
         st |= NS2_ADAPT_WAKE;
     } else {
         adapt_rls(a, c, n, label_g, &st);

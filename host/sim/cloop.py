@@ -15,10 +15,11 @@ from typing import Callable
 import numpy as np
 
 from ns2codegen.config import Config
-from ns2codegen.onboard import ADAPT_FIELDS, AdaptCfg, adapt_cfg_ok
+from ns2codegen.onboard import AdaptCfg, adapt_cfg_ok
 
 from ..cbuild import fill_gains, fill_vehicle
 from ..cfhost import load_fly
+from ..onboard import fill_adapt_cfg
 from .aero import calibrated
 from .dynamics import Dynamics, SwarmState
 from .roughness import MomentTurbulence, Roughness, Turbulence, steady_moment
@@ -242,8 +243,7 @@ class CLoopSwarm:
             it.pilot_cfg.enable = int(ctrl.learned is not None)
             it.pilot_cfg.fixed = int(ctrl.learned != "float")
             ad = getattr(ctrl, "adapt", None) or AdaptCfg(enable=0)   # the app's PARAM ns2adapt at boot
-            for k in ADAPT_FIELDS:
-                setattr(it.adapt_cfg, k, getattr(ad, k))
+            fill_adapt_cfg(it.adapt_cfg, ad)
             lib.ns2_fly_init(ffi.addressof(self.robots, i), it)
         # the predictions given from outside (AuthorsController.given), by robot
         self.given = {i: r.controller.given for i, r in enumerate(robots)
