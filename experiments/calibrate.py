@@ -12,9 +12,7 @@
    pair swaps as they flew, the labels' reading of the push, lateral_k_xy, matched to
    the real one), wake turbulence (replays of the pair swaps with the other effects on:
    the real scatter under a neighbour beyond the simulator's, per unit of the
-   wake's force; tau from its fast share), the wakes' moments (fit_moment: replays
-   of the pair swaps, the bottom robot's largest motor departure from the motors'
-   mean, its slow part for the steady moment, the whole for the turbulent one); and the z
+   wake's force; tau from its fast share); and the z
    law that flew (fit_read_law: the authors' law with the gains, the share of the
    prediction taken off and the mass parameter with which replays read back what the
    real swaps read, flightstats.z_law); the fit is written as parameter files
@@ -55,7 +53,7 @@ from .replay import pieces_by_flight, replay
 PAPER_L2S_M = {"BL-authors": 0.17, "NN-authors": 0.07}
 PROBE = {"seconds": 30.0, "cube": ((-1.0, 1.0), (-1.0, 1.0), (0.6, 1.4)), "seed": 1}
 PAIR_SWAPS = ("swap_ss", "swap_sl", "swap_ll")
-FIT_FLIGHTS_PER_PAIR = 3      # pair swap flights replayed for the lateral, turbulence and moment fits (the first by name)
+FIT_FLIGHTS_PER_PAIR = 3      # pair swap flights replayed for the lateral and turbulence fits (the first by name)
 READ_LAW_FLIGHTS_PER_FOLDER = 2   # swap flights per folder replayed for the fit of the z law read off the logs
 READ_LAW_ITERATIONS = 4
 LAW_KEYS = (("kp", "kp_per_s2"), ("kd", "kd_per_s"), ("ki", "ki_per_s3"), ("k_fa", "k_fa"))
@@ -172,7 +170,7 @@ def first_per_folder(names, n: int, folders=None) -> list[str]:
 
 
 def fit_pieces(flights: list[Flight]) -> dict:
-    """The pair swap flights the lateral, turbulence and moment fits replay:
+    """The pair swap flights the lateral and turbulence fits replay:
     FIT_FLIGHTS_PER_PAIR per pair."""
     by = pieces_by_flight(swap_flights(flights))
     return {n: by[n] for n in first_per_folder(by, FIT_FLIGHTS_PER_PAIR, PAIR_SWAPS)}
@@ -205,73 +203,6 @@ def fit_turbulence(cfg: Config, gen_dir, flights: list[Flight], base: Roughness,
     taus = np.geomspace(0.002, 2.0, 400)
     tau = float(taus[int(np.argmin([abs(hp_share(t) - share) for t in taus]))])
     return ratio, tau, {"pairs": rows, "fast_share_of_excess": round(share, 3), "flights": sorted(pieces)}
-
-
-MOMENT_PROBE_GAIN = 2.0
-MOMENT_KEY = "median_max_slow_motor_spread"        # flightstats.swap_attitude: the slow part of the attitude loop's ask
-MOMENT_TURBULENCE_PROBE = 1.0
-MOMENT_TURBULENCE_KEY = "median_max_motor_spread"  # ... and the whole of it
-
-
-def quadrature_fit(real: dict, without: dict, probed: dict, probe: float, key: str) -> float:
-    """The factor g with sum_c w_c real_c^2 = sum_c w_c (without_c^2 + (probed_c^2 -
-    without_c^2) (g / probe)^2) of statistic ``key`` over the scenarios c of ``real``
-    (swap_attitude's, weights: its swaps) that every replay has."""
-    num = den = 0.0
-    for case, r in real.items():
-        if case in without and case in probed:
-            r0, r1 = without[case][key], probed[case][key]
-            num += r["swaps"] * (r[key] ** 2 - r0 ** 2)
-            den += r["swaps"] * (r1 ** 2 - r0 ** 2)
-    if den <= 0:
-        raise ValueError(f"{key}: the probe {probe} did not raise it")
-    return probe * math.sqrt(max(num, 0.0) / den)
-
-
-def fit_moment(cfg: Config, gen_dir, flights: list[Flight], base: Roughness,
-               workers: int = 1) -> tuple[float, float, dict]:
-    """The wakes' moments from the bottom robot's motor departure from the four motors'
-    mean in the real pair swaps (fit_pieces, flightstats.swap_attitude), matched by
-    replays of the same flights (the authors' controller flying the prediction the
-    real robots logged, the force's turbulence off), each in quadrature (real^2 =
-    without^2 + (probe^2 - without^2) (x / probe)^2, summed over the swap scenarios
-    weighted by their swaps), twice, the second time with the first answer as the
-    probe (the departure grows faster than the moment: the motors saturate):
-    moment_gain, the steady moment, on the slow part of the departure (its 0.2 s
-    average), with no turbulent moment; then moment_turbulence_ratio on the whole
-    departure, with the steady moment at its fitted gain."""
-    pieces = fit_pieces(flights)
-    real = fs.swap_attitude([p for ps in pieces.values() for p in ps])
-    b = base.without("turbulence", "moment", "moment_turbulence")
-
-    def attitude(gain: float, ratio: float) -> dict:
-        rough = replace(b, moment_gain=gain, moment_turbulence_ratio=ratio)
-        rough = rough.plus(*(["moment"] if gain else []) + (["moment_turbulence"] if ratio else []))
-        return fs.swap_attitude(replay_all(cfg, gen_dir, pieces, rough, workers, controller="authors", learned="logged"))
-
-    def two_steps(flown: dict, fly, probe: float, key: str) -> tuple[float, list]:
-        steps = []
-        for _ in range(2):
-            flown[probe] = fly(probe)
-            x = round(quadrature_fit(real, flown[0.0], flown[probe], probe, key), 3)
-            steps.append({"probe": probe, "fit": x})
-            if x == 0.0:   # as rough as the real flights without it
-                break
-            probe = x
-        return x, steps
-
-    steady = {0.0: attitude(0.0, 0.0)}
-    gain, gain_steps = two_steps(steady, lambda g: attitude(g, 0.0), MOMENT_PROBE_GAIN, MOMENT_KEY)
-    turb = {0.0: attitude(gain, 0.0)}
-    ratio, ratio_steps = two_steps(turb, lambda r: attitude(gain, r), MOMENT_TURBULENCE_PROBE, MOMENT_TURBULENCE_KEY)
-    keys = (MOMENT_KEY, MOMENT_TURBULENCE_KEY, "median_max_tilt_deg")
-    rows = {case: {"swaps": r["swaps"], "real": {k: r[k] for k in keys},
-                   **{f"gain {g}": {k: steady[g].get(case, {}).get(k) for k in keys} for g in steady},
-                   **{f"gain {gain}, turbulence {x}": {k: turb[x].get(case, {}).get(k) for k in keys} for x in turb}}
-            for case, r in real.items()}
-    return gain, ratio, {"statistics": list(keys), "by_case": rows, "gain_steps": gain_steps,
-                         "ratio_steps": ratio_steps, "flights": sorted(pieces), "gain": gain, "ratio": ratio,
-                         "tau_s": base.turbulence_tau_s}
 
 
 LATERAL_FIT_EVERY = 4   # labelled steps: every 4th (40 ms) for the least squares of lateral_k_xy
@@ -541,11 +472,8 @@ def fit(cfg: Config, gen_dir, flights: list[Flight], hover_by_robot: dict, robot
     base = replace(base, lateral_k_xy=lateral)
     ratio, tau, turb_rows = fit_turbulence(cfg, gen_dir, flights, base, workers)
     base = replace(base, turbulence_ratio=round(ratio, 3), turbulence_tau_s=round(tau, 4))
-    gain, m_ratio, moment = fit_moment(cfg, gen_dir, flights, base, workers)
-    # the moments' effects stay as base has them (off by default)
-    rough = replace(base, moment_gain=gain, moment_turbulence_ratio=m_ratio,
-                    hover_motor_noise={ty: real["free_air"][ty]["motor_noise"] for ty in cfg.robot_types})
-    return rough, {"real": real, "wake": wake, "vibration": vib_rows, "moment": moment, "turbulence": turb_rows,
+    rough = replace(base, hover_motor_noise={ty: real["free_air"][ty]["motor_noise"] for ty in cfg.robot_types})
+    return rough, {"real": real, "wake": wake, "vibration": vib_rows, "turbulence": turb_rows,
                    "lateral": lateral_rows}
 
 
@@ -557,12 +485,6 @@ class ReplayVariant:
     controller: str         # "ns2" (the project's) or "authors" (host/ctrl_authors.c)
     learned: str            # "float" (the network of gen_dir) or "logged" (the prediction flown)
     read_law: bool = False  # the z law read off the logs (fit_read_law) instead of the vehicle's
-    moments: bool = False   # the wakes' moments on
-
-    @property
-    def free_air_key(self) -> tuple:
-        """Variants with the same key share their free-air replays (the moments need a wake)."""
-        return self.rough, self.controller, self.learned, self.read_law
 
 
 VARIANTS = {v.label: v for v in (
@@ -571,25 +493,20 @@ VARIANTS = {v.label: v for v in (
     ReplayVariant("rough, the authors' controller", True, "authors", "float"),
     ReplayVariant("rough, the authors' controller, the prediction flown", True, "authors", "logged"),
     ReplayVariant("rough, the z law read off the logs, the prediction flown", True, "authors", "logged",
-                  read_law=True),
-    ReplayVariant("rough with the wakes' moments, the authors' controller, the prediction flown",
-                  True, "authors", "logged", moments=True),
-    ReplayVariant("rough with the wakes' moments, the z law read off the logs, the prediction flown",
-                  True, "authors", "logged", read_law=True, moments=True))}
+                  read_law=True))}
 
 
 def compare(cfg: Config, gen_dir, flights: list[Flight], rough: Roughness, names: list[str] | None = None,
             workers: int = 1, real_all: dict | None = None, law: dict | None = None) -> dict:
-    """Statistics of step 1 for the real flights and seven simulators (VARIANTS): clean,
+    """Statistics of step 1 for the real flights and five simulators (VARIANTS): clean,
     rough (``rough``), rough with the position law and gains of the controller that
     flew the real flights (host/ctrl_authors.c) and the network of ``gen_dir`` in the
     loop, the same controller flying the prediction the real robots logged instead of
     a network, and that with the z law read off the logs (``law``, READ_LAW by
-    default; fit_read_law), the last two also with the wakes' moments on: free air
-    (flightstats.free_air and z_loop) over replays of the pair random walks
-    (free_air_pieces; the real side the same flights; the moments' variants share
-    theirs: no wake there), the rest over the replayed swap flights (``names``: a
-    subset; the real side is the same subset).  The replays fly each robot's logged
+    default; fit_read_law): free air (flightstats.free_air and z_loop) over replays
+    of the pair random walks (free_air_pieces; the real side the same flights), the
+    rest over the replayed swap flights (``names``: a subset; the real side is the
+    same subset).  The replays fly each robot's logged
     battery, so the battery rows are one probe flight's per type (probe_flight: the
     simulator's own sag) against every real flight.  real_all: fit's statistics of
     every real flight if already measured (its battery is taken).
@@ -608,18 +525,12 @@ def compare(cfg: Config, gen_dir, flights: list[Flight], rough: Roughness, names
                     "wake_lateral": fs.wake_lateral(cfg, real_sw),
                     "swaps": fs.swap_errors(real_sw), "attitude": fs.swap_attitude(real_sw),
                     "unpredicted": fs.unpredicted(cfg, real_sw), "lateral_k_xy": lateral_k_xy(cfg, real_sw)}}
-    walks: dict = {}
     probed: dict = {}
     for label, v in VARIANTS.items():
         r, zl = (rough if v.rough else None), (law if v.read_law else None)
-        if v.moments:
-            r = r.plus("moment", "moment_turbulence")
-        if v.free_air_key not in walks:
-            walks[v.free_air_key] = replay_all(cfg, gen_dir, free, r, workers, controller=v.controller,
-                                               learned=v.learned, law=zl)
+        w = replay_all(cfg, gen_dir, free, r, workers, controller=v.controller, learned=v.learned, law=zl)
         if v.rough not in probed:   # the simulator's own battery (the replays fly the logged one)
             probed[v.rough] = [probe_flight(cfg, gen_dir, ty, r) for ty in cfg.robot_types]
-        w = walks[v.free_air_key]
         sims = replay_all(cfg, gen_dir, by, r, workers, controller=v.controller, learned=v.learned, law=zl)
         out["simulators"][label] = {
             "free_air": fs.free_air(cfg, w), "z_loop": fs.z_loop(cfg, w), "z_law": fs.z_law(cfg, sims),
@@ -699,7 +610,7 @@ def param_files(rough: Roughness, law: dict, command: str) -> dict:
 
 def markdown(res: dict) -> str:
     """calibration.md of calibrate's JSON (as written: its simulators in VARIANTS' order)."""
-    from ns2host.sim.calibration import (lateral_table, moment_table, paper_l2s_table, read_law_table,
+    from ns2host.sim.calibration import (lateral_table, paper_l2s_table, read_law_table,
                                          roughness_table, sim_to_real_table, wake_profile_table)
 
     fit_report = res["fit"]
@@ -711,5 +622,4 @@ def markdown(res: dict) -> str:
             + read_law_table(res["read_law"], fit_report["read_law"] if fit_report else None)
             + ("\n\n## The wake at the real states\n\n" + wake_profile_table(fit_report["wake"]) if fit_report else "")
             + ("\n\n## The wake's lateral push\n\n" + lateral_table(fit_report["lateral"]) if fit_report else "")
-            + ("\n\n## The wakes' moment\n\n" + moment_table(fit_report["moment"]) if fit_report else "")
             + "\n")

@@ -105,33 +105,6 @@ def test_ground_effect_and_drag(S):
     assert np.abs(grams(pair, [[0, 0, 1.0], [0, 0, 1.3]])[0, :2]).max() < 1e-9
 
 
-def test_wake_moment_from_the_rotors(S, L):
-    """forces_moments: the forces of forces() and the moment of the four rotors' own
-    downwash: none in a uniform flow, toward the side in the wake, in the body frame."""
-    m = calibrated([L, S], S)
-    hover = np.tile([1.0, 0.0, 0.0, 0.0], (2, 1))
-    v = np.zeros((2, 3))
-    for p in ([[0, 0, 1.0], [0, 0.06, 1.3]], [[0.3, -0.2, 0.1], [0.35, -0.1, 0.5]]):
-        f, tau = m.forces_moments(np.array(p), v, hover)
-        assert np.array_equal(f, m.forces(np.array(p), v))
-    _, tau = m.forces_moments(np.array([[0, 0, 1.0], [0, 0, 1.3]]), v, hover)
-    assert np.abs(tau).max() < 1e-12                     # on the axis: symmetric
-    _, tau = calibrated([L], S).forces_moments(np.array([[0, 0, 0.05]]), v[:1], hover[:1])
-    assert np.abs(tau).max() == 0.0                      # the ground's upwash is uniform
-    # a neighbour above on +y: the rotors on +y lose thrust, a roll toward +y (tau_x < 0)
-    _, ty = m.forces_moments(np.array([[0, 0, 1.0], [0, 0.06, 1.3]]), v, hover)
-    _, tx = m.forces_moments(np.array([[0, 0, 1.0], [0.06, 0, 1.3]]), v, hover)
-    assert ty[0, 0] < -1e-3 and abs(ty[0, 1]) < 1e-12 and tx[0, 1] > 1e-3 and abs(tx[0, 0]) < 1e-12
-    assert np.abs(ty[1]).max() < 0.01 * abs(ty[0, 0])    # the upper robot: the weak inflow above a rotor
-    # the same state yawed by 90 deg: the same moment in the world, rotated in the body
-    yaw = np.array([[np.cos(np.pi / 4), 0, 0, np.sin(np.pi / 4)], [1.0, 0, 0, 0]])
-    _, tyaw = m.forces_moments(np.array([[0, 0, 1.0], [0, 0.06, 1.3]]), v, yaw)
-    assert tyaw[0] == pytest.approx([0.0, -ty[0, 0], 0.0], abs=1e-9)   # body y = world -x
-    # about a rotor's radius off the axis the moment peaks, far off it fades
-    mags = [abs(m.forces_moments(np.array([[0, 0, 1.0], [0, dy, 1.3]]), v, hover)[1][0, 0]) for dy in (0.05, 0.4)]
-    assert mags[0] > 1e-3 > 1e3 * mags[1]
-
-
 def test_interaction_volumes_follow_the_policy(cfg):
     """config/default.toml's volumes end where the truth falls below the threshold
     (sides, bottom) or reach the flight space's top; one policy for all pairs."""

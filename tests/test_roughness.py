@@ -13,13 +13,13 @@ from conftest import REAL_DATA, needs, real_logs
 from ns2codegen.data.labels import psi1_newtons
 from ns2codegen.logs.align import logs_to_flights
 from ns2codegen.logs.collection import COLLECTION
-from ns2exp.calibrate import MOMENT_KEY, _quadrature, lateral_k_xy, quadrature_fit, thrust_sd
+from ns2exp.calibrate import _quadrature, lateral_k_xy, thrust_sd
 from ns2host.sim import flightstats as fs
 from ns2host.sim.aero import K_XY
 from ns2host.sim.cloop import CLoopSwarm, hover_setpoints, robots_of
 from ns2exp.replay import logged_battery, logged_prediction, logged_setpoints, pieces_by_flight, replay
 from ns2host.sim import collect as collect_mod
-from ns2host.sim.roughness import LOW_BATTERY_V, MomentTurbulence, Roughness, Turbulence, hp_share
+from ns2host.sim.roughness import EFFECTS, LOW_BATTERY_V, Roughness, Turbulence, hp_share
 from ns2host.sim.scenarios import swap
 
 SWAPS = "neural-swarm-2020-06-16-swaps.tar.xz"
@@ -41,6 +41,10 @@ def test_every_effect_off_is_the_clean_simulator_bit_for_bit(cfg, exported):
     assert not np.array_equal(clean["pwm"], rough["pwm"])
     with pytest.raises(ValueError, match="unknown roughness"):
         Roughness().without("wind")
+    # the calibrated simulator has every effect on; plus() turns one back on
+    assert Roughness().enabled == EFFECTS and Roughness().without("lateral").plus("lateral") == Roughness()
+    with pytest.raises(ValueError, match="unknown roughness"):   # deleted after 96ed0bd (the wakes' moments)
+        Roughness().plus("moment")
 
 
 def test_a_flight_lasts_one_battery_charge(cfg, monkeypatch):
@@ -99,94 +103,6 @@ def test_each_effect_does_its_part(cfg, exported):
     _, turb = _fly(cfg, exported, replace(r, turbulence_ratio=0.3).only("turbulence"))
     d = turb["truth_fa"][0, :, 2] - clean["truth_fa"][0, :, 2]     # first log row: same state, own step
     assert np.all(np.abs(d) > 0) and np.all(np.abs(d) <= 0.3 * 6 * np.abs(clean["truth_fa"][0, :, 2]))
-
-
-def test_the_wakes_moment_turns_the_robot_under_a_wake(cfg, exported):
-    """roughness "moment": aero.py's per-rotor moment, scaled by moment_gain, flown as
-    the body torque tau_a of the dynamics; gain 0 is no effect, bit for bit."""
-    def hover(rough):   # a small robot 0.3 m under a large one, 5 cm off its axis along y
-        start = [[0.0, 0.0, 1.0], [0.0, 0.05, 1.3]]
-        sw = CLoopSwarm(cfg, robots_of(["small", "large"], start), exported.gen_dir, aero=True, seed=2, rough=rough)
-        return sw.run(0.6, hover_setpoints(np.array(start)), settle_s=0.1)
-
-    r = Roughness()
-    assert not r.on("moment") and r.plus("moment").on("moment")    # off in the calibrated simulator
-    assert r.plus("moment").without("moment") == r
-    none, zero = hover(r.only()), hover(replace(r, moment_gain=0.0).only("moment"))
-    mom = hover(replace(r, moment_gain=1.0).only("moment"))
-    for k in ("p", "q", "pwm"):
-        assert np.array_equal(none[k], zero[k]), k
-    # the small robot's rotors on +y (M3, M4) in the wake: its attitude loop holds the
-    # roll with more thrust there than on -y (M1, M2)
-    side = lambda log: float(np.mean(log["pwm"][-20:, 0, 2:] - log["pwm"][-20:, 0, :2]))  # noqa: E731
-    assert side(mom) > 0.01 and abs(side(none)) < 0.2 * side(mom)
-    assert np.abs(mom["pwm"][:, 1] - none["pwm"][:, 1]).max() < 0.2 * side(mom)   # the large robot above: little
-    # the turbulent moment ("moment_turbulence"): the small robot's motors part, the large
-    # robot above (no wake on it) keeps its commands; ratio 0 is no effect, bit for bit
-    assert not r.on("moment_turbulence")
-    zero_t = hover(replace(r, moment_turbulence_ratio=0.0).only("moment_turbulence"))
-    turb = hover(replace(r, moment_turbulence_ratio=1.0).only("moment_turbulence"))
-    for k in ("p", "q", "pwm"):
-        assert np.array_equal(none[k], zero_t[k]), k
-
-    def departure(log, i):
-        pwm = log["pwm"][:, i]
-        return float(np.abs(pwm - pwm.mean(1, keepdims=True)).max())
-    assert departure(turb, 0) > 3 * departure(none, 0)
-    assert np.abs(turb["pwm"][:, 1] - none["pwm"][:, 1]).max() < 0.2 * departure(turb, 0)
-
-
-def test_moment_fit_in_quadrature():
-    k = MOMENT_KEY
-    real = {"L2L": {"swaps": 3, k: 0.5}, "S2S": {"swaps": 1, k: 0.3}, "X": {"swaps": 9, k: 0.9}}
-    without = {"L2L": {k: 0.1}, "S2S": {k: 0.1}}
-    # excess^2 at gain 2 is a quarter of what the real flights ask in both: gain 4
-    probed = {"L2L": {k: math.sqrt(0.01 + 0.24 / 4)}, "S2S": {k: math.sqrt(0.01 + 0.08 / 4)}}
-    assert quadrature_fit(real, without, probed, 2.0, k) == pytest.approx(4.0)
-    assert quadrature_fit({"L2L": {"swaps": 1, k: 0.05}}, without, probed, 2.0, k) == 0.0   # already rougher
-    with pytest.raises(ValueError, match="did not raise"):
-        quadrature_fit(real, without, without, 2.0, k)
-
-
-def test_the_steady_moment_is_bounded_by_the_wakes_whole_force_on_one_side():
-    """roughness.steady_moment: gain x the per-rotor moment while that stays within
-    |f_a,z| x arm / sqrt 2 about the horizontal axes; beyond it, that bound in the
-    same direction; the yaw part only scaled; no force, no horizontal moment."""
-    from ns2host.sim.roughness import steady_moment
-    rng = np.random.default_rng(3)
-    tau = rng.normal(0.0, 1e-3, (200, 3))
-    f_a = rng.normal(0.0, 0.1, (200, 3))
-    arm = rng.uniform(0.04, 0.07, 200)
-    out = steady_moment(tau, f_a, arm, 2.5)
-    cap = np.abs(f_a[:, 2]) * arm / np.sqrt(2.0)
-    raw = 2.5 * tau
-    norm_raw, norm = np.hypot(raw[:, 0], raw[:, 1]), np.hypot(out[:, 0], out[:, 1])
-    inside = norm_raw <= cap
-    assert 20 < inside.sum() < 180                                     # both cases drawn
-    assert np.array_equal(out[inside], raw[inside])
-    np.testing.assert_allclose(norm[~inside], cap[~inside], rtol=1e-12)
-    np.testing.assert_allclose(out[~inside, :2] / norm[~inside, None], raw[~inside, :2] / norm_raw[~inside, None],
-                               rtol=1e-12)
-    assert np.array_equal(out[:, 2], raw[:, 2])
-    f_a[:5, 2] = 0.0
-    assert np.all(steady_moment(tau, f_a, arm, 2.5)[:5, :2] == 0.0)
-
-
-def test_the_turbulent_moment_is_the_stated_process():
-    """roughness "moment_turbulence": per robot two Gauss-Markov torques (body x, y) of
-    the turbulence's tau, sd ratio x |f_a,z| x arm, none without a wake, a stream of its own."""
-    r = Roughness(moment_turbulence_ratio=0.5, turbulence_tau_s=0.02).plus("moment_turbulence")
-    mt = MomentTurbulence(r, [0.046, 0.07], 0.002, seed=1)
-    f = np.array([[0.0, 0.0, -0.1], [0.0, 0.0, 0.0]])
-    x = np.array([mt.moment(f) for _ in range(40000)])
-    assert np.all(x[:, 1] == 0.0) and np.all(x[:, 0, 2] == 0.0)     # no wake, none; no yaw
-    for a in (0, 1):
-        assert np.std(x[:, 0, a]) == pytest.approx(0.5 * 0.1 * 0.046, rel=0.05)
-        lag1 = np.corrcoef(x[1:, 0, a], x[:-1, 0, a])[0, 1]
-        assert lag1 == pytest.approx(math.exp(-0.002 / 0.02), abs=0.02)
-    assert abs(np.corrcoef(x[:, 0, 0], x[:, 0, 1])[0, 1]) < 0.05      # independent axes
-    off = MomentTurbulence(Roughness(moment_turbulence_ratio=0.5), [0.046], 0.002, seed=1)
-    assert not off.on and np.all(off.moment(f[:1]) == 0.0)             # off by default
 
 
 def test_turbulence_is_the_stated_process():
@@ -388,8 +304,7 @@ def test_a_real_swap_measured_and_replayed(cfg, exported):
         got = np.array([sp(tt - t0).p for tt in p.t[k]])
         assert np.abs(got - p.p_d[k]).max() < 1e-6
     assert np.allclose(start, pieces[0].p_d[0])
-    # without the wakes' moment: its attitude response reads as a lateral force too (its own tests above)
-    sim = replay(cfg, pieces, exported.gen_dir, learned="float", rough=Roughness().without("moment"))
+    sim = replay(cfg, pieces, exported.gen_dir, learned="float", rough=Roughness())
     assert sim.t[0] == pytest.approx(t0) and sim.t[-1] == pytest.approx(t0 + dur, abs=0.011)
     s = fs.swap_errors([sim])
     assert list(s) == ["S2L"] and abs(s["S2L"]["swaps"] - r["swaps"]) <= 1
@@ -412,7 +327,7 @@ def test_a_real_swap_measured_and_replayed(cfg, exported):
     # simulator's "lateral" (fitted on the real flights, the authors' controller) draws a large
     # robot in, as the real one is drawn in; the least squares of experiments/calibrate.py
     # reads the push off the labels, in part only (the EKF takes some of it for tilt)
-    out = replay(cfg, pieces, exported.gen_dir, learned="float", rough=Roughness().without("moment", "lateral"))
+    out = replay(cfg, pieces, exported.gen_dir, learned="float", rough=Roughness().without("lateral"))
     lat, real_lat = fs.wake_lateral(cfg, [out]), fs.wake_lateral(cfg, pieces)
     assert list(lat) == list(real_lat) == ["large under small"]
     assert lat["large under small"]["push_out_g"] > 0 > real_lat["large under small"]["push_out_g"]
@@ -491,7 +406,9 @@ def test_sim_to_real_and_paper_tables():
 
 def test_calibration_markdown_keeps_the_simulators_in_their_order():
     """calibration.json is written with sorted keys; calibration.md reads it back with
-    its simulators in VARIANTS' order, and metadata never becomes a simulator column."""
+    its simulators in VARIANTS' order whatever the JSON's (here reversed: five
+    simulators' names happen to sort in VARIANTS' order), and metadata never becomes a
+    simulator column."""
     import json
 
     from ns2exp.calibrate import READ_LAW, VARIANTS, markdown
@@ -499,15 +416,14 @@ def test_calibration_markdown_keeps_the_simulators_in_their_order():
     sw = lambda x: {"swaps": {"L2S": {"median_worst_z_error_m": x, "swaps": 5}}, "free_air": {},   # noqa: E731
                     "wake_scatter": {}, "battery": {}}
     cmp = {"flights": ["swap_ls_1"], "free_air_flights": ["randomwalk_ss_1"],
-           "real": sw(0.06), "simulators": {v: sw(0.01 * (k + 1)) for k, v in enumerate(VARIANTS)}}
-    res = json.loads(json.dumps({"fit": None, "compare": cmp, "read_law": READ_LAW, "paper_l2s": {}},
-                                sort_keys=True))
-    assert list(res["compare"]["simulators"]) != list(VARIANTS)    # what sorting does
+           "real": sw(0.06), "simulators": {v: sw(0.01 * (k + 1)) for k, v in reversed(list(enumerate(VARIANTS)))}}
+    res = json.loads(json.dumps({"fit": None, "compare": cmp, "read_law": READ_LAW, "paper_l2s": {}}))
+    assert list(res["compare"]["simulators"]) == list(VARIANTS)[::-1]
     rows = markdown(res).splitlines()
     head = next(r for r in rows if r.startswith("| statistic | real |"))
     assert head == "| statistic | real | " + " | ".join(VARIANTS) + " | rough / real |"
     l2s = next(r for r in rows if r.startswith("| L2S | 5 |"))
-    assert l2s == "| L2S | 5 | 6.0 | 1.0 (0.17) | 2.0 (0.33) | 3.0 (0.50) | 4.0 (0.67) | 5.0 (0.83*) | 6.0 (1.00*) | 7.0 (1.17*) |"
+    assert l2s == "| L2S | 5 | 6.0 | 1.0 (0.17) | 2.0 (0.33) | 3.0 (0.50) | 4.0 (0.67) | 5.0 (0.83*) |"
 
 
 def test_roughness_table_rows_of_the_wake_and_the_swaps():

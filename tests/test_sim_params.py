@@ -16,13 +16,13 @@ from ns2host.sim.vehicle import (AUTHORS_GAINS, AUTHORS_GAINS_FILE, AUTHORS_ROBO
                                  READ_LAW_FILE, dump_read_law, load_authors_gains, load_read_law)
 
 # The dataclass defaults of host/sim/roughness.py and the constants of host/sim/vehicle.py
-# at 0281169, the last commit that kept them in the code (make calibrate at a8cacab).
+# at 0281169, the last commit that kept them in the code (make calibrate at a8cacab), less
+# the wakes' moments (moment_gain 4.715, moment_turbulence_ratio 0.0: off, deleted after 96ed0bd).
 FORMER_ROUGHNESS = {
     "vibration_acc_g": {"small": 0.0613, "large": 0.0882}, "vibration_gyro_dps": {"small": 2.28, "large": 6.594},
     "turbulence_ratio": 0.025, "turbulence_tau_s": 0.002, "thrust_sd": 0.0158, "battery_start_V": 3.552,
     "battery_sag_V_per_min": 0.1063, "wake_sigma0_scale": 0.848, "wake_spread_scale": 0.474,
-    "lateral_k_xy": {"small": -0.053, "large": -0.176}, "moment_gain": 4.715, "moment_turbulence_ratio": 0.0,
-    "hover_motor_noise": {"small": 0.0274, "large": 0.04613},
+    "lateral_k_xy": {"small": -0.053, "large": -0.176}, "hover_motor_noise": {"small": 0.0274, "large": 0.04613},
     "enabled": ("vibration", "turbulence", "thrust", "battery", "wake", "lateral")}
 FORMER_READ_LAW = {"small": {"kp": 8.9309, "kd": 2.8506, "ki": 0.4604, "k_fa": 0.3729, "mass_kg": 0.033207},
                    "large": {"kp": 7.9323, "kd": 2.5174, "ki": 0.5582, "k_fa": 0.8295, "mass_kg": 0.06533}}
@@ -79,7 +79,7 @@ def test_a_calibrate_run_writes_parameter_files_that_load_back(tmp_path, monkeyp
     import ns2exp.calibrate as cal
 
     fitted = replace(Roughness(), turbulence_ratio=0.1 + 0.2, lateral_k_xy={"small": -1e-17, "large": 0.3},
-                     moment_gain=1 / 3, hover_motor_noise={"small": 0.02, "large": 0.05})
+                     wake_spread_scale=1 / 3, hover_motor_noise={"small": 0.02, "large": 0.05})
     law = {ty: {**zl, "kp": zl["kp"] * 1.1, "k_fa": 2 / 3} for ty, zl in READ_LAW.items()}
     monkeypatch.setattr(cal, "fit", lambda *a, **k: (fitted, {"real": {}}))
     monkeypatch.setattr(cal, "fit_read_law", lambda *a, **k: (law, []))
@@ -97,7 +97,7 @@ def test_a_calibrate_run_writes_parameter_files_that_load_back(tmp_path, monkeyp
         _, origin = load_params(out / shipped.name, _schema(shipped))
         assert origin["commit"] == "abc1234" and origin["command"] == "ns2 sim calibrate --out cal"
         assert "calibration.md" in origin["report"]
-    assert json.loads((out / "calibration.json").read_text())["roughness"]["moment_gain"] == 1 / 3
+    assert json.loads((out / "calibration.json").read_text())["roughness"]["wake_spread_scale"] == 1 / 3
     cal.calibrate(None, None, [], {}, {}, out, rough=Roughness())
     assert sorted(p.name for p in out.iterdir()) == ["calibration.json", "calibration.md"]
 
@@ -123,7 +123,10 @@ BAD = [  # (file, text replaced, replacement, what the error must name)
     (ROUGH_FILE, 'value = 0.025\nunit = "1 (force sd per unit |f_a,z|)"', 'value = 0.025\nunit = "%"',
      "turbulence_ratio.unit"),
     (ROUGH_FILE, "value = 0.025\n", 'value = "0.025"\n', "turbulence_ratio.value"),
-    (ROUGH_FILE, "value = 4.715\n", "value = -4.715\n", "moment_gain.value"),
+    (ROUGH_FILE, "value = 0.848\n", "value = -0.848\n", "wake_sigma0_scale.value"),
+    # a file of before the wakes' moments were deleted (96ed0bd) is refused, not read in part
+    (ROUGH_FILE, "[hover_motor_noise]", '[moment_gain]\nvalue = 4.715\nunit = "1"\nsource = "fit_moment"\n\n'
+     "[hover_motor_noise]", "moment_gain"),
     (ROUGH_FILE, "value = {small = 0.0613, large = 0.0882}", "value = {small = 0.0613, large = nan}",
      "vibration_acc_g.value.large"),
     (ROUGH_FILE, "[thrust_sd]\nvalue = 0.0158\n", "[thrust_sd]\n", "thrust_sd.value"),

@@ -49,8 +49,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from ns2codegen.data.labels import quat_to_R
-
 from .vehicle import G, Vehicle
 
 RHO = 1.2              # kg/m^3
@@ -63,7 +61,6 @@ K_XY = 0.15            # lateral push relative to the wake's vertical force, per
 C_DRAG = 0.38          # 1/s: horizontal linear drag per kg of vehicle mass
 Z_MIN = 0.02           # m, landing-gear height: the ground terms are held below it
 SWEEPS = 3             # Jacobi sweeps of the wake cascade (exact for stacks of 4 robots)
-ROTORS = np.array([[1.0, -1.0, 0.0], [-1.0, -1.0, 0.0], [-1.0, 1.0, 0.0], [1.0, 1.0, 0.0]])  # x (arm / sqrt 2), B0's order
 
 
 def rotor_radius(veh: Vehicle) -> float:
@@ -99,7 +96,6 @@ class AeroModel:
         self.r_rot = np.array([rotor_radius(v) for v in vehicles])
         self.area = 4.0 * np.pi * self.r_rot ** 2                 # four rotors
         self.disc = np.array([v.diameter / 2.0 for v in vehicles])  # the receiver's disc
-        self.arm = np.array([v.arm for v in vehicles]) / np.sqrt(2.0)   # rotor offset along x and y (B0)
         self.sigma0 = sigma0_scale * np.sqrt(2.0) * self.r_rot    # jet of the rotors' momentum flux
         v_h = np.sqrt(self.mass * G / (2.0 * RHO * self.area))
         self.kappa = SIGMA_A * TIP_SPEED / (8.0 * v_h)            # sigma a / (8 lambda_h) at hover
@@ -182,34 +178,6 @@ class AeroModel:
             f[:, :2] = (push[..., None] * e).sum(1)
         f[:, :2] -= C_DRAG * self.mass[:, None] * v[:, :2]
         return f
-
-    def forces_moments(self, p: np.ndarray, v: np.ndarray, q: np.ndarray, thrust: np.ndarray | None = None,
-                       ground: bool = True) -> tuple[np.ndarray, np.ndarray]:
-        """forces() and the wakes' moment tau_a [N, 3] (N m, body frame) on every robot:
-        each of its four rotors (at arm / sqrt 2 (+-1, +-1) in the body, q [N, 4] w x y z
-        body to world) responds to the downwash of the others' wakes at its own disc
-        (the wake profile of _wakes at the rotor's centre, averaged over the rotor's
-        disc, the ground's upwash and the robot's own flow as for the whole robot),
-        and the four rotors' vertical forces make a moment about the centre of mass.
-        A uniform flow makes none: only the wakes' gradient across the robot does."""
-        p, v, q = np.asarray(p, float), np.asarray(v, float), np.asarray(q, float)
-        flow = self._flow(p, v, thrust, ground, None)
-        f = self._forces(p, v, flow)
-        n = len(p)
-        tau = np.zeros((n, 3))
-        if n < 2:
-            return f, tau
-        thrust, v_h, h, own, mask, _, nu, (_, _, _, w_in) = flow
-        R = quat_to_R(q / np.linalg.norm(q, axis=1, keepdims=True))   # [N, 3, 3]
-        lever = np.einsum("nab,nkb->nka", R, self.arm[:, None, None] * ROTORS[None])   # [N, 4, 3] world
-        pts = p[:, None, :] + lever                                # rotor centres [N, 4, 3]
-        owner = np.repeat(np.arange(n), 4)
-        w, _, _ = self._wake_at(pts.reshape(4 * n, 3), self.r_rot[owner], owner, p, v, nu * v_h, w_in, ground)
-        w_rot = (w * mask[None, :]).sum(1).reshape(n, 4)
-        t_rot, _ = rotor_response((w_rot + own[:, None]) / v_h[:, None], h[:, None], self.kappa[:, None])
-        f_rot = thrust[:, None] / 4.0 * (t_rot - 1.0)               # [N, 4] vertical, world
-        tau_w = np.stack([(lever[..., 1] * f_rot).sum(1), -(lever[..., 0] * f_rot).sum(1), np.zeros(n)], axis=1)
-        return f, np.einsum("nba,nb->na", R, tau_w)
 
     def __call__(self, p: np.ndarray, v: np.ndarray, thrust: np.ndarray | None = None) -> np.ndarray:
         """f_a [N, 3] in newtons; thrust [N] defaults to hover thrust m g."""

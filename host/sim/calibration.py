@@ -293,29 +293,6 @@ def wake_profile_table(wake: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-def moment_table(moment: dict) -> str:
-    """experiments/calibrate.py fit_moment: per swap scenario of its flights, the bottom
-    robot's median largest motor departure from the motors' mean, of its 0.2 s average
-    and whole (PWM), and its median largest tilt, real and replayed at every moment the
-    fit flew, then the fit's steps."""
-    flown = [k for k in next(iter(moment["by_case"].values())) if k.startswith("gain ")]
-    lines = ["| scenario | swaps | real: slow / whole departure / tilt (deg) | "
-             + " | ".join(f"replay, {g}" for g in flown) + " |", "|---|---|---|" + "---|" * len(flown)]
-
-    def cell(r: dict) -> str:
-        return " / ".join(_cell(r[k], 1 if "tilt" in k else 3) for k in moment["statistics"])
-    for case, r in sorted(moment["by_case"].items()):
-        lines.append(f"| {case} | {r['swaps']} | {cell(r['real'])} | " + " | ".join(cell(r[g]) for g in flown) + " |")
-
-    def steps(key):
-        return "; ".join(f"probe {s['probe']} -> {s['fit']}" for s in moment[key])
-    return ("\n".join(lines) + f"\n\nSteady moment: gain {moment['gain']} on the slow departure ({steps('gain_steps')}); "
-            f"turbulent moment: ratio {moment['ratio']} (torque sd per unit |f_a,z| x arm, tau {moment['tau_s']} s) on the "
-            f"whole departure with the steady one on ({steps('ratio_steps')}); in quadrature, weighted by swaps; replays of "
-            + ", ".join(moment["flights"]) + ", the authors' controller flying the logged prediction, the force's "
-            "turbulence off.\n")
-
-
 def lateral_table(lateral: dict) -> str:
     """experiments/calibrate.py fit_lateral: the lateral push per unit r / sigma read off
     the labels (lateral_k_xy) of the real pair swaps and of their replays at each

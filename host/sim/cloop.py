@@ -22,7 +22,7 @@ from ..cfhost import load_fly
 from ..onboard import fill_adapt_cfg
 from .aero import calibrated
 from .dynamics import Dynamics, SwarmState
-from .roughness import MomentTurbulence, Roughness, Turbulence, steady_moment
+from .roughness import Roughness, Turbulence
 from .sensing import Sensing
 from .vehicle import AUTHORS_PWM_EXACT, G, authors_gains, base_type, default_gains, vehicle
 
@@ -209,10 +209,6 @@ class CLoopSwarm:
         self.rough = rough
         thrust = rough.thrust_factors(seed, n) if rough is not None else np.ones(n)
         self.turbulence = Turbulence(rough, n, 1.0 / ATT_HZ, seed) if rough is not None else None
-        self.moment_gain = rough.moment_gain if rough is not None and rough.on("moment") else 0.0
-        self.arms = np.array([v.arm for v in self.vehicles])
-        self.moment_turbulence = (MomentTurbulence(rough, self.arms, 1.0 / ATT_HZ, seed)
-                                  if rough is not None else None)
         for i, (rb, veh) in enumerate(zip(robots, self.vehicles)):
             ctrl = rb.controller
             it = ffi.new("ns2_fly_init_t *")
@@ -327,16 +323,7 @@ class CLoopSwarm:
                 tick, p_meas, rx = frames.popleft()
                 frame.tick, frame.p, frame.rx = tick, ptr("float *", p_meas), ptr("uint8_t *", rx)
                 fr = frame
-            tau = None   # the wakes' moment (body, N m), kept alive while ns2_fly_run reads it
-            if self.aero is None:
-                f_a = np.zeros((n, 3))
-            elif self.moment_gain:
-                f_a, tau = self.aero.forces_moments(st.p, st.v, st.q, st.u.sum(axis=1))
-                tau = np.ascontiguousarray(steady_moment(tau, f_a, self.arms, self.moment_gain))
-            else:
-                f_a = self.aero(st.p, st.v, st.u.sum(axis=1))
-            if self.moment_turbulence is not None and self.moment_turbulence.on:
-                tau = self.moment_turbulence.moment(f_a) + (tau if tau is not None else 0.0)
+            f_a = np.zeros((n, 3)) if self.aero is None else self.aero(st.p, st.v, st.u.sum(axis=1))
             if self.turbulence is not None:
                 f_a = f_a + self.turbulence.force(f_a)
             battery_V = self._battery_V(t, self._ms // STEP_TICKS + k)
@@ -361,7 +348,7 @@ class CLoopSwarm:
             noise = self.rng.standard_normal((STEP_TICKS, n, 6), dtype=np.float32)
             fa = np.ascontiguousarray(f_a, float)
             n_tr += lib.ns2_fly_run(self.robots, n, ptr("double *", x), ptr("double *", fa),
-                                    ptr("double *", tau) if tau is not None else ffi.NULL, ms, STEP_TICKS,
+                                    ffi.NULL, ms, STEP_TICKS,   # no aerodynamic torque
                                     ptr("float *", noise), ptr("ns2_setpoint_t *", self.sps), fr,
                                     ptr("float *", battery_f32),
                                     tr + n_tr if tr != ffi.NULL else ffi.NULL, trace_robot or 0, tr_max - n_tr)

@@ -24,18 +24,6 @@ wake         the wake's profile read off the real flights: the ground truth's in
 lateral      the wake's lateral force on a robot beside its axis: the truth's constant
              K_XY (aero.py, 0.15: pushed out by the profile's gradient) replaced per
              receiving robot's type by ``lateral_k_xy``.
-moment       the wakes' moment on a robot (OFF by default: not in DEFAULT_EFFECTS): each
-             rotor responds to the downwash at its own disc (aero.py
-             AeroModel.forces_moments), the four rotors' forces make a moment about the
-             centre of mass, scaled by ``moment_gain`` and bounded by physics: about a
-             horizontal axis at most |f_a,z| x arm / sqrt 2, the wake's whole force on
-             one side of the robot (steady_moment).  Off: at its fitted gain it tilts
-             the replayed robots further than the real ones turn (docs/simulator.md).
-moment_turbulence
-             the wakes' turbulent moment (OFF by default): a torque about the body x
-             and y axes, each a first-order Gauss-Markov process of the turbulence's
-             correlation time, standard deviation ``moment_turbulence_ratio`` x
-             |f_a,z| of the truth at the robot x its arm (no wake, none); fitted 0.
 """
 from __future__ import annotations
 
@@ -47,8 +35,7 @@ import numpy as np
 from .paramfile import PARAMS_DIR, Param, dump_params, load_params
 from .vehicle import base_type
 
-EFFECTS = ("vibration", "turbulence", "thrust", "battery", "wake", "lateral", "moment", "moment_turbulence")
-DEFAULT_EFFECTS = ("vibration", "turbulence", "thrust", "battery", "wake", "lateral")   # the calibrated simulator's
+EFFECTS = ("vibration", "turbulence", "thrust", "battery", "wake", "lateral")
 # the Crazyflie 2.x firmware's low-battery voltage (crazyflie-firmware 2a18fc29,
 # platform_defaults_cf2.h DEFAULT_BAT_LOW_VOLTAGE): a flight ends before it
 LOW_BATTERY_V = 3.2
@@ -80,11 +67,6 @@ ROUGH_PARAMS = {
     "lateral_k_xy": Param("1 (aero.py K_XY: push per unit r / sigma)", "fit_lateral: the labels' reading of the "
                           "lateral push (lateral_k_xy) in the real pair swaps, matched by replays flown as they flew",
                           keyed=True),
-    "moment_gain": Param("1 (factor on aero.py's per-rotor moment)", "fit_moment: the slow part of the bottom "
-                         "robot's motor departure in the real pair swaps, matched by replays (effect off by default)",
-                         nonneg=True),
-    "moment_turbulence_ratio": Param("1 (torque sd per unit |f_a,z| x arm)", "fit_moment: the whole motor departure, "
-                                     "the steady moment at its gain (effect off by default)", nonneg=True),
     "hover_motor_noise": Param("1 (fraction of full PWM)", "flightstats.free_air motor_noise of the real flights; not "
                                "an effect: the bound of BL-tuned's gain search (experiments/swarm.py)",
                                keyed=True, nonneg=True),
@@ -117,14 +99,10 @@ class Roughness:
     wake_spread_scale: float = _from_file("wake_spread_scale")
     # the wake's lateral push per unit r / sigma on a robot of each type (aero.py K_XY)
     lateral_k_xy: dict = _from_file("lateral_k_xy")
-    # the wakes' moment (a factor on aero.py's per-rotor moment; the effect is off by default)
-    moment_gain: float = _from_file("moment_gain")
-    # the wakes' turbulent moment (torque sd per unit |f_a,z| x arm; off by default)
-    moment_turbulence_ratio: float = _from_file("moment_turbulence_ratio")
     # not an effect: the motor-command noise of the real robots in free air (flightstats),
     # the bound of BL-tuned's gain search in the rough simulator (experiments/swarm.py)
     hover_motor_noise: dict = _from_file("hover_motor_noise")
-    enabled: tuple = DEFAULT_EFFECTS
+    enabled: tuple = EFFECTS   # the calibrated simulator: all on
 
     def without(self, *names: str) -> "Roughness":
         _known(names)
@@ -135,7 +113,7 @@ class Roughness:
         return replace(self, enabled=tuple(e for e in EFFECTS if e in names))
 
     def plus(self, *names: str) -> "Roughness":
-        """These effects on as well (the moments, off by default)."""
+        """These effects on as well."""
         return self.only(*set(self.enabled) | set(names))
 
     def on(self, name: str) -> bool:
@@ -232,41 +210,6 @@ class Turbulence:
         out = np.zeros_like(f_a)
         if self.gm.on:
             out[:, 2] = self.ratio * np.abs(f_a[:, 2]) * self.gm.step()
-        return out
-
-
-def steady_moment(tau: np.ndarray, f_a: np.ndarray, arm_m, gain: float) -> np.ndarray:
-    """The "moment" effect [N, 3] (N m, body): ``gain`` x aero.py's per-rotor moment tau
-    [N, 3], its part about the horizontal axes at most |f_a,z| x arm / sqrt 2 for the
-    truth f_a [N, 3] (N) of this step: the moment of the wake's whole force on one side
-    of the robot (two rotors at arm / sqrt 2 from the axis), which no wake exceeds."""
-    out = gain * np.asarray(tau, float)
-    cap = np.abs(f_a[:, 2]) * np.asarray(arm_m, float) / math.sqrt(2.0)
-    norm = np.hypot(out[:, 0], out[:, 1])
-    over = norm > cap
-    out[over, :2] *= (cap[over] / norm[over])[:, None]
-    return out
-
-
-class MomentTurbulence:
-    """The wakes' turbulent moment of one flight: per robot two unit Gauss-Markov states
-    (body x, y) of the turbulence's correlation time, advanced once per simulator step,
-    scaled by ratio x |f_a,z| x arm; a stream of its own (the force's is untouched)."""
-
-    def __init__(self, rough: Roughness, arm_m: np.ndarray, dt: float, seed: int):
-        self.ratio, self.arm = rough.moment_turbulence_ratio, np.asarray(arm_m, float)
-        self.gm = GaussMarkov((len(self.arm), 2), dt, rough.turbulence_tau_s, seed, 0x4D,
-                              rough.on("moment_turbulence") and rough.moment_turbulence_ratio > 0.0)
-
-    @property
-    def on(self) -> bool:
-        return self.gm.on
-
-    def moment(self, f_a: np.ndarray) -> np.ndarray:
-        """The turbulent moment [N, 3] (N m, body frame) for the truth f_a [N, 3] (N) of this step."""
-        out = np.zeros_like(f_a)
-        if self.gm.on:
-            out[:, :2] = (self.ratio * np.abs(f_a[:, 2]) * self.arm)[:, None] * self.gm.step()
         return out
 
 
