@@ -9,6 +9,9 @@ import click
 from .common import _emit, _export_config, _gen_option, _json_option, _progress, _quiet_option, _scheduler_option
 from .sim import _rough, _rough_option, sim
 
+# BL-tuned's gains of the committed gain search (make sim's, docs/simulator.md)
+GAIN_SEARCH = Path(__file__).resolve().parents[1] / "docs" / "results" / "sim-gain_search.json"
+
 
 def _sim_experiment(name: str):
     """The options every simulator experiment shares: model, results folder, C path, output."""
@@ -55,9 +58,9 @@ def sim_rings(gen_dir, out_dir, duration, learned, simulator, quiet, as_json):
 
 
 @_sim_experiment("adapt")
-@click.option("--tuning", "tuning_file", type=click.Path(dir_okay=False, exists=True),
-              default="docs/results/sim-gain_search.json", show_default=True,
-              help="BL-tuned's gains: the \"tuning\" of a gain search (`ns2 sim swaps`' gain_search.json)")
+@click.option("--tuning", "tuning_file", type=click.Path(dir_okay=False), default=None,
+              help="BL-tuned's gains: the \"tuning\" of a gain search (`ns2 sim swaps`' gain_search.json)  "
+              "[default: the checkout's docs/results/sim-gain_search.json]")
 @click.option("--swaps", type=click.IntRange(min=1), default=6, show_default=True, help="swaps per flight")
 @click.option("--seed", "seeds", type=int, multiple=True, default=(0, 1, 2), show_default=True,
               help="seeds of the swap and ring flights (repeat)")
@@ -75,7 +78,11 @@ def sim_adapt(gen_dir, out_dir, learned, simulator, quiet, as_json, tuning_file,
 
     from ns2exp.simadapt import experiment, jobs
 
-    tuning = json.loads(Path(tuning_file).read_text()).get("tuning")
+    _export_config(gen_dir)
+    tuning_file = Path(tuning_file) if tuning_file else GAIN_SEARCH
+    if not tuning_file.is_file():
+        raise click.ClickException(f"{tuning_file}: no such file (--tuning, a gain search's gain_search.json)")
+    tuning = json.loads(tuning_file.read_text()).get("tuning")
     if not isinstance(tuning, dict):
         raise click.ClickException(f"{tuning_file}: no \"tuning\" mapping of a gain search")
     kw = {"seeds": seeds, "swaps": swaps, "learned": learned, "rough": _rough(simulator), "cases": cases,
