@@ -61,7 +61,7 @@ from ns2codegen.onboard import ADAPT_UPDATED, AdaptCfg, LabelCfg, adapt_f32
 
 from .blind import ONBOARD_COLLECTION, load_samples, predictions
 from .real import AUTHORS_MASSES_G, RealDataError
-from .realscore import relabel, score
+from .realscore import gain, relabel, score
 
 SCALE_MAX = 0.5
 FORGETS = (0.98, 0.99, 0.995, 0.998, 0.999)
@@ -311,15 +311,6 @@ class Split:
         return out
 
 
-def _gain(adapted: dict, static: dict) -> dict:
-    def g(a, b):
-        return None if a is None or not b else round(1.0 - a / b, 4)
-    return {"overall_plain": g(adapted["plain"], static["plain"]),
-            "overall_neutral": g(adapted["neutral"], static["neutral"]),
-            "wake_plain": g(adapted["wake"]["plain"], static["wake"]["plain"]),
-            "wake_neutral": g(adapted["wake"]["neutral"], static["wake"]["neutral"])}
-
-
 def mass_offset(gen_dir, cfg, sp: Split, nn: np.ndarray, base_runs: list, acfg: AdaptCfg, types) -> dict:
     """The 3 g test on a split (module docstring) of the law ``acfg`` (``base_runs`` its
     unperturbed runs): scores with the offset, and
@@ -444,7 +435,7 @@ def adaptation(data_dir, gen_dir, root, seeds: int = 3, collections=None, held_o
                     law = replace(base, **every[v][1])
                     row[f"mass_offset, {v}"] = mass_offset(gen_dir, cfg, sp, nn, sp.run(gen_dir, cfg, nn, law)[1],
                                                            law, types)
-            row["gain"] = {v: _gain(s, row["static"]) for v, s in row["variants"].items()}
+            row["gain"] = {v: gain(s, row["static"]) for v, s in row["variants"].items()}
             res["seeds"].append(row)
         return res
 
@@ -557,7 +548,7 @@ def other_masses_table(res: dict) -> str:
              "lower than static, overall plain (per seed) |", "|---|---|---|---|---|---|"]
     for name, s in res["splits"].items():
         rows = [r["other_masses"] for r in s["seeds"]]
-        g = [_gain(r["bias"], r["static"])["overall_plain"] for r in rows]
+        g = [gain(r["bias"], r["static"])["overall_plain"] for r in rows]
         lines.append(f"| {name} | " + " | ".join(
             _m([r[v][k] if k == "plain" else r[v]["wake"]["plain"] for r in rows])
             for k in ("plain", "wake") for v in ("static", "bias")) + f" | {_pct(g)} |")

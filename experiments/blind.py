@@ -159,7 +159,7 @@ def splits(res: dict) -> dict:
     return out
 
 
-def _fmt(x) -> str:
+def mean_std(x) -> str:
     """mean +- std over seeds, or a single number."""
     return f"{x['mean']:.2f} +- {x['std']:.2f}" if isinstance(x, dict) else f"{x:.2f}"
 
@@ -178,7 +178,7 @@ def table(res: dict) -> str:
         a, b = m["labels"], m["other_masses"]
         for p in path:
             a, b = a[p], b[p]
-        f = lambda x: "-" if x is None else _fmt(x)  # noqa: E731
+        f = lambda x: "-" if x is None else mean_std(x)  # noqa: E731
         return f"{f(a)} ({f(b)})"
 
     for name, s in splits(res).items():
@@ -247,7 +247,7 @@ def memory_rows(doc: dict) -> dict:
 
 
 def memory_table(rows: dict, lags) -> str:
-    f = _fmt
+    f = mean_std
     rows = memory_rows(rows)
     lines = [f"| blind split | wake, mass-neutral: now / with the past {lags} ms | wake, plain | overall, mass-neutral "
              "| lower in the wake beyond the seeds' spread |", "|---|---|---|---|---|"]

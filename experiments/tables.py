@@ -25,7 +25,7 @@ from typing import Callable
 
 from ns2codegen.errors import Ns2Error
 
-from .blind import gains_table, memory_rows, memory_table, table
+from .blind import gains_table, mean_std, memory_rows, memory_table, table
 
 RUNS = Path("docs/results/runs")
 SIDECAR = "provenance.json"
@@ -76,10 +76,6 @@ def _pct(x: float) -> str:
     return f"{100 * x:.0f} %"
 
 
-def _pm(x) -> str:
-    return f"{x['mean']:.2f} +- {x['std']:.2f}" if isinstance(x, dict) else f"{x:.2f}"
-
-
 def _mean(x):
     return x["mean"] if isinstance(x, dict) else x
 
@@ -96,11 +92,11 @@ def real_summary(d: dict) -> str:
                            "real/c_check.json", "real-mem/paper.json"))
     parts = []
     if paper:
-        parts.append(f"the paper's network **{_pm(paper['H']['20'])} g^2** under the paper's random split over "
+        parts.append(f"the paper's network **{mean_std(paper['H']['20'])} g^2** under the paper's random split over "
                      f"{paper['samples']:,} samples of all three collections (paper 6.42 +- 0.18)")
     if paper_past:
         n = paper_past["seeds"]
-        parts.append(f"with the wake's memory (the exported network) {_pm(paper_past['H']['20'])} g^2 under the same "
+        parts.append(f"with the wake's memory (the exported network) {mean_std(paper_past['H']['20'])} g^2 under the same "
                      f"split ({n} seed{'s' if n > 1 else ''})")
     if blind:
         g, o = (blind["leave_one_collection_out"]["2020-06-16"]["gains"]["onboard"][c] for c in ("labels", "other_masses"))
@@ -199,7 +195,7 @@ def ablation_summary(d: dict) -> str:
     """make ablation: the paper's network and each ablation, validation MSE and on larger teams."""
     a = d["ablation/ablation.json"]
     ref = a["H"]["20"]
-    parts = [f"validation MSE of H = 20, L = 4: {_pm(ref)} g^2 ({a['samples']:,} samples, {a['seeds']} seeds)"]
+    parts = [f"validation MSE of H = 20, L = 4: {mean_std(ref)} g^2 ({a['samples']:,} samples, {a['seeds']} seeds)"]
     for axis, key, label in (("V", "without", "without relative velocity"), ("T", "type-agnostic", "type-agnostic"),
                              ("P", "pairwise sum", "the sum of pairwise models")):
         r = a.get(axis, {}).get(key)
