@@ -30,6 +30,7 @@ from .blind import gains_table, mean_std, memory_rows, memory_table, table
 RUNS = Path("docs/results/runs")
 SIDECAR = "provenance.json"
 NOT_RECORDED = "commit not recorded"
+RECORDED_IN = "provenance_recorded_in"     # a loaded file's key: the doc section its folder's provenance.json names
 
 
 class ResultsError(Ns2Error):
@@ -56,7 +57,10 @@ def load(root: Path, rel: str) -> dict | None:
         except (OSError, ValueError, AttributeError) as e:
             raise ResultsError(f"{side}: not a provenance file ({e})") from None
         for k, v in recorded.items():
-            doc.setdefault(k, v)
+            if k == "source":          # the doc that records it (a file's own "source" is its data's)
+                doc[RECORDED_IN] = v
+            else:
+                doc.setdefault(k, v)
     return doc
 
 
@@ -64,7 +68,7 @@ def origin(doc: dict) -> tuple[str, str | None, str | None]:
     """(commit, command, source) of a loaded result; ``source``: the doc that records
     them when the file itself does not."""
     p = doc.get("provenance") or {}
-    return p.get("commit") or NOT_RECORDED, p.get("command"), doc.get("source")
+    return p.get("commit") or NOT_RECORDED, p.get("command"), doc.get(RECORDED_IN)
 
 
 def _short(commit: str) -> str:
@@ -288,37 +292,287 @@ def readme_table(root: Path, experiments=EXPERIMENTS) -> str:
 
 
 # ------------------------------------------------------------------ the docs' tables
+def _rel(x: float, ref: float) -> str:
+    return f"{100 * (x / ref - 1):+.0f} %"
+
+
+def _cm(x: float, digits: int = 1) -> str:
+    return f"{100 * x:.{digits}f}"
+
+
+def sim_swaps_table(doc: dict) -> str:
+    """make sim's swaps: per case, each controller's median / max worst z error of the
+    bottom robot, and BL-tuned / NN (the headline ratio)."""
+    by = {(r["case"], r["controller"]): r for r in doc["rows"]}
+    ctrls = list(dict.fromkeys(r["controller"] for r in doc["rows"]))
+    lines = [f"| swap ({doc['swaps']} swaps), median / max worst z error of the bottom robot (cm) | "
+             + " | ".join(ctrls) + " | BL-tuned / NN |", "|---" * (len(ctrls) + 2) + "|"]
+    for case in dict.fromkeys(r["case"] for r in doc["rows"]):
+        cells = [f"{_cm(by[case, c]['median_worst_z_error_m'])} / {_cm(by[case, c]['max_worst_z_error_m'])}"
+                 if (case, c) in by else "-" for c in ctrls]
+        nn, bl = (by.get((case, c), {}).get("median_worst_z_error_m") for c in ("NN", "BL-tuned"))
+        lines.append(f"| {case} | " + " | ".join(cells) + (f" | {bl / nn:.2f} |" if nn and bl else " | - |"))
+    return "\n".join(lines)
+
+
+def sim_rings_table(doc: dict) -> str:
+    """make sim's rings: per case and robot type (the S* robots first), each controller's
+    mean / max worst z error; "(BL)" where that controller did not fly the type."""
+    by = {(r["case"], r["robot_type"], r["controller"]): r for r in doc["rows"]}
+    ctrls = list(dict.fromkeys(r["controller"] for r in doc["rows"]))
+    lines = [f"| rings ({doc['duration_s']:g} s flights), mean / max worst z error (cm) | robot | " + " | ".join(ctrls)
+             + " |", "|---" * (len(ctrls) + 2) + "|"]
+    for case in dict.fromkeys(r["case"] for r in doc["rows"]):
+        kinds = list(dict.fromkeys(r["robot_type"] for r in doc["rows"] if r["case"] == case))
+        for kind in sorted(kinds, key=lambda k: (not k.endswith("*"), kinds.index(k))):
+            cells = [f"{_cm(r['mean_worst_z_error_m'])} / {_cm(r['max_worst_z_error_m'])}"
+                     if (r := by.get((case, kind, c))) else "(BL)" for c in ctrls]
+            lines.append(f"| {case} | {kind} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def planning_table(doc: dict) -> str:
+    """The planning experiment's table (its own, ns2exp.planning.reports.table), the cases
+    in the experiment's order: per dimension, the scenarios as planning.cases lists them."""
+    from .planning.cases import SCENARIOS
+    from .planning.reports import table as plan_table
+
+    cases = doc["cases"]
+    order = sorted(cases, key=lambda k: (k.split()[0], list(SCENARIOS).index(k.split()[1])))
+    return plan_table({k: cases[k] for k in order})
+
+
+ABLATION_LABELS = {"H": "H = {}", "L": "L = {}", "W": "widths {}", "V": "{} relative velocity", "P": "sum of pairwise models",
+                   "T": "type-agnostic deep set"}
+ABLATION_PAPER_NOTES = {"P=pairwise sum": "(deep set chosen over it)"}
+
+
+def ablation_table(doc: dict) -> str:
+    """make ablation: each configuration's validation MSE (mean +- std, per seed), epochs,
+    the larger teams' MSE, each against the paper's network; the paper's numbers (its real
+    flights) beside them."""
+    from .ablation import SAME_AS_PAPER
+    from .real import PAPER_TABLE
+
+    ref = doc["H"]["20"]
+    paper_ref = float(PAPER_TABLE["H=20"].split()[0])
+
+    def row(label, r, key, first=False):
+        paper = PAPER_TABLE.get(key)
+        big = r.get("larger_teams")
+        cells = [f"{r['mean']:.3f} +- {r['std']:.3f}", ", ".join(f"{x:.3f}" for x in r["runs"]),
+                 ", ".join(str(e) for e in r["epochs"]), mean_std(big) if big else "-",
+                 paper or ABLATION_PAPER_NOTES.get(key, "")]
+        if first:
+            cells[0], cells[4] = f"**{cells[0]}**", f"**{cells[4]}**"
+        else:
+            cells[0] += f" ({_rel(r['mean'], ref['mean'])})"
+            if big and "larger_teams" in ref:
+                cells[3] += f" ({_rel(big['mean'], ref['larger_teams']['mean'])})"
+            if paper:
+                cells[4] += f" ({_rel(float(paper.split()[0]), paper_ref)})"
+        return f"| {label} | " + " | ".join(cells) + " |"
+
+    lines = ["| configuration | validation MSE (g^2), mean +- std | per seed | epochs | larger teams (g^2) | "
+             "paper (validation, real flights) |", "|---|---|---|---|---|---|",
+             row("H = 20, L = 4 (the paper's network)", ref, "H=20", first=True)]
+    for axis, label in ABLATION_LABELS.items():
+        for value, r in doc.get(axis, {}).items():
+            if (axis, value) not in SAME_AS_PAPER and (axis, value) != ("H", "20"):
+                lines.append(row(label.format(value), r, f"{axis}={value}"))
+    return "\n".join(lines)
+
+
+def _adapt_in_order(doc: dict) -> dict:
+    """A real adapt result (its JSON has sorted keys) in the experiment's order: the split
+    the laws were chosen on first (the held-out flights, so named), each seed's laws in
+    the order ns2exp.adaptation.variants tried them."""
+    from .adaptation import variants
+
+    order = list(variants())
+    first = doc.get("chosen_on")
+    splits = {("held-out flights" if k == "held_out_flights" else k): s for k, s in
+              sorted(doc["splits"].items(), key=lambda kv: kv[0] != first)}
+    for s in splits.values():
+        for r in s["seeds"]:
+            r["variants"] = {v: r["variants"][v] for v in sorted(r["variants"], key=order.index)}
+    return dict(doc, splits=splits)
+
+
+def adapt_table(doc: dict) -> str:
+    from .adaptation import table as adapt_laws_table
+    return adapt_laws_table(_adapt_in_order(doc))
+
+
+def adapt_types_table(doc: dict) -> str:
+    from .adaptation import by_type_table
+    return by_type_table(_adapt_in_order(doc))
+
+
+def adapt_masses_table(doc: dict) -> str:
+    from .adaptation import other_masses_table
+    return other_masses_table(_adapt_in_order(doc))
+
+
+def adapt_offset_table(doc: dict) -> str:
+    """The 3 g test on the split the laws were chosen on: MSE with the offset (mean over
+    seeds) and seed 0's recovery times, per law."""
+    from .adaptation import variants
+
+    split = _adapt_in_order(doc)["splits"]
+    seeds = next(iter(split.values()))["seeds"]
+    laws = [k for k in seeds[0] if k.startswith("mass_offset")]
+    order = [""] + [f", {v}" for v in variants()]
+    laws.sort(key=lambda k: order.index(k[len("mass_offset"):]))
+
+    def rec(x):
+        return (f"{x.get('median_s', '-')} / {x.get('p90_s', '-')} / {x.get('max_s', '-')} s, "
+                f"never {x['never']} of {x['robots']}")
+    lines = ["| law | overall plain with the offset: static / adapted | from take-off: median / 90 % / max (seed 0) | "
+             "from a step mid-flight (seed 0) | robots flagged < 50 % of the time, from the step (seed 0) |",
+             "|---|---|---|---|---|"]
+    for key in laws:
+        m = [r[key] for r in seeds]
+        law = "bias (the default law)" if key == "mass_offset" else key.split(", ", 1)[1]
+        static, adapted = (sum(x[w]["plain"] for x in m) / len(m) for w in ("static", "adapted"))
+        lines.append(f"| {law} | {static:.2f} / {adapted:.2f} | {rec(m[0]['recovery_from_takeoff'])} | "
+                     f"{rec(m[0]['recovery_from_step_mid_flight'])} | "
+                     f"{rec(m[0]['flag_under_half_the_time']['recovery_from_step_mid_flight'])} |")
+    return "\n".join(lines)
+
+
+SIM_ADAPT_BATTERY_WINDOW_S = 15      # ns2exp.simadapt.BATTERY_WINDOW_S (a test checks they agree)
+
+
+def _updated(doc: dict, kind: str, case: str, ctrl: str = "NN+adapt") -> str:
+    """The share of position ticks the bottom robot's adaptation updated on, over the seeds' flights."""
+    got = sorted({round(100 * r["bottom_updated_share"]) for r in doc["flights"]
+                  if (r["kind"], r["case"], r["controller"]) == (kind, case, ctrl)})
+    return "-" if not got else (f"{got[0]} %" if len(got) == 1 else f"{got[0]}-{got[-1]} %")
+
+
+def _sim_adapt_rows(doc: dict) -> list:
+    """(row label, {controller: metres}, (kind, case) of the updated share or None) of a sim adapt result."""
+    s, rows = doc["summary"], []
+    for kind, what in (("swap", "the paper's swap"), ("swap-solo", "after 4 s alone")):
+        for case, d in s.get(kind, {}).items():
+            label = f"{case}, {what}" if kind == "swap" else f"{case} {what}"
+            rows.append((label, {k: v["median_worst_z_error_m"] for k, v in d.items()}, (kind, case)))
+    for case, d in s.get("rings", {}).items():
+        rows.append((f"{case}, the payload robot (median over seeds)",
+                     {k: v["payload_median_worst_z_error_m"] for k, v in d.items()}, None))
+        rows.append((f"{case}, every small robot (median)", {k: v["small_median_worst_z_error_m"] for k, v in d.items()},
+                     None))
+    if s.get("battery"):
+        v0, v1 = next(iter(s["battery"].values()))["V"]
+        case = next((r["case"] for r in doc["flights"] if r["kind"] == "battery"), "")
+        for w in ("first", "last"):
+            rows.append((f"{case}, the supply falling {v0:.2f} -> {v1:.2f} V, no payload: {w} "
+                         f"{SIM_ADAPT_BATTERY_WINDOW_S} s", {k: v[f"{w}_median_worst_z_error_m"]
+                                                             for k, v in s["battery"].items()},
+                         ("battery", case) if w == "first" else None))
+    return rows
+
+
+def sim_adapt_table(doc: dict) -> str:
+    """ns2 sim adapt: the bottom robot's median worst z error per case and controller, and
+    on how many ticks NN+adapt's adaptation updated (per seed: lowest-highest)."""
+    ctrls = doc["controllers"]
+    lines = ["| median worst z error, bottom robot (cm) | " + " | ".join(ctrls) + " | its adaptation updated on |",
+             "|---" * (len(ctrls) + 2) + "|"]
+    for label, got, upd in _sim_adapt_rows(doc):
+        lines.append(f"| {label} | " + " | ".join(_cm(got[c], 2) if c in got else "-" for c in ctrls)
+                     + f" | {_updated(doc, *upd) if upd else ''} |")
+    return "\n".join(lines)
+
+
+def sim_adapt_law_table(doc: dict, before: dict) -> str:
+    """ns2 sim adapt flown again with another law (``doc``) beside the run before it
+    (``before``): NN, NN+adapt of each (named by its commit), and on how many ticks the
+    new law updated."""
+    old = {label: got for label, got, _ in _sim_adapt_rows(before)}
+    now, was = (_short(origin(d)[0]) for d in (doc, before))
+    lines = [f"| median worst z error, bottom robot (cm) | NN | NN+adapt at {was} | NN+adapt at {now} | "
+             f"its adaptation updated on (at {now}) |", "|---|---|---|---|---|"]
+    for label, got, upd in _sim_adapt_rows(doc):
+        was = old.get(label, {}).get("NN+adapt")
+        lines.append(f"| {label} | {_cm(got['NN'], 2)} | {'-' if was is None else _cm(was, 2)} | "
+                     f"{_cm(got['NN+adapt'], 2)} | {_updated(doc, *upd) if upd else ''} |")
+    return "\n".join(lines)
+
+
+def hover_table(doc: dict) -> str:
+    """ns2 real data: the median hover thrust per collection, type and robot, and over
+    every collection (each type with its own block)."""
+    h = doc["hover"]
+    types = sorted(h["by_type"], key=doc["masses_g"].get)
+    lines = ["| collection | " + " | ".join(types) + " | per robot |", "|---" * (len(types) + 2) + "|"]
+    for c in doc["collections"]:
+        got = h["by_collection"].get(c, {})
+        robots = ", ".join(f"{k} {v['median_g']:.2f} g" for k, v in h["by_robot"].get(c, {}).items())
+        lines.append(f"| {c} | " + " | ".join(f"{got[t]['median_g']:.2f} g" if t in got else "-" for t in types)
+                     + f" | {robots or 'no hover stretch'} |")
+    lines.append("| all | " + " | ".join(f"**{h['by_type'][t][f'block of {t}']['median_g']:.2f} g**" for t in types)
+                 + " | |")
+    return "\n".join(lines)
+
+
+def flights_table(doc: dict) -> str:
+    from .real import flights_table as real_flights
+    return real_flights(doc["flights"])
+
+
 @dataclass(frozen=True)
 class DocTable:
     doc: str
     name: str
     file: str                         # committed name under RUNS
-    render: Callable[[dict], str]
+    render: Callable[..., str]        # render(the file's JSON, *the JSON of ``more``)
+    more: tuple = ()                  # further committed files the table is made of
 
 
 DOC_TABLES = (
+    DocTable("docs/real-flights.md", "hover", "real/data_report.json", hover_table),
     DocTable("docs/real-flights.md", "blind", "real/blind.json", table),
     DocTable("docs/real-flights.md", "blind-gains", "real/blind.json",
              lambda doc: gains_table(doc, "collection 2020-06-16 left out")),
     DocTable("docs/real-flights.md", "memory", "real/memory.json",
              lambda doc: memory_table(doc, ",".join(map(str, doc["lags_ms"])))),
     DocTable("docs/real-flights.md", "memory-blind", "real-mem/blind.json", table),
+    DocTable("docs/real-flights.md", "flights", "real/data_report.json", flights_table),
+    DocTable("docs/simulator.md", "sim-swaps", "sim/swaps.json", sim_swaps_table),
+    DocTable("docs/simulator.md", "sim-rings", "sim/rings.json", sim_rings_table),
+    DocTable("docs/planning.md", "planning", "planning/plan.json", planning_table),
+    DocTable("docs/ground-truth.md", "ablation", "ablation/ablation.json", ablation_table),
+    DocTable("docs/adaptation.md", "sim-adapt", "sim-adapt/adapt.json", sim_adapt_table),
+    DocTable("docs/adaptation.md", "sim-adapt-gate0", "sim-adapt-gate0/adapt.json", sim_adapt_law_table,
+             ("sim-adapt/adapt.json",)),
+    DocTable("docs/adaptation.md", "real-adapt", "real/adapt.json", adapt_table),
+    DocTable("docs/adaptation.md", "real-adapt-types", "real/adapt.json", adapt_types_table),
+    DocTable("docs/adaptation.md", "real-adapt-masses", "real/adapt.json", adapt_masses_table),
+    DocTable("docs/adaptation.md", "real-adapt-offset", "real/adapt.json", adapt_offset_table),
 )
 
 
-def doc_block(root: Path, t: DocTable) -> str:
-    """A docs table with the line that names its command and commit."""
-    doc = load(root, t.file)
-    if doc is None:
-        return f"No committed result (`{RUNS / t.file}`)."
+def _made(doc: dict, rel: str) -> str:
     commit, command, source = origin(doc)
     said = f" (as {source} records)" if source else ""
+    return f"`{command or 'command not recorded'}` at {_short(commit)}{said}; `{RUNS / rel}`"
+
+
+def doc_block(root: Path, t: DocTable) -> str:
+    """A docs table with the line that names the command and commit of each file it is made of."""
+    rels = (t.file, *t.more)
+    docs = [load(root, rel) for rel in rels]
+    missing = [f"`{RUNS / rel}`" for rel, doc in zip(rels, docs) if doc is None]
+    if missing:
+        return f"No committed result ({', '.join(missing)})."
     try:
-        body = t.render(doc)
+        body = t.render(*docs)
     except (KeyError, TypeError, ValueError) as e:
         raise ResultsError(f"{root / RUNS / t.file}: not the result its table is made of (lacks {e!r})") from None
-    return (f"Made by `{command or 'command not recorded'}` at {_short(commit)}{said}; "
-            f"`{RUNS / t.file}`, table by `make results`:\n\n{body}")
+    made = "; and ".join(_made(doc, rel) for rel, doc in zip(rels, docs))
+    return f"Made by {made}, table by `make results`:\n\n{body}"
 
 
 # ------------------------------------------------------------------ the blocks in the files

@@ -80,8 +80,9 @@ def _checkout(tmp_path) -> Path:
     root = tmp_path / "co"
     (root / "docs").mkdir(parents=True)
     (root / "README.md").write_text("# x\n\nbefore\n<!-- results:begin -->\nold row\n<!-- results:end -->\nafter\n")
-    (root / "docs/real-flights.md").write_text("".join(
-        f"## {t.name}\n<!-- results:{t.name}:begin -->\n<!-- results:{t.name}:end -->\ntext\n" for t in tables.DOC_TABLES))
+    for doc in dict.fromkeys(t.doc for t in tables.DOC_TABLES):
+        (root / doc).write_text("".join(f"## {t.name}\n<!-- results:{t.name}:begin -->\n<!-- results:{t.name}:end -->\n"
+                                        "text\n" for t in tables.DOC_TABLES if t.doc == doc))
     return root
 
 
@@ -92,7 +93,7 @@ def test_renderer_on_synthetic_results(tmp_path):
     doc = stamp(_swaps(0.004, 0.012), "make sim")
     doc["provenance"]["commit"] = "abcdef1"
     (runs / "sim/swaps.json").write_text(json.dumps(doc))
-    assert tables.write(root) == ["README.md", "docs/real-flights.md"]
+    assert tables.write(root) == ["README.md", *dict.fromkeys(t.doc for t in tables.DOC_TABLES)]
     readme = (root / "README.md").read_text()
     assert readme.startswith("# x\n\nbefore\n<!-- results:begin -->\n| experiment |") and readme.endswith(
         "<!-- results:end -->\nafter\n") and "old row" not in readme
@@ -200,3 +201,45 @@ def test_real_row_says_what_the_files_say():
     mem = {"lags_ms": [50], "s": {"wake_neutral": {"now": now, "with_past": past}, "wake_lower_beyond_spread": False}}
     row = tables.real_summary({"real/memory.json": mem})
     assert "state 50 ms ago raises the blind wake MSE (mass-neutral) 4 %, not beyond the seeds' spread" in row
+
+
+def test_docs_tables_carry_the_runs_numbers():
+    """Each docs table made from a committed result (sim, planning, ablation, the real and
+    simulated adaptation, the real data report) carries the numbers of the hand-written
+    table it replaced, and names the command and commit of every file it is made of."""
+    from ns2exp.simadapt import BATTERY_WINDOW_S
+
+    block = {t.name: tables.doc_block(REPO, t) for t in tables.DOC_TABLES}
+    for t in tables.DOC_TABLES:
+        assert block[t.name].startswith("Made by `"), t.name
+        for rel in (t.file, *t.more):
+            doc = tables.load(REPO, rel)
+            assert f"`docs/results/runs/{rel}`" in block[t.name] and tables.origin(doc)[0][:7] in block[t.name]
+    assert "| L2S | 7.4 / 8.4 | 1.2 / 1.3 | 0.4 / 0.4 | 0.8 / 1.1 | 6.5 / 6.6 | 3.19 |" in block["sim-swaps"]
+    assert "| 16-robot three rings | small* | 8.9 / 11.5 | 1.6 / 1.8 | 1.5 / 1.8 | 8.0 / 9.4 | 7.3 / 8.4 |" in block["sim-rings"]
+    assert "| 5-robot rings | large | 3.0 / 4.9 | 1.1 / 1.2 | 0.9 / 1.0 | 2.4 / 2.4 | (BL) |" in block["sim-rings"]
+    rows = [line for line in block["planning"].splitlines() if line.startswith("| 2D") or line.startswith("| 3D")]
+    assert [r.split(" | ")[0] for r in rows[::2]] == [f"| {d} {c}" for d in ("2D", "3D")
+                                                       for c in ("SL", "SS", "LL", "SSL", "SLL")]
+    assert "| 2D SLL | NN | 3/25 | 3/3 | 3.9 / 4.8 | 2.9 g, 0/3 | 5.3 g, 0/3 | 15.6 / 8.7 |" in block["planning"]
+    assert ("| H = 20, L = 4 (the paper's network) | **1.987 +- 0.021** | 2.009, 1.959, 1.992 | 16, 21, 12 | "
+            "3.27 +- 0.19 | **6.42 +- 0.18** |") in block["ablation"]
+    assert ("| without relative velocity | 2.534 +- 0.032 (+28 %) | 2.511, 2.579, 2.513 | 16, 14, 15 | "
+            "3.82 +- 0.01 (+17 %) | 7.60 (+18 %) |") in block["ablation"]
+    assert "| type-agnostic deep set | 2.447 +- 0.007 (+23 %) |" in block["ablation"]
+    assert "| L2S after 4 s alone | 1.31 | 0.50 | 0.62 | 21-23 % |" in block["sim-adapt"]
+    assert f"no payload: first {BATTERY_WINDOW_S:.0f} s | 0.90 | 0.37 | 0.37 | 7 % |" in block["sim-adapt"]
+    assert "| NN+adapt at 428199a | NN+adapt at 2176e6a |" in block["sim-adapt-gate0"]
+    assert "| L2S, the paper's swap | 0.44 | 0.44 | 0.53 | 99-100 % |" in block["sim-adapt-gate0"]
+    laws = [line.split(" | ")[1] for line in block["real-adapt"].splitlines() if line.startswith("| held-out flights |")]
+    assert laws[:4] == ["static (NN alone)", "bias (the default law)", "bias, neighbour gate (gateNbr 1)", "bias + scale"]
+    assert ("| held-out flights | bias, forget 0.98 | 2.29 +- 0.07 | 2.23 +- 0.03 | 6.37 +- 0.55 | 5.86 +- 0.23 | "
+            "+33 % (+32, +35, +32) |") in block["real-adapt"]
+    assert block["real-adapt-types"].splitlines()[4].startswith("| held-out flights | 7.39 / 5.03 | 13.49 / 12.14 |")
+    assert "| collection 2019-12-20 left out | 18.69 +- 0.48 | 3.92 +- 0.01 |" in block["real-adapt-masses"]
+    assert ("| bias, neighbour gate (gateNbr 1) | 15.77 / 6.37 | 1.36 / 18.03 / 41.42 s, never 16 of 45 | "
+            "4.45 / 15.22 / 26.68 s, never 21 of 45 |") in block["real-adapt-offset"]
+    # data_report.json's own "source" (the authors' data) is not taken for the doc recording its commit
+    assert "at 497de13 (as docs/real-flights.md, appendix records)" in block["hover"]
+    assert "| all | **32.07 g** | **62.53 g** | |" in block["hover"]
+    assert "| 2019-12-11/swap_ll/02 | cf101, cf102 | setpoint events | -8.3, +8.3 | 1.9 | - | 59.8 |" in block["flights"]
