@@ -342,6 +342,14 @@ def planning_table(doc: dict) -> str:
     return plan_table({k: cases[k] for k in order})
 
 
+def planning_model_table(doc: dict) -> str:
+    """The planning model against the simulator's truth (plan.json's model_check: a robot
+    hovering under another, predicted / true f_a,z per pair of types and gap)."""
+    from .planning.reports import downwash_table
+
+    return downwash_table(doc["model_check"])
+
+
 ABLATION_LABELS = {"H": "H = {}", "L": "L = {}", "W": "widths {}", "V": "{} relative velocity", "P": "sum of pairwise models",
                    "T": "type-agnostic deep set"}
 ABLATION_PAPER_NOTES = {"P=pairwise sum": "(deep set chosen over it)"}
@@ -543,6 +551,7 @@ DOC_TABLES = (
     DocTable("docs/simulator.md", "sim-swaps", "sim/swaps.json", sim_swaps_table),
     DocTable("docs/simulator.md", "sim-rings", "sim/rings.json", sim_rings_table),
     DocTable("docs/planning.md", "planning", "planning/plan.json", planning_table),
+    DocTable("docs/planning.md", "planning-model", "planning/plan.json", planning_model_table),
     DocTable("docs/ground-truth.md", "ablation", "ablation/ablation.json", ablation_table),
     DocTable("docs/adaptation.md", "sim-adapt", "sim-adapt/adapt.json", sim_adapt_table),
     DocTable("docs/adaptation.md", "sim-adapt-gate0", "sim-adapt-gate0/adapt.json", sim_adapt_law_table,

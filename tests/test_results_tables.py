@@ -222,6 +222,7 @@ def test_docs_tables_carry_the_runs_numbers():
     assert [r.split(" | ")[0] for r in rows[::2]] == [f"| {d} {c}" for d in ("2D", "3D")
                                                        for c in ("SL", "SS", "LL", "SSL", "SLL")]
     assert "| 2D SLL | NN | 3/25 | 3/3 | 3.9 / 4.8 | 2.9 g, 0/3 | 5.3 g, 0/3 | 15.6 / 8.7 |" in block["planning"]
+    assert "| large under large | -20.3 / -26.6 | -23.0 / -23.0 | -20.6 / -18.6 |" in block["planning-model"]
     assert ("| H = 20, L = 4 (the paper's network) | **1.987 +- 0.021** | 2.009, 1.959, 1.992 | 16, 21, 12 | "
             "3.27 +- 0.19 | **6.42 +- 0.18** |") in block["ablation"]
     assert ("| without relative velocity | 2.534 +- 0.032 (+28 %) | 2.511, 2.579, 2.513 | 16, 14, 15 | "
