@@ -550,6 +550,7 @@ DOC_TABLES = (
     DocTable("docs/real-flights.md", "flights", "real/data_report.json", flights_table),
     DocTable("docs/simulator.md", "sim-swaps", "sim/swaps.json", sim_swaps_table),
     DocTable("docs/simulator.md", "sim-rings", "sim/rings.json", sim_rings_table),
+    DocTable("docs/simulator.md", "sim-clean-swaps", "sim-clean/swaps.json", sim_swaps_table),
     DocTable("docs/planning.md", "planning", "planning/plan.json", planning_table),
     DocTable("docs/planning.md", "planning-model", "planning/plan.json", planning_model_table),
     DocTable("docs/ground-truth.md", "ablation", "ablation/ablation.json", ablation_table),

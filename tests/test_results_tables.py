@@ -216,6 +216,7 @@ def test_docs_tables_carry_the_runs_numbers():
             doc = tables.load(REPO, rel)
             assert f"`docs/results/runs/{rel}`" in block[t.name] and tables.origin(doc)[0][:7] in block[t.name]
     assert "| L2S | 7.4 / 8.4 | 1.2 / 1.3 | 0.4 / 0.4 | 0.8 / 1.1 | 6.5 / 6.6 | 3.19 |" in block["sim-swaps"]
+    assert "| L2S | 7.8 / 8.9 | 3.1 / 3.4 | 0.3 / 0.4 | 0.8 / 0.9 | 6.7 / 6.9 | 9.00 |" in block["sim-clean-swaps"]
     assert "| 16-robot three rings | small* | 8.9 / 11.5 | 1.6 / 1.8 | 1.5 / 1.8 | 8.0 / 9.4 | 7.3 / 8.4 |" in block["sim-rings"]
     assert "| 5-robot rings | large | 3.0 / 4.9 | 1.1 / 1.2 | 0.9 / 1.0 | 2.4 / 2.4 | (BL) |" in block["sim-rings"]
     rows = [line for line in block["planning"].splitlines() if line.startswith("| 2D") or line.startswith("| 3D")]
