@@ -69,14 +69,21 @@ def sim_rings(gen_dir, out_dir, duration, learned, simulator, quiet, as_json):
 @click.option("--rings/--no-rings", default=True, show_default=True, help="the 5-robot rings too")
 @click.option("--workers", type=click.IntRange(min=1), default=1, show_default=True,
               help="fly this many flights at once (processes)")
-def sim_adapt(gen_dir, out_dir, learned, simulator, quiet, as_json, tuning_file, swaps, seeds, cases, rings, workers):
+@click.option("--composite", "track_gains", type=click.FloatRange(min=0.0, min_open=True, max=1e6), multiple=True,
+              help="also fly NN+adapt with Neural-Fly's composite law at this ns2adapt.trackGain (g/(m/s)/s at P = 1; "
+              "repeat)")
+@click.option("--baselines/--no-baselines", default=True, show_default=True,
+              help="fly BL-tuned too (NN and NN+adapt are always flown)")
+def sim_adapt(gen_dir, out_dir, learned, simulator, quiet, as_json, tuning_file, swaps, seeds, cases, rings, workers,
+              track_gains, baselines):
     """The on-board adaptation judged in flight (issue 53 item 5): the swaps (plain, and
     after the bottom robot hovered alone) with the bottom robot carrying an unmodelled 3 g,
     the 5-robot rings with one small robot carrying it, and S2S swaps with the supply falling
-    to the low-battery voltage; BL-tuned, NN, NN+adapt; adapt.json and adapt.md in OUT."""
+    to the low-battery voltage; BL-tuned, NN, NN+adapt (and the composite law's arms of
+    --composite); adapt.json and adapt.md in OUT."""
     import json
 
-    from ns2exp.simadapt import experiment, jobs
+    from ns2exp.simadapt import controllers, experiment, jobs
 
     _export_config(gen_dir)
     tuning_file = Path(tuning_file) if tuning_file else GAIN_SEARCH
@@ -86,7 +93,8 @@ def sim_adapt(gen_dir, out_dir, learned, simulator, quiet, as_json, tuning_file,
     if not isinstance(tuning, dict):
         raise click.ClickException(f"{tuning_file}: no \"tuning\" mapping of a gain search")
     kw = {"seeds": seeds, "swaps": swaps, "learned": learned, "rough": _rough(simulator), "cases": cases,
-          "rings": ["5-robot rings"] if rings else [], "battery_seeds": (seeds[0],)}
+          "rings": ["5-robot rings"] if rings else [], "battery_seeds": (seeds[0],),
+          "arms": controllers(track_gains, baselines)}
     with _progress(quiet, len(jobs(gen_dir, tuning, **kw)), "flight", "sim adapt") as update:
         res = experiment(gen_dir, out_dir, tuning, workers=workers, progress=update, **kw)
     _emit(as_json, res, (Path(out_dir) / "adapt.md").read_text())
@@ -120,7 +128,7 @@ def sim_calibrate(logs_dir, data_dir, gen_dir, out_dir, per_scenario, refit, wor
     from ns2codegen.results import command_line
     from ns2exp.calibrate import calibrate, first_per_folder, swap_flights
     from ns2exp.real import collection_config
-    from ns2exp.replay import pieces_by_flight
+    from ns2paper.replay import pieces_by_flight
     from ns2host.sim.roughness import Roughness
 
     cfg, hover = collection_config(data_dir)    # 16 June 2020 as that day weighed its robots

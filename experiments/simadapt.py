@@ -11,6 +11,8 @@ vehicle's).  Controllers (CONTROLLERS):
   NN         the same gains with the learned f_a (swarm.py's NN)
   NN+adapt   NN with the on-board adaptation on (PARAM ns2adapt.enable = 1, the other
              parameters the app's defaults)
+  NN+composite G   (on request, ``track_gains``) NN+adapt with Neural-Fly's composite law:
+             ns2adapt.trackGain = G (the controller's tracking error in z also moves theta)
 
 Experiments: the paper's swaps (swarm.SWAP_CASES, the payload on the bottom robot, the
 paper's metric: the bottom robot's worst z error per swap, the median over swaps and
@@ -40,6 +42,7 @@ from .swarm import (RING_CASES, RING_DURATION_S, REST_S, SWAP_CASES, SWAP_S, bot
                     ring_worst_z, swap_flight, tuned)
 
 CONTROLLERS = ("BL-tuned", "NN", "NN+adapt")
+COMPOSITE = "NN+composite"      # + " <trackGain>": NN+adapt with the composite law's tracking term
 PAYLOAD_G = 3.0
 SEEDS = (0, 1, 2)
 SWAP_KINDS = ("swap", "swap-solo")
@@ -50,9 +53,23 @@ BATTERY_CASE, BATTERY_S = "S2S", 60.0
 BATTERY_WINDOW_S = 15.0   # the first and the last 15 s of the battery flight are compared
 
 
+def composite(track_gain: float) -> str:
+    """The name of the composite law's arm with ns2adapt.trackGain = ``track_gain``."""
+    return f"{COMPOSITE} {track_gain:g}"
+
+
+def _adapt_cfg(controller: str) -> AdaptCfg | None:
+    """PARAM ns2adapt of a controller's robots (None: off, as the app boots)."""
+    if controller == "NN+adapt":
+        return AdaptCfg(enable=1)
+    if controller.startswith(COMPOSITE + " "):
+        return AdaptCfg(enable=1, track_gain=float(controller[len(COMPOSITE) + 1:]))
+    return None
+
+
 def _robots(cfg: Config, team, start, controller: str, tuning: dict, learned: str, payload_at: int | None,
             payload_g: float, **kw):
-    adapt = AdaptCfg(enable=1) if controller == "NN+adapt" else None
+    adapt = _adapt_cfg(controller)
     ctrl = NS2Controller(None if controller == "BL-tuned" else learned, adapt)
     robots = robots_of(list(team), start, ctrl, [tuned(vehicle(cfg, t), tuning) for t in team], **kw)
     if payload_at is not None:
@@ -141,23 +158,29 @@ def _key(job: dict) -> dict:
     return {k: job[k] for k in ("kind", "case", "controller", "seed")}
 
 
+def controllers(track_gains=(), baselines=True) -> tuple[str, ...]:
+    """The arms: CONTROLLERS (without BL-tuned unless ``baselines``), then the composite law
+    for every gain of ``track_gains``."""
+    return tuple(k for k in CONTROLLERS if baselines or k != "BL-tuned") + tuple(composite(g) for g in track_gains)
+
+
 def jobs(gen_dir, tuning: dict, seeds=SEEDS, swaps: int = 6, learned: str = "fixed", rough: Roughness | None = None,
-         cases=None, rings=None, battery_seeds=(0,), payload_g: float = PAYLOAD_G) -> list[dict]:
+         cases=None, rings=None, battery_seeds=(0,), payload_g: float = PAYLOAD_G, arms=CONTROLLERS) -> list[dict]:
     """Every flight of the experiment: swaps (``cases``, default all of SWAP_CASES) and
-    rings (``rings``, default all of RING_CASES) for every seed and controller, the
-    battery flight for ``battery_seeds``."""
+    rings (``rings``, default all of RING_CASES) for every seed and arm (``arms``, default
+    CONTROLLERS), the battery flight for ``battery_seeds``."""
     base = {"gen_dir": str(gen_dir), "tuning": tuning, "learned": learned, "rough": rough, "swaps": swaps,
             "payload_g": payload_g}
 
     def swap(w):
         return [{**base, "kind": w, "case": c, "controller": k, "seed": s}
-                for c in (SWAP_CASES if cases is None else cases) for s in seeds for k in CONTROLLERS]
+                for c in (SWAP_CASES if cases is None else cases) for s in seeds for k in arms]
     n = int(BATTERY_S // (SWAP_S + REST_S))
     return (swap("swap-solo")
             + [{**base, "kind": "battery", "case": BATTERY_CASE, "controller": k, "seed": s, "swaps": n}
-               for s in battery_seeds for k in CONTROLLERS]
+               for s in battery_seeds for k in arms]
             + [{**base, "kind": "ring", "case": c, "controller": k, "seed": s}
-               for c in (RING_CASES if rings is None else rings) for s in seeds for k in CONTROLLERS]
+               for c in (RING_CASES if rings is None else rings) for s in seeds for k in arms]
             + swap("swap"))
 
 
@@ -197,18 +220,18 @@ def summarize(rows: list[dict]) -> dict:
     return out
 
 
-def table(summary: dict) -> str:
-    """Markdown of the summary (cm)."""
+def table(summary: dict, arms=CONTROLLERS) -> str:
+    """Markdown of the summary (cm), a column per arm."""
     cm = lambda x: f"{100 * x:.2f}"  # noqa: E731
-    head = " | ".join(CONTROLLERS) + " |"
-    rule = "|---" * (len(CONTROLLERS) + 1) + "|"
+    head = " | ".join(arms) + " |"
+    rule = "|---" * (len(arms) + 1) + "|"
     lines = []
     for w, what in (("swap", "the paper's swaps"), ("swap-solo", "the swaps after SOLO_S alone")):
         lines += [f"| {w}: case | " + head, rule]
         for c, d in summary[w].items():
-            lines.append(f"| {c} | " + " | ".join(cm(d[k]["median_worst_z_error_m"]) for k in CONTROLLERS) + " |")
-        share = [f"{c} {100 * d['NN+adapt']['bottom_updated_share']:.0f} %" for c, d in summary[w].items()
-                 if "NN+adapt" in d]
+            lines.append(f"| {c} | " + " | ".join(cm(d[k]["median_worst_z_error_m"]) for k in arms) + " |")
+        share = [f"{c} {k} {100 * d[k]['bottom_updated_share']:.0f} %" for c, d in summary[w].items()
+                 for k in arms if _adapt_cfg(k) is not None and k in d]
         lines += ["", f"{what}: median worst z error of the bottom robot (cm; it carries the payload), pooled over "
                   f"swaps and seeds; ticks on which its adaptation updated: {', '.join(share)}.", ""]
     if summary["rings"]:
@@ -216,14 +239,14 @@ def table(summary: dict) -> str:
         for c, d in summary["rings"].items():
             lines.append(f"| {c} | " + " | ".join(
                 f"{cm(d[k]['payload_median_worst_z_error_m'])} / {cm(d[k]['small_median_worst_z_error_m'])}"
-                for k in CONTROLLERS) + " |")
+                for k in arms) + " |")
         lines += ["", "rings: the payload robot's worst z error (median over seeds) / the small robots' median (cm).",
                   ""]
     if summary["battery"]:
         lines += ["| battery | " + head, rule]
         for w in ("first", "last"):
             lines.append(f"| {w} {BATTERY_WINDOW_S:.0f} s | " + " | ".join(
-                cm(summary["battery"][k][f"{w}_median_worst_z_error_m"]) for k in CONTROLLERS) + " |")
+                cm(summary["battery"][k][f"{w}_median_worst_z_error_m"]) for k in arms) + " |")
         lines += ["", f"battery: S2S swaps after SOLO_S alone, the supply falling linearly to {LOW_BATTERY_V} V at the "
                   "end; median worst z error of the bottom robot per swap (cm) in the first and the last "
                   f"{BATTERY_WINDOW_S:.0f} s."]
@@ -245,9 +268,12 @@ def experiment(gen_dir, out_dir, tuning: dict, workers: int = 1, progress=None, 
 
     rows = run_map(fly, [(j,) for j in js], workers=workers, progress=progress, on_done=done)
     rough = kw.get("rough")
-    res = {"controllers": list(CONTROLLERS), "payload_g": js[0]["payload_g"], "seeds": list(kw.get("seeds", SEEDS)),
+    arms = tuple(kw.get("arms", CONTROLLERS))
+    res = {"controllers": list(arms), "payload_g": js[0]["payload_g"], "seeds": list(kw.get("seeds", SEEDS)),
            "swaps": js[0]["swaps"], "tuning": tuning, "simulator": "clean" if rough is None else "rough",
-           "adapt": AdaptCfg(enable=1).as_dict(), "summary": summarize(rows), "flights": rows}
+           "adapt": AdaptCfg(enable=1).as_dict(),
+           "adapt_per_arm": {k: a.as_dict() for k in arms for a in [_adapt_cfg(k)] if a is not None},
+           "summary": summarize(rows), "flights": rows}
     (out / "adapt.json").write_text(json.dumps(res, indent=2) + "\n")
-    (out / "adapt.md").write_text(table(res["summary"]))
+    (out / "adapt.md").write_text(table(res["summary"], arms))
     return res

@@ -549,6 +549,8 @@ static void check_adapt(const ns2_adapt_t *a, const ns2_adapt_cfg_t *c, float nn
         check(isfinite(a->P[i]), "P not finite");
     }
     check(c->gate_neighbours <= 1u || !ns2_adapt_cfg_ok(c), "gate_neighbours not 0 or 1 accepted");
+    check(!(a->status & NS2_ADAPT_BAD_TRACK) || ((a->status & NS2_ADAPT_UPDATED) && c->track_gain > 0.0f),
+          "tracking term skipped without an update with track_gain > 0");
     if (!ns2_adapt_cfg_ok(c) && isfinite(nn) && fabsf(nn) <= 1e30f) {
         check(a->status == NS2_ADAPT_BAD_PARAM, "bad parameters but no NS2_ADAPT_BAD_PARAM alone");
     }
@@ -581,11 +583,12 @@ static void random_adapt_cfg(ns2_adapt_cfg_t *c, uint32_t p_bad)
     c->scale_max = below(2) ? 0.0f : uniform(0.0f, 1.0f);
     c->enable = (uint8_t)(below(8) != 0u);
     c->gate_neighbours = (uint8_t)below(2);
+    c->track_gain = below(2) ? 0.0f : uniform(0.0f, 1.0e5f);
     if (below(100) < p_bad) {
         float *f[] = {&c->forget, &c->p0, &c->p_max, &c->bias_max_g, &c->scale_max, &c->fa_max_g,
-                      &c->label_max_g, &c->wake_g};
-        const uint32_t which = below(9);
-        if (which == 8u) {
+                      &c->label_max_g, &c->wake_g, &c->track_gain};
+        const uint32_t which = below(10);
+        if (which == 9u) {
             c->gate_neighbours = (uint8_t)(2u + below(254)); /* not 0 or 1 */
         } else {
             *f[which] = below(2) ? special() : uniform(-10.0f, 10.0f);
@@ -604,22 +607,27 @@ static void fuzz_adapt(unsigned long long count)
         const float psi1[NS2_NUM_ROBOT_TYPES][5] = NS2_PSI1_INIT;
         ns2_label_cfg_t lc = {fz_veh[rt].mass_kg, fz_veh[rt].lambda, {0}, 0.01f, 0.1f, 0.866f};
         memcpy(lc.psi1, psi1[rt], sizeof lc.psi1);
-        const int bad_config = below(10) == 0u;
-        if (bad_config) {
+        const int spoil_config = below(10) == 0u;
+        if (spoil_config) {
             float *f[] = {&lc.mass_kg, &lc.lambda, &lc.h_s, &lc.psi1[below(5)], &lc.min_z_m};
             *f[below(5)] = special();
         }
         ns2_label_init(&l, &lc);
+        /* a hostile value may still be a valid one (-0, FLT_MIN, random bits): judged by the label's own check */
+        const int bad_config = !l.config_ok;
+        check(spoil_config || !bad_config, "a good label configuration refused");
         ns2_adapt_cfg_t c;
         random_adapt_cfg(&c, 0u);
         ns2_adapt_reset(&a, &c);
         const uint32_t n_good = below(400), n_bad = 1u + below(20);
         uint32_t k = 0;
-        float vz, z, q[4], pwm[4], bat, nn;
+        float vz, z, q[4], pwm[4], bat, nn, s_h;
         for (uint32_t j = 0; j < n_good + n_bad; ++j, ++k, ++done) {
             good_label_in(&vz, &z, q, pwm, &bat, &nn, k);
+            s_h = uniform(-0.01f, 0.01f); /* the composite tracking error times 10 ms, m */
             if (j >= n_good) {
                 hostile(&vz, 1); hostile(&z, 1); hostile(q, 4); hostile(pwm, 4); hostile(&bat, 1); hostile(&nn, 1);
+                hostile(&s_h, 1);
                 if (below(4) == 0u) {
                     random_adapt_cfg(&c, 50u);
                 }
@@ -632,7 +640,7 @@ static void fuzz_adapt(unsigned long long count)
             if (st & (NS2_LABEL_BAD_INPUT | NS2_LABEL_WARMUP | NS2_LABEL_BAD_CONFIG)) {
                 check(l.label_N == 0.0f, "no label but label_N != 0");
             }
-            const float out = ns2_adapt_step(&a, &c, nn, (int)below(2), l.label_g, st);
+            const float out = ns2_adapt_step_track(&a, &c, nn, (int)below(2), l.label_g, st, s_h);
             check_adapt(&a, &c, nn, out);
         }
         /* good input and parameters again: the label equals a fresh one's on the same
@@ -649,9 +657,10 @@ static void fuzz_adapt(unsigned long long count)
                 check(bad_config ? st == NS2_LABEL_BAD_CONFIG : (st & (NS2_LABEL_BAD_INPUT | NS2_LABEL_WARMUP)) == 0u,
                       "no label NS2_LABEL_STENCIL ticks after good input returned");
             }
-            const float out = ns2_adapt_step(&a, &c, nn, 0, l.label_g, st);
+            const float out = ns2_adapt_step_track(&a, &c, nn, 0, l.label_g, st, uniform(-0.01f, 0.01f));
             check_adapt(&a, &c, nn, out);
-            check((a.status & (NS2_ADAPT_BAD_PARAM | NS2_ADAPT_BAD_INPUT)) == 0u, "fault reported on good input");
+            check((a.status & (NS2_ADAPT_BAD_PARAM | NS2_ADAPT_BAD_INPUT | NS2_ADAPT_BAD_TRACK)) == 0u,
+                  "fault reported on good input");
         }
     }
     input_index = done;

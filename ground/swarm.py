@@ -52,7 +52,7 @@ GROUPS = ("ns2", "ns2type", "ns2gain", "ns2adapt")   # the app's parameter group
 # ns2adapt.<name>: the on-board adaptation's parameters (ns2_adapt.h, docs/adaptation.md) -> AdaptCfg field
 ADAPT = {"enable": "enable", "forget": "forget", "p0": "p0", "pMax": "p_max", "biasMax": "bias_max_g",
          "scaleMax": "scale_max", "faMax": "fa_max_g", "labelMax": "label_max_g", "wakeG": "wake_g",
-         "gateNbr": "gate_neighbours"}
+         "gateNbr": "gate_neighbours", "trackGain": "track_gain"}
 ADAPT_SWITCHES = ("enable", "gateNbr")   # 0 or 1 (uint8_t)
 ADAPT_ENABLE = 0   # off unless the swarm file says ns2adapt: {enable: 1}, as the app boots (not yet judged in flight)
 GAIN3 = ("Lp", "Kv", "Gv", "Lq", "Kw", "Gw", "Kwd")   # ns2gain.<name>x/y/z
@@ -355,7 +355,7 @@ def params(swarm: Swarm, cfg: Config, robot: Robot) -> dict[str, dict[str, float
             or not adapt_cfg_ok(AdaptCfg(**{f: adapt[p] for p, f in ADAPT.items()})):
         raise SwarmFileError(f"{swarm.path}: robots.{robot.name}.firmware_params.ns2adapt: {adapt} out of range "
                              f"(enable and gateNbr 0 or 1, forget in [0.5, 1], 0 < p0 <= pMax <= 1000, limits in "
-                             f"[0, 1000]; docs/adaptation.md)")
+                             f"[0, 1000], trackGain in [0, 1e6]; docs/adaptation.md)")
     adapt.update({p: int(adapt[p]) for p in ADAPT_SWITCHES})
     return {"ns2": {"selfType": types.index(robot.ns2_type)},
             "ns2type": dict(zip(TYPE_PARAMS, table)),

@@ -111,10 +111,11 @@ void ns2_ctrl_run_steps(ns2_ctrl_t *c, const ns2_step_in_t *in, ns2_step_out_t *
 typedef struct { float mass_kg; float lambda; float psi1[5]; float h_s; float min_z_m; float min_r33; } ns2_label_cfg_t;
 typedef struct { ns2_label_cfg_t cfg; float label_N; float label_g; uint32_t status; ...; } ns2_label_t;
 typedef struct { uint8_t enable; uint8_t gate_neighbours; float forget; float p0; float p_max; float bias_max_g;
-                 float scale_max; float fa_max_g; float label_max_g; float wake_g; } ns2_adapt_cfg_t;
+                 float scale_max; float fa_max_g; float label_max_g; float wake_g; float track_gain; } ns2_adapt_cfg_t;
 typedef struct { float theta[2]; float P[3]; float term_g; float out_g; uint32_t status; uint32_t updates; ...; }
     ns2_adapt_t;
-typedef struct { float vz, z, q[4], pwm[4], battery_V; float nn_g; ns2_adapt_cfg_t cfg; uint32_t flags; } ns2_adapt_in_t;
+typedef struct { float vz, z, q[4], pwm[4], battery_V; float nn_g; float s_h; ns2_adapt_cfg_t cfg; uint32_t flags; }
+    ns2_adapt_in_t;
 typedef struct { float label_N, label_g; float out_g, term_g; float theta[2]; float P[3];
                  uint32_t label_status, adapt_status, updates; } ns2_adapt_out_t;
 void ns2_label_init(ns2_label_t *l, const ns2_label_cfg_t *cfg);

@@ -19,7 +19,8 @@ STEP_RESET, STEP_WAKE = 1, 2   # NS2_ADAPT_STEP_RESET, NS2_ADAPT_STEP_WAKE
 @dataclass
 class Ticks:
     """Inputs of n position ticks: vz, z [n], q [n, 4], pwm [n, 4], battery_V, nn_g [n],
-    the adaptation's parameters per tick, the ticks that reset it and those in a wake."""
+    the adaptation's parameters per tick, the ticks that reset it and those in a wake,
+    the composite tracking error times the period s_h [n] (m; zeros by default)."""
     vz: np.ndarray
     z: np.ndarray
     q: np.ndarray
@@ -29,16 +30,18 @@ class Ticks:
     cfgs: list
     reset: np.ndarray
     wake: np.ndarray
+    s_h: np.ndarray
 
     def __len__(self) -> int:
         return len(self.vz)
 
 
-def ticks(vz, z, q, pwm, battery_V, nn_g, cfgs=None, reset=None, wake=None) -> Ticks:
+def ticks(vz, z, q, pwm, battery_V, nn_g, cfgs=None, reset=None, wake=None, s_h=None) -> Ticks:
     n = len(vz)
     cfgs = [AdaptCfg()] * n if cfgs is None else ([cfgs] * n if isinstance(cfgs, AdaptCfg) else list(cfgs))
     return Ticks(*(np.asarray(a, np.float32) for a in (vz, z, q, pwm, battery_V, nn_g)), cfgs,
-                 *(np.zeros(n, bool) if a is None else np.asarray(a, bool) for a in (reset, wake)))
+                 *(np.zeros(n, bool) if a is None else np.asarray(a, bool) for a in (reset, wake)),
+                 np.zeros(n, np.float32) if s_h is None else np.asarray(s_h, np.float32))
 
 
 def _fill_label_cfg(c, cfg: LabelCfg) -> None:
@@ -54,17 +57,17 @@ def fill_adapt_cfg(c, cfg: AdaptCfg) -> None:
 def _inputs(ffi, t: Ticks):
     """The ticks as an ns2_adapt_in_t array (filled through numpy: the same float32
     roundings as cffi's field stores, many ticks fast)."""
-    off = {k: ffi.offsetof("ns2_adapt_in_t", k) for k in ("vz", "z", "q", "pwm", "battery_V", "nn_g", "cfg",
+    off = {k: ffi.offsetof("ns2_adapt_in_t", k) for k in ("vz", "z", "q", "pwm", "battery_V", "nn_g", "s_h", "cfg",
                                                             "flags")}
     coff = {k: off["cfg"] + ffi.offsetof("ns2_adapt_cfg_t", k) for k in ADAPT_FIELDS}
-    names = ["vz", "z", "q", "pwm", "battery_V", "nn_g", "flags"] + ADAPT_FIELDS
-    fmts = ["<f4", "<f4", ("<f4", 4), ("<f4", 4), "<f4", "<f4", "<u4"] + \
+    names = ["vz", "z", "q", "pwm", "battery_V", "nn_g", "s_h", "flags"] + ADAPT_FIELDS
+    fmts = ["<f4", "<f4", ("<f4", 4), ("<f4", 4), "<f4", "<f4", "<f4", "<u4"] + \
         ["u1" if k in ADAPT_U8_FIELDS else "<f4" for k in ADAPT_FIELDS]
-    dt = np.dtype({"names": names, "formats": fmts, "offsets": [off[k] for k in names[:7]] +
+    dt = np.dtype({"names": names, "formats": fmts, "offsets": [off[k] for k in names[:8]] +
                    [coff[k] for k in ADAPT_FIELDS], "itemsize": ffi.sizeof("ns2_adapt_in_t")})
     n = len(t)
     rec = np.zeros(max(n, 1), dt)
-    for k in ("vz", "z", "q", "pwm", "battery_V", "nn_g"):
+    for k in ("vz", "z", "q", "pwm", "battery_V", "nn_g", "s_h"):
         rec[k][:n] = getattr(t, k)
     rec["flags"][:n] = np.where(t.reset, STEP_RESET, 0) | np.where(t.wake, STEP_WAKE, 0)
     uniq: dict = {}

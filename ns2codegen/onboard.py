@@ -5,7 +5,8 @@ numpy float32 scalars, so that the C equals them bit for bit (tests/test_adapt.p
 ``label_f32`` is the causal form of ``ns2codegen.data.labels.residual_force``'s
 z component: at sample k it gives the label of sample k - 2 (the five-point
 stencil two samples late).  ``adapt_f32`` is the recursive least squares with
-forgetting of ns2_adapt.h on psi = [1, NN].
+forgetting of ns2_adapt.h on psi = [1, NN], with the composite law's tracking term
+when ``track_gain`` > 0.
 """
 from __future__ import annotations
 
@@ -21,8 +22,9 @@ LABEL_DELAY, STENCIL = 2, 5
 LABEL_OK, LABEL_BAD_INPUT, LABEL_WARMUP, LABEL_GROUND, LABEL_TILTED, LABEL_SATURATED, LABEL_BAD_CONFIG = \
     0, 1, 2, 4, 8, 16, 32
 (ADAPT_UPDATED, ADAPT_OFF, ADAPT_BAD_PARAM, ADAPT_BAD_INPUT, ADAPT_LABEL, ADAPT_LABEL_BOUND, ADAPT_WAKE,
- ADAPT_RESET, ADAPT_CLAMPED) = (1 << i for i in range(9))
+ ADAPT_RESET, ADAPT_CLAMPED, ADAPT_BAD_TRACK) = (1 << i for i in range(10))
 FORGET_MIN, P_MIN, LIMIT_MAX, MEM_MAX = F(0.5), F(1e-6), F(1e3), F(1e30)
+TRACK_GAIN_MAX, TRACK_SH_MAX = F(1e6), F(1.0)       # NS2_ADAPT_TRACK_GAIN_MAX, NS2_ADAPT_TRACK_SH_MAX
 V_MAX, P_MAX, BAT_MAX = F(1e2), F(1e3), F(10.0)     # NS2_CTRL_V_MAX_MS, _P_MAX_M, _BAT_MAX_V
 
 
@@ -53,6 +55,7 @@ class AdaptCfg:
     fa_max_g: float = 10.0
     label_max_g: float = 40.0
     wake_g: float = 15.0
+    track_gain: float = 0.0     # the composite law's tracking gain, g/(m/s)/s at P = 1; 0: RLS alone (ns2_adapt.h)
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -158,7 +161,8 @@ def adapt_cfg_ok(c: AdaptCfg) -> bool:
     pm = F(c.p_max)
     return (u8(c.gate_neighbours) <= 1 and _in(F(c.forget), FORGET_MIN, F(1.0)) and _in(pm, P_MIN, LIMIT_MAX) and _in(F(c.p0), P_MIN, pm)
             and all(_in(F(getattr(c, k)), 0, LIMIT_MAX) for k in ("bias_max_g", "scale_max", "fa_max_g",
-                                                                   "label_max_g", "wake_g")))
+                                                                   "label_max_g", "wake_g"))
+            and _in(F(c.track_gain), 0, TRACK_GAIN_MAX))
 
 
 class AdaptF32:
@@ -186,7 +190,7 @@ class AdaptF32:
     def _memory_ok(self) -> bool:
         return all(_in(x, -MEM_MAX, MEM_MAX) for x in self.theta + self.P)
 
-    def _rls(self, c: AdaptCfg, n, y, st):
+    def _rls(self, c: AdaptCfg, n, y, s_h, st):
         P, th, lam = self.P, self.theta, F(c.forget)
         x = n if F(c.scale_max) > 0 else F(0.0)         # psi_1: the bias alone when scale_max = 0
         Pp0 = P[0] + P[1] * x
@@ -194,8 +198,14 @@ class AdaptF32:
         den = lam + (Pp0 + x * Pp1)
         k0, k1 = Pp0 / den, Pp1 / den
         e = y - n - (th[0] + th[1] * n)
-        th[0], st = self._clamp(th[0] + k0 * e, F(c.bias_max_g), st)
-        th[1], st = self._clamp(th[1] + k1 * e, F(c.scale_max), st)
+        if F(c.track_gain) > 0 and _in(s_h, -TRACK_SH_MAX, TRACK_SH_MAX):    # the composite law's tracking term
+            gs = F(c.track_gain) * s_h
+            th[0], st = self._clamp(th[0] + k0 * e + gs * Pp0, F(c.bias_max_g), st)
+            th[1], st = self._clamp(th[1] + k1 * e + gs * Pp1, F(c.scale_max), st)
+        else:
+            st |= ADAPT_BAD_TRACK if F(c.track_gain) > 0 else 0
+            th[0], st = self._clamp(th[0] + k0 * e, F(c.bias_max_g), st)
+            th[1], st = self._clamp(th[1] + k1 * e, F(c.scale_max), st)
         P[0] = (P[0] - k0 * Pp0) / lam
         P[1] = (P[1] - k0 * Pp1) / lam
         P[2] = (P[2] - k1 * Pp1) / lam
@@ -208,8 +218,8 @@ class AdaptF32:
         self.updates += 1
         return st | ADAPT_UPDATED
 
-    def step(self, c: AdaptCfg, nn_g, wake: bool, label_g, label_status: int) -> np.float32:
-        nn_g, label_g = F(nn_g), F(label_g)
+    def step(self, c: AdaptCfg, nn_g, wake: bool, label_g, label_status: int, s_h=0.0) -> np.float32:
+        nn_g, label_g, s_h = F(nn_g), F(label_g), F(s_h)
         if not _in(nn_g, -MEM_MAX, MEM_MAX):
             self.n_nn, self.term, self.out, self.status = 0, F(0.0), F(0.0), ADAPT_BAD_INPUT
             return self.out
@@ -232,17 +242,18 @@ class AdaptF32:
         elif (u8(c.gate_neighbours) and self.wake[0]) or not _in(n, -F(c.wake_g), F(c.wake_g)):
             st |= ADAPT_WAKE
         else:
-            st = self._rls(c, n, label_g, st)
+            st = self._rls(c, n, label_g, s_h, st)
         self.term, st = self._clamp(self.theta[0] + self.theta[1] * nn_g, F(c.fa_max_g), st)
         self.out = nn_g + self.term
         self.status = st
         return self.out
 
 
-def adapt_f32(cfgs, nn_g, wake, label_g, label_status, reset=None) -> dict:
+def adapt_f32(cfgs, nn_g, wake, label_g, label_status, reset=None, s_h=None) -> dict:
     """AdaptF32 over a sequence, ``cfgs`` one AdaptCfg or one per step, ``wake`` the
-    caller's wake flag per step, reset before the steps where ``reset`` is true; returns arrays out_g, term_g, theta [T, 2], P [T, 3],
-    status, updates after every step."""
+    caller's wake flag per step, reset before the steps where ``reset`` is true, ``s_h``
+    the composite tracking error times the period per step (m; None: 0); returns arrays
+    out_g, term_g, theta [T, 2], P [T, 3], status, updates after every step."""
     n = len(nn_g)
     cfgs = [cfgs] * n if isinstance(cfgs, AdaptCfg) else list(cfgs)
     a = AdaptF32(cfgs[0])
@@ -251,7 +262,8 @@ def adapt_f32(cfgs, nn_g, wake, label_g, label_status, reset=None) -> dict:
     for t in range(n):
         if reset is not None and reset[t]:
             a.reset(cfgs[t])
-        res["out_g"][t] = a.step(cfgs[t], nn_g[t], wake[t], label_g[t], int(label_status[t]))
+        res["out_g"][t] = a.step(cfgs[t], nn_g[t], wake[t], label_g[t], int(label_status[t]),
+                                 0.0 if s_h is None else s_h[t])
         res["term_g"][t], res["status"][t], res["updates"][t] = a.term, a.status, a.updates
         res["theta"][t], res["P"][t] = a.theta, a.P
     return res

@@ -44,12 +44,15 @@ def test_adaptation_learns_an_unmodelled_payload(cfg, exported):
     assert abs(off["adapt_label"][off["t"] >= 3.0, 0].mean() + PAYLOAD_G) < 0.3
 
 
-def test_the_c_path_equals_the_reference_on_the_simulators_inputs(cfg, exported):
+@pytest.mark.parametrize("track_gain", [0.0, 2.0e4])
+def test_the_c_path_equals_the_reference_on_the_simulators_inputs(cfg, exported, track_gain):
     """The traced robot's every position tick: the label (from the estimator's v_z, z, q, the
     PWM and supply of the attitude tick before, the vehicle the controller knows and the
     type's psi_1 of the generated header) and the adapted f_a,z and theta (with the pilot's
-    wake flag n_used > 0) equal onboard.label_f32 / adapt_f32 bit for bit."""
-    ad = AdaptCfg(enable=1)
+    wake flag n_used > 0, and with the composite law the pilot's tracking error in z, (v_z -
+    v_z,d + Lp_z (z - z_d)) h, from the traced state and setpoint) equal
+    onboard.label_f32 / adapt_f32 bit for bit."""
+    ad = AdaptCfg(enable=1, track_gain=track_gain)
     sw, log = _hover(cfg, exported, PAYLOAD_G, ad, seconds=3.0, trace=True)
     tr, n = log["trace"]
     recs = [tr[i] for i in range(n)]
@@ -69,7 +72,12 @@ def test_the_c_path_equals_the_reference_on_the_simulators_inputs(cfg, exported)
     assert np.array_equal(got_label.view(np.uint32), label_g.view(np.uint32))
     nn = np.array([recs[i].fa_hat_g for i in pos], F32)
     wake = [recs[i].n_used > 0 for i in pos]
-    ref = adapt_f32(ad, nn, wake, label_g, lstatus)
+    lp, h = F32(sw.robots[0].pilot.gains.Lp[2]), F32(1.0) / F32(100.0)
+    s_h = [(F32(recs[i].s.v[2]) - F32(recs[i].sp.v[2]) + lp * (F32(recs[i].s.p[2]) - F32(recs[i].sp.p[2]))) * h
+           if track_gain > 0 else F32(0.0) for i in pos]
+    ref = adapt_f32(ad, nn, wake, label_g, lstatus, s_h=s_h)
+    if track_gain > 0:      # the tracking term moved theta: not the RLS alone
+        assert not np.array_equal(ref["theta"], adapt_f32(AdaptCfg(enable=1), nn, wake, label_g, lstatus)["theta"])
     got_f = np.array([recs[i].fa_used_g for i in pos], F32)
     got_theta = np.array([list(recs[i].theta) for i in pos], F32)
     assert np.array_equal(got_f.view(np.uint32), ref["out_g"].view(np.uint32))

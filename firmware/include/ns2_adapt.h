@@ -30,6 +30,20 @@
  * flights of the bottom robot), and without it the law lowers the MSE by 30-55 % on
  * every collection left out, also in the wake; with it 14-22 %.
  *
+ * The composite law (Neural-Fly's, O'Connell et al. 2022, with the tracking error): with
+ * track_gain > 0 an update also moves theta along P psi by the controller's composite
+ * tracking error s (velocity error + Lp position error, m/s) integrated over the tick,
+ * s h (m), as ns2_adapt_step_track's s_h:
+ *
+ *   theta <- proj(theta + k e + track_gain (s h) P psi),
+ *
+ * P psi of the update (before P's own update), on the same gated ticks (no update: no
+ * tracking term either); track_gain in g per (m/s) per s at P = 1 (at the default
+ * forgetting P00 settles near 1 - lambda = 0.005 with an update every tick).  track_gain
+ * = 0 (the default) is the law above bit for bit; a non-finite s_h or |s_h| > 1 m skips
+ * the tracking term (NS2_ADAPT_BAD_TRACK).  ns2_adapt_step is ns2_adapt_step_track with
+ * s_h = 0.
+ *
  * Safety: a configuration out of its ranges (NaN, forgetting outside
  * [NS2_ADAPT_FORGET_MIN, 1], negative or absurd limits, gate_neighbours not 0 or 1) gives f = NN with
  * NS2_ADAPT_BAD_PARAM and theta held, until a good one returns; enable = 0 gives
@@ -56,11 +70,15 @@ extern "C" {
                                   * flag with gate_neighbours = 1): no update */
 #define NS2_ADAPT_RESET 128u     /* non-finite memory was reset */
 #define NS2_ADAPT_CLAMPED 256u   /* theta projected or the adapted term limited */
+#define NS2_ADAPT_BAD_TRACK 512u /* track_gain > 0 and s_h non-finite or beyond NS2_ADAPT_TRACK_SH_MAX:
+                                  * the tracking term skipped */
 
 #define NS2_ADAPT_FORGET_MIN 0.5f
 #define NS2_ADAPT_P_MIN 1.0e-6f
 #define NS2_ADAPT_LIMIT_MAX 1.0e3f /* upper bound of every limit of the configuration */
 #define NS2_ADAPT_NN_DELAY 2u      /* = NS2_LABEL_DELAY */
+#define NS2_ADAPT_TRACK_GAIN_MAX 1.0e6f /* upper bound of track_gain, g/(m/s)/s */
+#define NS2_ADAPT_TRACK_SH_MAX 1.0f     /* |s h| beyond (m): the tracking term skipped */
 
 typedef struct {
     uint8_t enable;
@@ -73,6 +91,8 @@ typedef struct {
     float fa_max_g;     /* |theta^T psi| */
     float label_max_g;  /* |label| beyond: no update */
     float wake_g;       /* |NN| beyond: a wake, no update (whatever gate_neighbours) */
+    float track_gain;   /* the composite law's tracking gain, g/(m/s)/s at P = 1, in
+                         * [0, NS2_ADAPT_TRACK_GAIN_MAX]; 0 (default): RLS alone */
 } ns2_adapt_cfg_t;
 
 typedef struct {
@@ -98,6 +118,11 @@ void ns2_adapt_reset(ns2_adapt_t *a, const ns2_adapt_cfg_t *cfg);
  * sample NS2_LABEL_DELAY ticks back).  Returns f in g (also a->out_g). */
 float ns2_adapt_step(ns2_adapt_t *a, const ns2_adapt_cfg_t *cfg, float nn_g, int wake, float label_g,
                      uint32_t label_status);
+/* The same with the composite law's tracking term: s_h the controller's composite
+ * tracking error in z at this tick times the position period (m; ns2_pilot: (v_z -
+ * v_z,d + Lp_z (z - z_d)) h).  Used only when cfg->track_gain > 0. */
+float ns2_adapt_step_track(ns2_adapt_t *a, const ns2_adapt_cfg_t *cfg, float nn_g, int wake, float label_g,
+                           uint32_t label_status, float s_h);
 /* trace of P */
 float ns2_adapt_trace(const ns2_adapt_t *a);
 

@@ -23,9 +23,12 @@
  * On-board adaptation (ns2_label.h, ns2_adapt.h, docs/adaptation.md): at every
  * position tick, before the position loop, the robot's own label f_a,z of two
  * ticks back is computed from the state, the motor PWM of the last attitude tick
- * and the battery voltage of the last attitude tick, and ns2_adapt_step turns the
- * network's fa_hat_g into fa_used_g = NN + theta^T [1, NN] (in a wake, i.e. with a
- * robot neighbour used by the prediction, it never learns).  adapt_cfg.enable = 0
+ * and the battery voltage of the last attitude tick, and ns2_adapt_step_track turns
+ * the network's fa_hat_g into fa_used_g = NN + theta^T [1, NN] (where |NN| > wake_g,
+ * and with gate_neighbours = 1 also with a robot neighbour used by the prediction,
+ * it never learns); with adapt_cfg.track_gain > 0 it is given the controller's
+ * composite tracking error in z times the position period, (v_z - v_z,d + Lp_z
+ * (z - z_d)) h, from this tick's state and setpoint.  adapt_cfg.enable = 0
  * (the default) gives fa_used_g = fa_hat_g bit for bit: the paper's controller.
  * The label needs psi_1 of the vehicle (ns2_pilot_set_psi1; NS2_PSI1_INIT of the
  * generated ns2_vehicles.h); a reset (on the ground) restarts label and adaptation.

@@ -34,6 +34,7 @@ void ns2_adapt_default_cfg(ns2_adapt_cfg_t *cfg)
     cfg->fa_max_g = 10.0f;
     cfg->label_max_g = 40.0f;
     cfg->wake_g = 15.0f;
+    cfg->track_gain = 0.0f;
 }
 
 int ns2_adapt_cfg_ok(const ns2_adapt_cfg_t *c)
@@ -41,7 +42,8 @@ int ns2_adapt_cfg_ok(const ns2_adapt_cfg_t *c)
     return c->gate_neighbours <= 1u && adapt_in(c->forget, NS2_ADAPT_FORGET_MIN, 1.0f) && adapt_in(c->p_max, NS2_ADAPT_P_MIN, NS2_ADAPT_LIMIT_MAX)
         && adapt_in(c->p0, NS2_ADAPT_P_MIN, c->p_max) && adapt_in(c->bias_max_g, 0.0f, NS2_ADAPT_LIMIT_MAX)
         && adapt_in(c->scale_max, 0.0f, NS2_ADAPT_LIMIT_MAX) && adapt_in(c->fa_max_g, 0.0f, NS2_ADAPT_LIMIT_MAX)
-        && adapt_in(c->label_max_g, 0.0f, NS2_ADAPT_LIMIT_MAX) && adapt_in(c->wake_g, 0.0f, NS2_ADAPT_LIMIT_MAX);
+        && adapt_in(c->label_max_g, 0.0f, NS2_ADAPT_LIMIT_MAX) && adapt_in(c->wake_g, 0.0f, NS2_ADAPT_LIMIT_MAX)
+        && adapt_in(c->track_gain, 0.0f, NS2_ADAPT_TRACK_GAIN_MAX);
 }
 
 void ns2_adapt_reset(ns2_adapt_t *a, const ns2_adapt_cfg_t *cfg)
@@ -75,8 +77,9 @@ static int adapt_memory_ok(const ns2_adapt_t *a)
 }
 
 /* the recursive least-squares step with forgetting on (psi = [1, n], y); psi = [1, 0]
- * (the bias alone) when scale_max = 0 */
-static void adapt_rls(ns2_adapt_t *a, const ns2_adapt_cfg_t *c, float n, float y, uint32_t *st)
+ * (the bias alone) when scale_max = 0; with track_gain > 0 and a good s_h also the
+ * composite law's tracking term track_gain s_h P psi */
+static void adapt_rls(ns2_adapt_t *a, const ns2_adapt_cfg_t *c, float n, float y, float s_h, uint32_t *st)
 {
     float *P = a->P;
     const float x = c->scale_max > 0.0f ? n : 0.0f; /* psi_1 */
@@ -86,8 +89,20 @@ static void adapt_rls(ns2_adapt_t *a, const ns2_adapt_cfg_t *c, float n, float y
     const float k0 = Pp0 / den;
     const float k1 = Pp1 / den;
     const float e = y - n - (a->theta[0] + a->theta[1] * n);
-    a->theta[0] = adapt_clamp(a->theta[0] + k0 * e, c->bias_max_g, st);
-    a->theta[1] = adapt_clamp(a->theta[1] + k1 * e, c->scale_max, st);
+    if (c->track_gain > 0.0f) {
+        if (adapt_in(s_h, -NS2_ADAPT_TRACK_SH_MAX, NS2_ADAPT_TRACK_SH_MAX)) {
+            const float gs = c->track_gain * s_h;
+            a->theta[0] = adapt_clamp(a->theta[0] + k0 * e + gs * Pp0, c->bias_max_g, st);
+            a->theta[1] = adapt_clamp(a->theta[1] + k1 * e + gs * Pp1, c->scale_max, st);
+        } else {
+            *st |= NS2_ADAPT_BAD_TRACK;
+            a->theta[0] = adapt_clamp(a->theta[0] + k0 * e, c->bias_max_g, st);
+            a->theta[1] = adapt_clamp(a->theta[1] + k1 * e, c->scale_max, st);
+        }
+    } else {
+        a->theta[0] = adapt_clamp(a->theta[0] + k0 * e, c->bias_max_g, st);
+        a->theta[1] = adapt_clamp(a->theta[1] + k1 * e, c->scale_max, st);
+    }
     P[0] = (P[0] - k0 * Pp0) / c->forget;
     P[1] = (P[1] - k0 * Pp1) / c->forget;
     P[2] = (P[2] - k1 * Pp1) / c->forget;
@@ -104,6 +119,12 @@ static void adapt_rls(ns2_adapt_t *a, const ns2_adapt_cfg_t *c, float n, float y
 
 float ns2_adapt_step(ns2_adapt_t *a, const ns2_adapt_cfg_t *c, float nn_g, int wake, float label_g,
                      uint32_t label_status)
+{
+    return ns2_adapt_step_track(a, c, nn_g, wake, label_g, label_status, 0.0f);
+}
+
+float ns2_adapt_step_track(ns2_adapt_t *a, const ns2_adapt_cfg_t *c, float nn_g, int wake, float label_g,
+                           uint32_t label_status, float s_h)
 {
     uint32_t st = 0u;
     if (!adapt_in(nn_g, -ADAPT_MEM_MAX, ADAPT_MEM_MAX)) {
@@ -141,7 +162,7 @@ float ns2_adapt_step(ns2_adapt_t *a, const ns2_adapt_cfg_t *c, float nn_g, int w
     } else if ((c->gate_neighbours && ((a->wake >> NS2_ADAPT_NN_DELAY) & 1u)) || !adapt_in(n, -c->wake_g, c->wake_g)) {
         st |= NS2_ADAPT_WAKE;
     } else {
-        adapt_rls(a, c, n, label_g, &st);
+        adapt_rls(a, c, n, label_g, s_h, &st);
     }
     a->term_g = adapt_clamp(a->theta[0] + a->theta[1] * nn_g, c->fa_max_g, &st);
     a->out_g = nn_g + a->term_g;

@@ -131,10 +131,16 @@ void ns2_pilot_period(ns2_pilot_t *pl, const ns2_ctrl_state_t *s, uint8_t self_i
 void ns2_pilot_position(ns2_pilot_t *pl, const ns2_ctrl_state_t *s, const ns2_setpoint_t *sp)
 {
     const uint32_t lst = ns2_label_step(&pl->label, s->v[2], s->p[2], s->q, pl->ctrl.pwm, pl->battery_V);
-    pl->fa_used_g = ns2_adapt_step(&pl->adapt, &pl->adapt_cfg, pl->fa_hat_g, pl->n_used > 0u, pl->label.label_g, lst);
+    /* the composite law's tracking error in z (the controller's s = v - v_r, v_r = v_d - Lp (p - p_d))
+     * times the position period, m; only computed when the law uses it */
+    const float h = 1.0f / (float)NS2_PILOT_POS_HZ;
+    const float s_h = pl->adapt_cfg.track_gain > 0.0f
+        ? (s->v[2] - sp->v[2] + pl->gains.Lp[2] * (s->p[2] - sp->p[2])) * h : 0.0f;
+    pl->fa_used_g = ns2_adapt_step_track(&pl->adapt, &pl->adapt_cfg, pl->fa_hat_g, pl->n_used > 0u, pl->label.label_g,
+                                         lst, s_h);
     const float fa[3] = {0.0f, 0.0f, pl->cfg.enable ? pl->fa_used_g * 1e-3f * (float)NS2_G_MPS2 : 0.0f}; /* g -> N */
     pl->ctrl.g = pl->gains;
-    ns2_ctrl_position(&pl->ctrl, s, sp, fa, 1.0f / (float)NS2_PILOT_POS_HZ);
+    ns2_ctrl_position(&pl->ctrl, s, sp, fa, h);
     for (int a = 0; a < 3; ++a) {
         pl->e[a] = s->p[a] - sp->p[a];
     }

@@ -13,8 +13,8 @@ void ns2_adapt_run_steps(ns2_label_t *l, ns2_adapt_t *a, const ns2_adapt_in_t *i
         o->label_status = ns2_label_step(l, s->vz, s->z, s->q, s->pwm, s->battery_V);
         o->label_N = l->label_N;
         o->label_g = l->label_g;
-        o->out_g = ns2_adapt_step(a, &s->cfg, s->nn_g, (s->flags & NS2_ADAPT_STEP_WAKE) != 0u, l->label_g,
-                                  o->label_status);
+        o->out_g = ns2_adapt_step_track(a, &s->cfg, s->nn_g, (s->flags & NS2_ADAPT_STEP_WAKE) != 0u, l->label_g,
+                                        o->label_status, s->s_h);
         o->term_g = a->term_g;
         o->theta[0] = a->theta[0];
         o->theta[1] = a->theta[1];

@@ -1,5 +1,5 @@
 /* ns2_adapt_vectors.h - on-board label and adaptation test vectors: one step =
- * one position tick of the pilot (ns2_label_step, then ns2_adapt_step with its
+ * one position tick of the pilot (ns2_label_step, then ns2_adapt_step_track with its
  * label).  Shared by the QEMU image and the host build so that both run the very
  * same loop. */
 #ifndef NS2_ADAPT_VECTORS_H
@@ -16,6 +16,7 @@
 typedef struct {
     float vz, z, q[4], pwm[4], battery_V;
     float nn_g;             /* the network's f_a,z at this tick, g */
+    float s_h;              /* the composite tracking error times the period, m (ns2_adapt_step_track) */
     ns2_adapt_cfg_t cfg;    /* the parameters at this tick */
     uint32_t flags;
 } ns2_adapt_in_t;

@@ -38,7 +38,7 @@
  * PARAM: ns2 (switches, limits, sync, modelId), ns2type (t0..t15: the robot type of every
  * radio id, ns2_type_table_get), ns2gain, ns2adapt (the on-board adaptation on top of
  * the network: enable (0 by default), forget, p0, pMax, biasMax, scaleMax, faMax,
- * labelMax, wakeG, gateNbr, reset; docs/adaptation.md).
+ * labelMax, wakeG, gateNbr, trackGain, reset; docs/adaptation.md).
  * LOG ns2: faHat (g), inferUs (the app's longest 1 ms step in the last period, us),
  * nUsed, status, ctrlStatus, ex/ey/ez (position error, m).  LOG ns2adapt: bias (g), scale,
  * trP (trace of P), label (the on-board f_a,z of 20 ms ago, g), term (the adapted term
@@ -120,7 +120,7 @@ static float ex, ey, ez;   /* m */
 /* PARAM ns2adapt: the on-board adaptation (ns2_adapt.h, docs/adaptation.md), copied
  * into the pilot at every tick; off by default.  ns2adapt.reset = 1 resets theta and
  * P at the next tick (and reads back 0); a take-off resets them too. */
-static ns2_adapt_cfg_t adaptCfg = {0, 0, 0.995f, 1.0f, 10.0f, 10.0f, 0.0f, 10.0f, 40.0f, 15.0f};
+static ns2_adapt_cfg_t adaptCfg = {0, 0, 0.995f, 1.0f, 10.0f, 10.0f, 0.0f, 10.0f, 40.0f, 15.0f, 0.0f};
 static uint8_t adaptReset;
 /* LOG ns2adapt, at the position tick */
 static float adBias, adScale, adTrP, adLabel, adTerm; /* g, 1, -, g, g */
@@ -359,6 +359,7 @@ PARAM_ADD(PARAM_FLOAT, faMax, &adaptCfg.fa_max_g)
 PARAM_ADD(PARAM_FLOAT, labelMax, &adaptCfg.label_max_g)
 PARAM_ADD(PARAM_FLOAT, wakeG, &adaptCfg.wake_g)
 PARAM_ADD(PARAM_UINT8, gateNbr, &adaptCfg.gate_neighbours)
+PARAM_ADD(PARAM_FLOAT, trackGain, &adaptCfg.track_gain)
 PARAM_ADD(PARAM_UINT8, reset, &adaptReset)
 PARAM_GROUP_STOP(ns2adapt)
 
