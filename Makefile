@@ -227,9 +227,9 @@ real: $(REAL)/paper.json $(REAL)/heldout.json $(foreach a,$(REAL_AXES),$(REAL)/a
 # The simulator against the real flights (docs/simulator.md, "A simulator as rough as a
 # real Crazyflie"): fit the rough simulator's parameters and the z law read off the logs
 # (written as rough.toml and read_law.toml beside calibration.md: copy them over
-# host/sim/params/ to adopt them), replay the real swaps with the authors' network in the
-# loop; every swap flight of the collection (56), or the first CALIBRATE_PER_SCENARIO of
-# each swap folder if set.
+# host/sim/params/rough.toml and paper/params/read_law.toml to adopt them), replay the
+# real swaps with the authors' network in the loop; every swap flight of the collection
+# (56), or the first CALIBRATE_PER_SCENARIO of each swap folder if set.
 CALIBRATE_PER_SCENARIO ?=
 calibrate: export OMP_NUM_THREADS ?= 1
 $(REAL)/authors-gen/ns2_model_config.h: $(REAL)/authors.pt

@@ -214,7 +214,7 @@ def real_memory(now_path, past_path, lags, out, as_json):
 def import_authors(models_dir, out, suffix, config_path, as_json):
     """Load the published phi_S/phi_L/phi_G/rho_S/rho_L.pth of MODELS_DIR into the project's
     deep set, unchanged, and save it as a checkpoint that `ns2 export` exports."""
-    from ns2codegen.authors import load_authors
+    from ns2paper.authors import load_authors
     from ns2codegen.checkpoint import save_checkpoint
     from ns2codegen.config import Config
 
@@ -240,7 +240,7 @@ def authors_faz(checkpoint, data_dir, out, as_json):
     (with and without the ground input) and report rms / max error per scenario and robot type."""
     from ns2codegen.checkpoint import load_checkpoint
     from ns2codegen.fileio import atomic_write_bytes
-    from ns2codegen.logs.collection import COLLECTION
+    from ns2paper.collection import COLLECTION
     from ns2exp.onboard_faz import reproduce
     from ns2exp.real import unpack
     from ns2host.crazyflie import SHARED

@@ -109,12 +109,12 @@ def sim_adapt(gen_dir, out_dir, learned, simulator, quiet, as_json, tuning_file,
              "`ns2 real import-authors` + `ns2 export`): in the loop of the replays")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False), default="build/sim/calibration",
               show_default=True, help="calibration.json, calibration.md and the fitted parameter files rough.toml and "
-              "read_law.toml (host/sim/params/' form)")
+              "read_law.toml (host/sim/params/ and paper/params/' form)")
 @click.option("--per-scenario", type=click.IntRange(min=1), default=None,
               help="replay only the first N flights of each swap scenario (default: every swap flight)")
 @click.option("--refit/--no-refit", default=True, show_default=True,
               help="fit the roughness and the z law again (else compare with host/sim/params/rough.toml and "
-                   "read_law.toml)")
+                   "paper/params/read_law.toml)")
 @click.option("--workers", type=click.IntRange(min=1), default=1, show_default=True,
               help="replay this many flights at once (processes)")
 @_scheduler_option
@@ -123,7 +123,8 @@ def sim_adapt(gen_dir, out_dir, learned, simulator, quiet, as_json, tuning_file,
 def sim_calibrate(logs_dir, data_dir, gen_dir, out_dir, per_scenario, refit, workers, quiet, as_json):
     """Measure the real flights' roughness, fit host/sim/roughness.py to it, replay the real
     swaps in the clean and the rough simulator: the calibration and sim-to-real tables, and
-    the fitted parameter files (copy them over host/sim/params/ to adopt the fit)."""
+    the fitted parameter files (copy them over host/sim/params/rough.toml and
+    paper/params/read_law.toml to adopt the fit)."""
     from ns2codegen.logs.align import logs_to_flights
     from ns2codegen.results import command_line
     from ns2exp.calibrate import calibrate, first_per_folder, swap_flights

@@ -4,11 +4,12 @@ swarm.py     swaps and rings with the C controller in the loop (Table "swap", Fi
 planning/    the planning experiments (SL, SS, LL, SSL, SLL; NN vs BL), model check
 margin.py    the planning margin from the model's error on held-out flights
 tracking.py  flying a plan in the simulator with the firmware controller
-replay.py    a real flight's logged setpoints flown by the same team in the simulator
 calibrate.py the simulator's roughness fitted to the real flights, the replays compared
 real.py, blind.py, realscore.py, onboard_faz.py  the 2020 collection: data, scores, the
              on-board prediction reproduced
 
-The paper's reproduction lives here, apart from the product: no product module
-(ns2ground, the CLI's product commands) imports ns2exp (tests/test_layers.py).
+They build on the paper's reproduction (ns2paper, paper/: the authors' networks,
+controller and gains, their collections, replays, flight statistics).  Both sit apart
+from the product: no product module (ns2ground, the CLI's product commands) imports
+ns2exp or ns2paper (tests/test_layers.py).
 """

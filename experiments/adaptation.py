@@ -56,8 +56,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ns2codegen.logs.collection import COLLECTIONS
 from ns2codegen.onboard import ADAPT_UPDATED, AdaptCfg, LabelCfg, adapt_f32
+from ns2paper.collection import COLLECTIONS
 
 from .blind import ONBOARD_COLLECTION, load_samples, predictions
 from .real import AUTHORS_MASSES_G, RealDataError

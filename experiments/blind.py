@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ns2codegen.logs.collection import COLLECTIONS
+from ns2paper.collection import COLLECTIONS
 
 from .real import AUTHORS_MASSES_G, RealDataError
 from .realscore import both_conventions, gain

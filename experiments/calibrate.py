@@ -1,6 +1,6 @@
 """The simulator calibrated on the real flights of 16 June 2020 (``ns2 sim calibrate``):
 
-1. measure the real roughness (host/sim/flightstats.py on the collection's logs);
+1. measure the real roughness (paper/flightstats.py on the collection's logs);
 2. fit host/sim/roughness.py's parameters to it, each from its own statistic:
    battery (the logged voltage), thrust scatter (the robots' hover thrust within a
    type), IMU vibration (replays of the pair random walks as they flew, the authors'
@@ -16,11 +16,11 @@
    law that flew (fit_read_law: the authors' law with the gains, the share of the
    prediction taken off and the mass parameter with which replays read back what the
    real swaps read, flightstats.z_law); the fit is written as parameter files
-   (rough.toml, read_law.toml: host/sim/params/' form) beside the report;
+   (rough.toml, read_law.toml: the form of host/sim/params/ and paper/params/) beside the report;
 3. replay the real swap flights in the clean and the rough simulator (VARIANTS:
    the project's controller or the authors', with its stored gains or the z law read
    off the logs, the authors' published network in the loop or the prediction the
-   real robots logged; experiments/replay.py) and compare
+   real robots logged; paper/replay.py) and compare
    every statistic of step 1, with the truth's lateral constant read off the labels
    on both sides (lateral_k_xy): the calibration table and the sim-to-real swap table.
 No swap or ring result of the paper is a fitting target."""
@@ -40,13 +40,14 @@ from ns2codegen.fileio import atomic_write_files
 from ns2codegen.results import commit as source_commit, stamp
 from ns2codegen.executor import run_map
 
-from ns2host.sim import flightstats as fs
 from ns2host.sim.cloop import CLoopSwarm, robots_of
 from ns2host.sim.roughness import EFFECTS, Roughness, dump_roughness, hp_share
 from ns2host.sim.scenarios import random_walk
-from ns2host.sim.vehicle import AUTHORS_GAINS, AUTHORS_TYPE, G, READ_LAW, dump_read_law
+from ns2host.sim.vehicle import G
+from ns2paper import flightstats as fs
+from ns2paper.gains import AUTHORS_GAINS, AUTHORS_TYPE, READ_LAW, dump_read_law
+from ns2paper.replay import pieces_by_flight, replay
 
-from .replay import pieces_by_flight, replay
 
 # neural-swarm2.tex, flight tests: "in the L2S case [...] the median z-error is reduced
 # from 17 cm to 7 cm" (real flights, BL -> NN, the authors' controller on every robot)
@@ -152,7 +153,8 @@ def replay_all(cfg: Config, gen_dir, pieces: dict, rough: Roughness | None, work
     names = sorted(pieces)
     if workers > 1 and len(names) > 1:
         from ns2host.cfhost import load_fly
-        load_fly(gen_dir)                             # build once, before the workers load it
+        from ns2paper.controller import AUTHORS_LAW
+        load_fly(gen_dir, (AUTHORS_LAW,) if controller == "authors" else ())   # build once, before the workers
     return run_map(_replay_one, [(cfg, pieces[n], gen_dir, rough, seed, controller, learned, law) for n in names],
                    workers)
 
@@ -482,7 +484,7 @@ class ReplayVariant:
     """One simulator of compare's table: how the real swaps are replayed (replay.replay)."""
     label: str              # its column in calibration.md and key in the JSON
     rough: bool             # the rough simulator (else the clean one)
-    controller: str         # "ns2" (the project's) or "authors" (host/ctrl_authors.c)
+    controller: str         # "ns2" (the project's) or "authors" (paper/c/ctrl_authors.c)
     learned: str            # "float" (the network of gen_dir) or "logged" (the prediction flown)
     read_law: bool = False  # the z law read off the logs (fit_read_law) instead of the vehicle's
 
@@ -500,7 +502,7 @@ def compare(cfg: Config, gen_dir, flights: list[Flight], rough: Roughness, names
             workers: int = 1, real_all: dict | None = None, law: dict | None = None) -> dict:
     """Statistics of step 1 for the real flights and five simulators (VARIANTS): clean,
     rough (``rough``), rough with the position law and gains of the controller that
-    flew the real flights (host/ctrl_authors.c) and the network of ``gen_dir`` in the
+    flew the real flights (paper/c/ctrl_authors.c) and the network of ``gen_dir`` in the
     loop, the same controller flying the prediction the real robots logged instead of
     a network, and that with the z law read off the logs (``law``, READ_LAW by
     default; fit_read_law): free air (flightstats.free_air and z_loop) over replays
@@ -575,8 +577,9 @@ def calibrate(cfg: Config, gen_dir, flights: list[Flight], hover_by_robot: dict,
               rough: Roughness | None = None, command: str = "ns2 sim calibrate") -> dict:
     """Fit (unless ``rough`` is given), compare, write out_dir/calibration.json and
     calibration.md and, with a fit, the fitted parameter files rough.toml and
-    read_law.toml beside them (host/sim/params' form, made by ``command`` at this
-    checkout's commit; copied over host/sim/params/ they become the simulator's);
+    read_law.toml beside them (the form of host/sim/params/ and paper/params/, made by
+    ``command`` at this checkout's commit; copied over host/sim/params/rough.toml and
+    paper/params/read_law.toml they become the ones flown);
     returns the JSON."""
     out_dir = Path(out_dir)
     fit_report, law = None, READ_LAW

@@ -4,7 +4,7 @@ reported (``make real``, ``ns2 real``; docs/real-flights.md).
 
 * ``unpack``: the three tarballs of ``../shared/neural-swarm-data`` under ``build/``
   (never committed: no licence), and the collection's ``flights.toml``
-  (``ns2codegen.logs.collection``).
+  (``ns2paper.collection``).
 * ``hover_masses``: "hover thrust equals weight": the median thrust through psi_1 (with
   the motor delay) of each robot type in hover stretches far from neighbours and the
   ground is its mass for the labels (f_a = 0 there by definition); both vehicle
@@ -30,10 +30,10 @@ from ns2codegen.errors import Ns2Error
 from ns2codegen.fileio import atomic_write_bytes
 from ns2codegen.results import stamp
 from ns2codegen.logs.align import logs_to_flights
-from ns2codegen.logs.collection import COLLECTIONS, write_collection_manifest, write_manifest
 from ns2codegen.queries import Queries
 from ns2codegen.vehicle import G
-from ns2host.sim.flightstats import alone
+from ns2paper.collection import COLLECTIONS, write_collection_manifest, write_manifest
+from ns2paper.flightstats import alone
 
 TARBALLS = tuple(dict.fromkeys(t for c in COLLECTIONS for t in c.tarballs))
 HOVER = {"min_z_m": 0.3, "max_speed_mps": 0.1, "min_horizontal_distance_m": 1.0}

@@ -27,11 +27,12 @@ import numpy as np
 from ns2codegen.config import Config
 from ns2codegen.results import stamp
 
-from ns2host.sim.cloop import AuthorsController, CLoopSwarm, MellingerController, NS2Controller, robots_of
-from ns2host.sim.flightstats import NOISE_WINDOW, motor_noise
+from ns2host.sim.cloop import CLoopSwarm, MellingerController, NS2Controller, robots_of
 from ns2host.sim.roughness import Roughness
 from ns2host.sim.scenarios import RING_SECONDS, intertwined_rings, swap
 from ns2host.sim.vehicle import G, base_type
+from ns2paper.controller import AuthorsController
+from ns2paper.flightstats import NOISE_WINDOW, motor_noise
 
 # case -> (robots from the bottom up); the bottom robot is the one measured
 SWAP_CASES = {
@@ -51,7 +52,7 @@ SWAP_RADIUS_M, SWAP_S, REST_S, SPACING_M, BOTTOM_M = 0.25, 2.15, 0.5, 0.3, 0.5
 
 
 CONTROLLERS = ("BL", "BL-tuned", "NN", "NN-default", "Mellinger")
-# the controller that flew the paper's real flights (host/ctrl_authors.c, the authors' gains) on
+# the controller that flew the paper's real flights (paper/c/ctrl_authors.c, the authors' gains) on
 # every robot, without and with the learned force: the paper's own BL and NN
 AUTHORS_CONTROLLERS = ("BL-authors", "NN-authors")
 HOVER_NOISE_LIMIT = 2.0  # BL-tuned in the clean simulator: motor-command noise at hover at most this times BL's
@@ -93,7 +94,8 @@ def _fly(cfg, team, gen_dir, start, sp, duration, controller: str, tuning, measu
     robots (indices), the others by BL (Mellinger) or the same controller; one of
     AUTHORS_CONTROLLERS on every robot (with ``law``: the z law read off the real logs,
     vehicle.read_law_gains)."""
-    from ns2host.sim.vehicle import read_law_gains, vehicle
+    from ns2host.sim.vehicle import vehicle
+    from ns2paper.gains import read_law_gains
 
     n = len(team)
     learned = learned if controller in ("NN", "NN-default", "NN-authors") else None

@@ -17,13 +17,16 @@ bindings do (``bindings/setup.py``: the same include folders, ``-fno-strict-alia
                               app-config turns it off for the app's psi_2, and with it
                               the function returns its input unchanged.
 The ns2 library (firmware/src, ns2_pilot.c included) is compiled with its own strict
-flags (ns2host.cbuild.compile_objects) against one export folder.  One cffi module per
-export folder, cached under build/host/<hash>.
+flags (ns2host.cbuild.compile_objects) against one export folder.  A robot may fly a
+position law of its own (NS2_FLY_LAW, host/ns2_fly.h): its C comes with it as a
+``FlyLaw`` and is compiled into the kernel.  One cffi module per export folder and set
+of laws, cached under build/host/<hash>.
 """
 from __future__ import annotations
 
 import re
 import subprocess
+from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
 
@@ -59,7 +62,19 @@ FW_FLAGS = ["-std=gnu11", "-O2", "-fPIC", "-fno-strict-aliasing", "-Wno-address-
 FW_EXTRACTED = [("src/drivers/src/motors.c", "motorsCompensateBatteryVoltage")]
 FW_EXTRACTED_DEFINES = [("src/drivers/interface/motors.h", "NBR_OF_MOTORS")]  # motors.h needs the STM32 HAL
 EXTRACT_PRELUDE = '#include <math.h>\n#include <stdint.h>\n#include "platform_defaults.h"\n#include "cfassert.h"\n'
-HOST_FLY = ["host/ns2_fly.c", "host/ns2_sim.c", "host/ctrl_authors.c"]
+HOST_FLY = ["host/ns2_fly.c", "host/ns2_sim.c"]
+
+
+@dataclass(frozen=True)
+class FlyLaw:
+    """A position law's C for the flight kernel (NS2_FLY_LAW): its sources and header
+    (compiled with the kernel's strict flags, the header's folder on the include path),
+    the cffi declarations of its types and functions (``cdef``, after the kernel's) and
+    ``function``, its ns2_fly_law_fn."""
+    sources: tuple[Path, ...]
+    header: Path
+    cdef: str
+    function: str
 
 FLY_CDEF = CDEF + """
 typedef struct { uint8_t enable; uint8_t fixed; uint8_t self_type; uint8_t phi_per_tick; uint16_t max_age_ms;
@@ -79,15 +94,16 @@ void ns2_pilot_step(ns2_pilot_t *pl, const ns2_ctrl_state_t *s, const ns2_setpoi
 #define NS2_FLY_MAX_PEERS ...
 #define NS2_FLY_PILOT ...
 #define NS2_FLY_MELLINGER ...
-#define NS2_FLY_AUTHORS ...
-typedef struct { float mass_kg; float kp[3]; float kd[3]; float ki[3]; float i_max; float k_fa; } ns2_authors_gains_t;
+#define NS2_FLY_LAW ...
+typedef void (*ns2_fly_law_fn)(void *ctx, ns2_pilot_t *pl, const ns2_ctrl_state_t *s, const ns2_setpoint_t *sp,
+                               float dt);
 typedef struct { uint32_t kind; uint8_t id, type; double par[21]; double psi1[5]; float p0[3];
                  float bias_acc_g[3], bias_gyro_dps[3]; float acc_scale; float sd_acc_g, sd_gyro_dps; float ext_pos_std_m;
-                 ns2_vehicle_t veh; ns2_gains_t gains; ns2_pilot_cfg_t pilot_cfg; ns2_authors_gains_t authors;
+                 ns2_vehicle_t veh; ns2_gains_t gains; ns2_pilot_cfg_t pilot_cfg; ns2_fly_law_fn law; void *law_ctx;
                  uint32_t pwm_exact; double psi1_nominal[5]; uint32_t use_type_table;
                  uint32_t type_table[16]; ns2_adapt_cfg_t adapt_cfg; } ns2_fly_init_t;
 typedef struct { uint32_t kind; uint8_t id, type; double psi1[5]; float sd_acc_g, sd_gyro_dps; ns2_pilot_t pilot; float pwm[4];
-                 uint32_t fa_given; float fa_given_g; uint32_t use_type_table; uint32_t type_table[16]; ...; }
+                 uint32_t use_type_table; uint32_t type_table[16]; ...; }
     ns2_fly_robot_t;
 typedef struct { uint32_t tick; const float *p; const uint8_t *rx; } ns2_fly_frame_t;
 typedef struct { ns2_ctrl_state_t s; ns2_setpoint_t sp; uint32_t do_pos, now_ms; float battery_V; uint32_t n_peers;
@@ -111,21 +127,29 @@ def _run(cmd: list[str]) -> None:
         raise compile_error(" ".join(cmd[-3:]), cmd, r)
 
 
+def load_fly(gen_dir: str | Path, laws: tuple[FlyLaw, ...] = ()):
+    """Build (or reuse) the flight kernel for the export in ``gen_dir``, with the C of
+    ``laws`` (FlyLaw: the position laws its robots may fly) compiled in; returns (ffi, lib)."""
+    return _load_fly(require_export(gen_dir), tuple(sorted(set(laws), key=repr)))
+
+
 @lru_cache(maxsize=None)
-def load_fly(gen_dir: str | Path):
-    """Build (or reuse) the flight kernel for the export in ``gen_dir``; returns (ffi, lib)."""
+def _load_fly(gen_dir: Path, laws: tuple[FlyLaw, ...]):
     from cffi import FFI
 
-    gen_dir = require_export(gen_dir)
     fw, auto = firmware_dir(), app_config() / "include" / "generated"
     stock = stock_config() / "include" / "generated"  # the Mellinger robots' battery compensation
     f = flags()
     fw_inc = [f"-I{fw / i}" for i in FW_INCLUDES] + [f"-I{auto}"]
-    ns2_inc = [f"-I{REPO / i}" for i in f["NS2_INCLUDES"]] + [f"-I{gen_dir}", f"-I{REPO / 'host'}"]
-    key = content_hash([_key(gen_dir, f), FLY_CDEF, repr(FW_FLAGS), *[fw / s for s in FW_SOURCES],
+    law_dirs = list(dict.fromkeys(law.header.parent for law in laws))
+    ns2_inc = ([f"-I{REPO / i}" for i in f["NS2_INCLUDES"]] + [f"-I{gen_dir}", f"-I{REPO / 'host'}"]
+               + [f"-I{d}" for d in law_dirs])
+    law_sources = [s for law in laws for s in law.sources]
+    cdef = FLY_CDEF + "".join(law.cdef for law in laws)
+    key = content_hash([_key(gen_dir, f), cdef, repr(FW_FLAGS), *[fw / s for s in FW_SOURCES],
                         *[fw / s for s, _ in FW_EXTRACTED + FW_EXTRACTED_DEFINES], *[REPO / s for s in HOST_FLY],
-                        REPO / "host" / "ns2_fly.h", REPO / "host" / "ctrl_authors.h", auto / "autoconf.h",
-                        stock / "autoconf.h"], 18)
+                        REPO / "host" / "ns2_fly.h", auto / "autoconf.h", stock / "autoconf.h",
+                        *law_sources, *[law.header for law in laws], repr([law.function for law in laws])], 18)
 
     def build(tmp: Path, name: str) -> None:
         objs = compile_objects(gen_dir, tmp, host_cc(), ["-fPIC"], f)
@@ -138,23 +162,27 @@ def load_fly(gen_dir: str | Path):
             inc = [f"-I{fw / i}" for i in FW_INCLUDES] + [f"-I{conf}"]
             _run([host_cc(), *FW_FLAGS, *inc, "-include", "autoconf.h", "-c", str(src), "-o", str(obj)])
             objs.append(obj)
-        for src in HOST_FLY:
-            obj = tmp / f"{Path(src).stem}.o"
+        for k, src in enumerate([REPO / s for s in HOST_FLY] + law_sources):
+            obj = tmp / f"{src.stem}.o" if k < len(HOST_FLY) else tmp / f"law{k}_{src.stem}.o"
             # firmware headers as system headers: their warnings are not ours
             _run([host_cc(), *FW_FLAGS, "-ffp-contract=off", "-Wall", "-Wextra", "-Werror", "-Wconversion",
-                  "-Wdouble-promotion", *[a.replace("-I", "-isystem", 1) for a in fw_inc], *ns2_inc, "-include", "autoconf.h", "-c", str(REPO / src), "-o", str(obj)])
+                  "-Wdouble-promotion", *[a.replace("-I", "-isystem", 1) for a in fw_inc], *ns2_inc, "-include", "autoconf.h", "-c", str(src), "-o", str(obj)])
             objs.append(obj)
         ffi = FFI()
-        ffi.cdef(FLY_CDEF)
+        ffi.cdef(cdef)
+        # each law's function checked against ns2_fly_law_fn by the compiler
+        checks = "".join(f"ns2_fly_law_fn ns2_fly_law_check_{k}(void) {{ return {law.function}; }}\n"
+                         for k, law in enumerate(laws))
         ffi.set_source(name, '#include "autoconf.h"\n' + "".join(f'#include "{x}"\n' for x in (
-                           *HOST_HEADERS, "ns2_fly.h")),
+                           *HOST_HEADERS, "ns2_fly.h", *[law.header.name for law in laws])) + checks,
                        include_dirs=[str(fw / i) for i in FW_INCLUDES] + [str(auto)]
                        + [str(REPO / i) for i in f["NS2_INCLUDES"]] + [str(gen_dir), str(REPO / "host"),
-                                                                        str(REPO / "firmware" / "target")],
+                                                                        str(REPO / "firmware" / "target")]
+                       + [str(d) for d in law_dirs],
                        extra_objects=[str(o) for o in objs], libraries=["m"],
                        extra_compile_args=["-std=gnu11", "-O2", "-ffp-contract=off", "-fno-strict-aliasing",
                                            "-DUNIT_TEST_MODE", "-Wno-address-of-packed-member",
-                                           "-Wno-pointer-to-int-cast"])
+                                           "-Wno-pointer-to-int-cast", "-Werror=incompatible-pointer-types"])
         ffi.compile(tmpdir=str(tmp), verbose=False)
 
     return _module("fly_" + key, "_ns2_fly", build)

@@ -16,8 +16,9 @@
  *          type its true one or, as the app has it, looked up by its radio id in the
  *          robot's type table (PARAM ns2type.t0..t15, ns2_type_table_get: ns2 fly --sim);
  *   control  either ns2_pilot (firmware/src, the app's code path) at 500/100 Hz,
- *          or ns2_pilot with the position law of the controller that flew the
- *          real flights (ctrl_authors.c: the replays of ns2exp.replay),
+ *          or ns2_pilot with a position law of its own (NS2_FLY_LAW: a law's C
+ *          compiled in by the host, e.g. the controller that flew the paper's real
+ *          flights, paper/c/ctrl_authors.c),
  *          or the firmware's controller_mellinger.c + power_distribution_quadrotor.c
  *          + motorsCompensateBatteryVoltage (stabilizer.c's order; the stock
  *          configuration's battery compensation, host/cfhost.py);
@@ -70,7 +71,9 @@ void ns2_fly_init(ns2_fly_robot_t *r, const ns2_fly_init_t *in)
     r->type = in->type;
     memcpy(r->par, in->par, sizeof(r->par));
     memcpy(r->psi1, in->psi1, sizeof(r->psi1));
-    r->pwm_exact = in->kind == NS2_FLY_AUTHORS && in->pwm_exact;
+    r->pwm_exact = in->kind == NS2_FLY_LAW && in->pwm_exact;
+    r->law = in->kind == NS2_FLY_LAW ? in->law : NULL;
+    r->law_ctx = in->law_ctx;
     memcpy(r->psi1_nominal, in->psi1_nominal, sizeof(r->psi1_nominal));
     r->use_type_table = in->use_type_table != 0u;
     memcpy(r->type_table, in->type_table, sizeof(r->type_table));
@@ -100,7 +103,6 @@ void ns2_fly_init(ns2_fly_robot_t *r, const ns2_fly_init_t *in)
     r->pilot.adapt_cfg = in->adapt_cfg;
     ns2_pilot_reset(&r->pilot, &in->veh);
     ns2_pilot_set_psi1(&r->pilot, psi1_app[in->type < NS2_NUM_ROBOT_TYPES ? in->type : 0u]);
-    ns2_authors_init(&r->authors, &in->authors);
     controllerMellingerInit(&r->mel);
     r->mel.mass = in->veh.mass_kg; /* PARAM ctrlMel.mass, as a user sets it for the vehicle */
     r->supply_V = 4.2f;           /* stabilizer.c batteryCompensation's filter state */
@@ -249,23 +251,23 @@ static void sensors_task(ns2_fly_robot_t *r, const double *xi, const double *f_a
     r->sensors.acc.z = af[2];
 }
 
-/* ns2_pilot_tick with the position law of ctrl_authors.c (NS2_FLY_AUTHORS): the pilot's
- * prediction (or the one given from outside) flown by the authors' law at 100 Hz, the
- * pilot's attitude loop at 500 Hz. */
-static void authors_tick(ns2_fly_robot_t *r, const ns2_ctrl_state_t *s, const ns2_setpoint_t *sp, int do_pos,
-                         uint32_t tick, float battery_V)
+/* ns2_pilot_tick with the robot's position law (NS2_FLY_LAW): the pilot's prediction, then
+ * the law at 100 Hz (no law: the controller keeps its last force), the pilot's attitude
+ * loop at 500 Hz. */
+static void law_tick(ns2_fly_robot_t *r, const ns2_ctrl_state_t *s, const ns2_setpoint_t *sp, int do_pos,
+                     uint32_t tick, float battery_V)
 {
     if (do_pos) {
         ns2_pilot_period(&r->pilot, s, r->id, tick);
-        const float fa_g = r->fa_given ? r->fa_given_g : (r->pilot.cfg.enable ? r->pilot.fa_hat_g : 0.0f);
-        const float fa_z_N = fa_g * 1e-3f * (float)G_SIM;
-        ns2_authors_position(&r->authors, &r->pilot.ctrl, s, sp, fa_z_N, 1.0f / (float)NS2_PILOT_POS_HZ);
+        if (r->law != NULL) {
+            r->law(r->law_ctx, &r->pilot, s, sp, 1.0f / (float)NS2_PILOT_POS_HZ);
+        }
     }
     ns2_pilot_slice(&r->pilot);
     ns2_pilot_attitude(&r->pilot, s, battery_V);
 }
 
-/* The app's path at 500/100 Hz (NS2_FLY_PILOT, NS2_FLY_AUTHORS): the peer table at 100 Hz,
+/* The app's path at 500/100 Hz (NS2_FLY_PILOT, NS2_FLY_LAW): the peer table at 100 Hz,
  * the position law of the robot's kind, psi_2 PWM (or the exact psi_1 inverse); writes one trace record to t
  * (NULL: none) when it runs.  Returns 1 when it wrote one. */
 static uint32_t pilot_controller(ns2_fly_robot_t *r, const ns2_setpoint_t *sp, uint32_t tick, float battery_V,
@@ -282,8 +284,8 @@ static uint32_t pilot_controller(ns2_fly_robot_t *r, const ns2_setpoint_t *sp, u
             (void)ns2_pilot_peer(&r->pilot, r->peer_id[j], r->peer_type[j], r->peer_t[j], r->peer_p[j]);
         }
     }
-    if (r->kind == NS2_FLY_AUTHORS) {
-        authors_tick(r, &s, sp, do_pos, tick, battery_V);
+    if (r->kind == NS2_FLY_LAW) {
+        law_tick(r, &s, sp, do_pos, tick, battery_V);
     } else {
         ns2_pilot_tick(&r->pilot, &s, sp, do_pos, r->id, tick, battery_V);
     }
@@ -302,7 +304,7 @@ static uint32_t pilot_controller(ns2_fly_robot_t *r, const ns2_setpoint_t *sp, u
 }
 
 /* stabilizer: the controller of the robot's kind on the state of the last estimator run
- * (the one dispatch of NS2_FLY_PILOT, NS2_FLY_AUTHORS and NS2_FLY_MELLINGER).  Returns the
+ * (the one dispatch of NS2_FLY_PILOT, NS2_FLY_LAW and NS2_FLY_MELLINGER).  Returns the
  * trace records written to t (NULL: none). */
 static uint32_t controller_task(ns2_fly_robot_t *r, const ns2_setpoint_t *sp, uint32_t tick, float battery_V,
                                 ns2_fly_trace_t *t)
@@ -311,7 +313,7 @@ static uint32_t controller_task(ns2_fly_robot_t *r, const ns2_setpoint_t *sp, ui
         mellinger_tick(r, sp, tick, battery_V);
         return 0u;
     }
-    return pilot_controller(r, sp, tick, battery_V, t); /* NS2_FLY_AUTHORS, else NS2_FLY_PILOT */
+    return pilot_controller(r, sp, tick, battery_V, t); /* NS2_FLY_LAW, else NS2_FLY_PILOT */
 }
 
 /* kalmanTask (estimator_kalman.c), after the stabilizer in the same tick: the IMU

@@ -12,16 +12,24 @@
 #include "stabilizer_types.h"
 
 #include "ns2_pilot.h"
-#include "ctrl_authors.h"
 
 #define NS2_FLY_MAX_ROBOTS 32u
 #define NS2_FLY_MAX_PEERS 10u /* PEER_LOCALIZATION_MAX_NEIGHBORS */
 #define NS2_FLY_PILOT 0u      /* the app's code path, ns2_pilot */
 #define NS2_FLY_MELLINGER 1u  /* the firmware's controller_mellinger.c */
-#define NS2_FLY_AUTHORS 2u    /* ns2_pilot with the position law of ctrl_authors.c */
+#define NS2_FLY_LAW 2u        /* ns2_pilot with a position law of its own (ns2_fly_law_fn) */
+
+/* A position law flown in ns2_pilot's place at 100 Hz (NS2_FLY_LAW): after the pilot's
+ * prediction of the period (pl->fa_hat_g; pl->cfg.enable: whether the learned term is on),
+ * it sets the pilot's controller's desired force (ns2_ctrl_force on &pl->ctrl); the pilot's
+ * attitude loop and mixing stay.  ctx: the law's own state (the caller's memory, alive
+ * while the robot flies); dt: its period, s.  The host compiles a law's C into this
+ * library when a robot flies it (host/cfhost.py load_fly, FlyLaw). */
+typedef void (*ns2_fly_law_fn)(void *ctx, ns2_pilot_t *pl, const ns2_ctrl_state_t *s, const ns2_setpoint_t *sp,
+                               float dt);
 
 typedef struct {
-    uint32_t kind;             /* NS2_FLY_PILOT, NS2_FLY_MELLINGER or NS2_FLY_AUTHORS */
+    uint32_t kind;             /* NS2_FLY_PILOT, NS2_FLY_MELLINGER or NS2_FLY_LAW */
     uint8_t id, type;          /* radio id (not 0: the firmware's peer table takes id 0 for a free
                                 * slot), robot type (its own; its peers' come from type_table) */
     double par[21];            /* ns2_sim.c parameters: m, J, lambda, B0 */
@@ -34,10 +42,12 @@ typedef struct {
     ns2_vehicle_t veh;
     ns2_gains_t gains;
     ns2_pilot_cfg_t pilot_cfg;
-    ns2_authors_gains_t authors; /* NS2_FLY_AUTHORS only */
-    uint32_t pwm_exact;        /* NS2_FLY_AUTHORS: 1 = the motor forces the controller commands turned into PWM by
-                                * the exact inverse of psi1_nominal (what flew the real flights, vehicle.py
-                                * AUTHORS_PWM_EXACT), 0 = by the controller's own psi_2 */
+    ns2_fly_law_fn law;        /* NS2_FLY_LAW only: the position law and its state */
+    void *law_ctx;
+    uint32_t pwm_exact;        /* NS2_FLY_LAW: 1 = the motor forces the controller commands turned into PWM by
+                                * the exact inverse of psi1_nominal (a firmware that maps forces through
+                                * psi_1, e.g. the one that flew the paper's real flights), 0 = by the
+                                * controller's own psi_2 */
     double psi1_nominal[5];    /* the type's psi_1 (psi1 above may carry the robot's thrust scatter) */
     uint32_t use_type_table;   /* 1: each peer's robot type is looked up by its radio id in type_table, as
                                 * the app does (ns2_type_table_get); 0: its true type (any number of types) */
@@ -60,15 +70,14 @@ typedef struct {
     state_t est;               /* the estimate every controller sees */
     sensorData_t sensors;      /* filtered IMU of the last tick */
     ns2_pilot_t pilot;
-    ns2_authors_t authors;
+    ns2_fly_law_fn law;        /* ns2_fly_init_t's (NS2_FLY_LAW) */
+    void *law_ctx;
     controllerMellinger_t mel;
     control_t control;
     float supply_V;
     float pwm[4];              /* motor commands in [0, 1] */
     uint32_t pwm_exact;        /* ns2_fly_init_t's */
     double psi1_nominal[5];
-    uint32_t fa_given;         /* NS2_FLY_AUTHORS: 1 = fly fa_given_g instead of the network's f_a,z-hat */
-    float fa_given_g;          /* a prediction given from outside (a real flight's logged ctrlFa.Faz), g */
     uint32_t n_peers;          /* peer-localization table */
     uint8_t peer_id[NS2_FLY_MAX_PEERS], peer_type[NS2_FLY_MAX_PEERS];
     uint32_t peer_t[NS2_FLY_MAX_PEERS];

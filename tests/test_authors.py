@@ -10,10 +10,10 @@ from click.testing import CliRunner
 
 from conftest import REAL_DATA, needs, real_logs
 from ns2codegen import reference as ref
-from ns2codegen.authors import AuthorsModelError, load_authors, load_net
+from ns2paper.authors import AuthorsModelError, load_authors, load_net
 from ns2codegen.checkpoint import load_checkpoint
 from ns2codegen.export import export
-from ns2codegen.logs.collection import COLLECTION
+from ns2paper.collection import COLLECTION
 from ns2codegen.queries import Queries, random_queries
 from ns2codegen.quantize import from_checkpoint
 

@@ -1,4 +1,4 @@
-"""The controller that flew the real flights, for their replay (host/ctrl_authors.c):
+"""The controller that flew the real flights, for their replay (paper/c/ctrl_authors.c):
 ns2_ctrl_force is ns2_ctrl_position's second half bit for bit and safe on a bad force;
 the authors' position law holds the steady state its equation predicts in the
 simulator, with a given (logged) prediction too; their attitude gains reach the
@@ -9,8 +9,9 @@ import numpy as np
 import pytest
 
 from ns2codegen.vehicle import vehicle
-from ns2host.sim.cloop import AuthorsController, CLoopSwarm, NS2Controller, Robot, hover_setpoints, robots_of
-from ns2host.sim.vehicle import AUTHORS_GAINS, authors_gains, read_law_gains
+from ns2host.sim.cloop import CLoopSwarm, NS2Controller, Robot, hover_setpoints, robots_of
+from ns2paper.controller import AuthorsController
+from ns2paper.gains import AUTHORS_GAINS, authors_gains, read_law_gains
 
 
 def _bits(x) -> list[int]:
@@ -120,12 +121,12 @@ def test_authors_law_holds_the_steady_state_of_its_equation(cfg, exported):
 @pytest.mark.parametrize("robot_type", ["small", "large"])
 def test_the_authors_motor_map_realizes_the_force_commanded(cfg, exported, monkeypatch, robot_type):
     """The firmware that flew the real flights turns its motor forces into PWM through the
-    exact inverse of psi_1 (vehicle.AUTHORS_PWM_EXACT, host/ns2_fly.c): a law without
+    exact inverse of psi_1 (gains.AUTHORS_PWM_EXACT, host/ns2_fly.c): a law without
     integral whose mass parameter is the robot's own hovers on its setpoint (thrust
     realized per thrust commanded k = 1 within 0.3 %), and every logged PWM gives through
     psi_1 the hover thrust; through psi_2 (the project's firmware) k is Table cfprops'
     mismatch (large: about 0.92, small about 1.05)."""
-    import ns2host.sim.cloop as cloop
+    import ns2paper.controller as authors
     from ns2codegen.data.labels import psi1_newtons, quat_to_R
 
     veh = vehicle(cfg, robot_type)
@@ -143,13 +144,13 @@ def test_the_authors_motor_map_realizes_the_force_commanded(cfg, exported, monke
     thrust = (psi1_newtons(veh.psi1, log["pwm"][last, 0], log["battery_V"][last, 0]).sum(-1)
               * quat_to_R(log["q"][last, 0])[:, 2, 2])
     assert thrust.mean() == pytest.approx(veh.mass * 9.81, rel=0.005)
-    monkeypatch.setattr(cloop, "AUTHORS_PWM_EXACT", False)
+    monkeypatch.setattr(authors, "AUTHORS_PWM_EXACT", False)
     k2 = 1.0 / (1.0 + _settled_z_error(hover()) * 10.0 / 9.81)
     assert abs(k2 - 1.0) > 0.03
 
 
 def test_a_given_prediction_is_flown_as_the_law_says(cfg, exported):
-    """AuthorsController's given prediction (a real flight's logged one, ns2exp.replay): a given 0 g flies
+    """AuthorsController's given prediction (a real flight's logged one, ns2paper.replay): a given 0 g flies
     bit for bit as no learned force; a given c g is subtracted from the law's force, so
     without the integral the robot settles where k (m (g + kp e) - k_fa c g0) = m g (k
     from the 0 g run, as above), below the setpoint, for k_fa 1 (the law as written) and
@@ -184,7 +185,7 @@ def test_a_given_prediction_is_flown_as_the_law_says(cfg, exported):
 
 def test_the_authors_attitude_gains_reach_the_controller_and_it_hovers(cfg, exported):
     """An "authors" robot flies its attitude gains as the project's attitude law
-    (vehicle.AUTHORS_GAINS "att"); an "ns2" robot beside it keeps the defaults; a robot's
+    (gains.AUTHORS_GAINS "att"); an "ns2" robot beside it keeps the defaults; a robot's
     own gains still override; with them the small robot hovers level on its spot."""
     from ns2codegen.vehicle import default_gains
 

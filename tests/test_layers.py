@@ -1,10 +1,13 @@
-"""The packages import one way only: core <- host <- simulator / planner <- experiments, ground <- CLI.
+"""The packages import one way only: core <- host <- simulator / planner <- the paper's
+reproduction <- experiments, ground <- CLI.
 
 Every import in every module, at module level and inside functions, is checked
 against the layer table (AST, so an import hidden in a function counts too).  The
-product never reaches the experiments (ns2exp): not the ground side, and not the
-CLI's product commands, only its experiment commands (EXPERIMENT_COMMANDS).  No two
-modules import each other, directly or round a longer cycle."""
+product never reaches the experiments (ns2exp) nor the paper's reproduction (ns2paper:
+the authors' networks, controller and gains, their collections, replays, flight
+statistics): not the core, host, simulator, planner or ground side, and not the CLI's
+product commands, only its experiment commands (EXPERIMENT_COMMANDS).  No two modules
+import each other, directly or round a longer cycle."""
 from __future__ import annotations
 
 import ast
@@ -18,12 +21,16 @@ LAYERS = {
     "ns2host": ("host", {"ns2codegen"}),
     "ns2host.sim": ("host/sim", {"ns2codegen", "ns2host"}),
     "ns2plan": ("planner", {"ns2codegen"}),
-    "ns2exp": ("experiments", {"ns2codegen", "ns2host", "ns2host.sim", "ns2plan"}),
+    "ns2paper": ("paper", {"ns2codegen", "ns2host", "ns2host.sim"}),
+    "ns2exp": ("experiments", {"ns2codegen", "ns2host", "ns2host.sim", "ns2plan", "ns2paper"}),
     "ns2ground": ("ground", {"ns2codegen", "ns2host", "ns2host.sim", "ns2plan"}),
-    "ns2cli": ("cli", {"ns2codegen", "ns2host", "ns2host.sim", "ns2plan", "ns2exp", "ns2ground"}),
+    "ns2cli": ("cli", {"ns2codegen", "ns2host", "ns2host.sim", "ns2plan", "ns2paper", "ns2exp", "ns2ground"}),
 }
 ALL = set(LAYERS)
-# the CLI modules of the experiment commands, the only ones that may import ns2exp: `ns2 real ...`,
+# the layers apart from the product, which only the experiments and the CLI's experiment commands import
+APART = {"ns2exp", "ns2paper"}
+PRODUCT = {"ns2codegen", "ns2host", "ns2host.sim", "ns2plan", "ns2ground"}
+# the CLI modules of the experiment commands, the only ones that may import ns2exp and ns2paper: `ns2 real ...`,
 # `ns2 sim swaps|rings|calibrate`, `ns2 plan` without --problem (the paper's planning experiments) and
 # `ns2 results` (their tables); ns2cli (its __init__) imports them to register their commands
 EXPERIMENT_COMMANDS = {"ns2cli.real", "ns2cli.simexp", "ns2cli.planexp", "ns2cli.results"}
@@ -93,6 +100,18 @@ def test_packages_import_one_way_only():
     assert not bad, "imports against the layer order:\n" + "\n".join(bad)
 
 
+def test_no_product_package_imports_the_paper_or_the_experiments(tmp_path):
+    """The fence: no product layer may import ns2paper or ns2exp (the layer table says so;
+    this keeps the table from growing a way round it)."""
+    assert set(LAYERS) == PRODUCT | APART | {"ns2cli"}
+    assert not [pkg for pkg in PRODUCT if LAYERS[pkg][1] & APART]
+    assert LAYERS["ns2paper"][1] <= PRODUCT and "ns2exp" not in LAYERS["ns2paper"][1]
+    # an import of the paper's controller inside a simulator function is seen and refused
+    src = "def f():\n    from ns2paper.controller import AuthorsController\n    return AuthorsController\n"
+    names = [n for _, n in _imports(_write(tmp_path, src), "ns2host.sim.x")]
+    assert [_layer_of(n) for n in names] == ["ns2paper"] and "ns2paper" not in LAYERS["ns2host.sim"][1]
+
+
 def _all_modules():
     """module name -> path, every module of every layer."""
     return {_module_name(pkg, path): path for pkg in LAYERS for path in _files(pkg)}
@@ -100,8 +119,8 @@ def _all_modules():
 
 def test_product_commands_never_import_the_experiments():
     """Every CLI module but the experiment commands' (and ns2cli, which registers them)
-    imports neither ns2exp nor an experiment command's module, at module level or in a
-    function; the one dispatch of EXPERIMENT_DISPATCH aside."""
+    imports neither ns2exp, ns2paper nor an experiment command's module, at module level
+    or in a function; the one dispatch of EXPERIMENT_DISPATCH aside."""
     modules = {m: p for m, p in _all_modules().items() if _layer_of(m) == "ns2cli"}
     assert EXPERIMENT_COMMANDS <= set(modules), EXPERIMENT_COMMANDS - set(modules)
     bad = []
@@ -109,7 +128,7 @@ def test_product_commands_never_import_the_experiments():
         if module in EXPERIMENT_COMMANDS or module == "ns2cli":
             continue
         for line, name in _imports(path, module):
-            upward = _layer_of(name) == "ns2exp" or any(name == c or name.startswith(c + ".")
+            upward = _layer_of(name) in APART or any(name == c or name.startswith(c + ".")
                                                         for c in EXPERIMENT_COMMANDS)
             if upward and (module, name) not in EXPERIMENT_DISPATCH:
                 bad.append(f"{path.relative_to(REPO)}:{line} imports {name}")
@@ -134,7 +153,7 @@ def test_plan_with_a_problem_file_loads_no_experiment_module(tmp_path):
     assert out.returncode == 0, out.stderr
     status, packages = out.stdout.strip().splitlines()[-1].split(" ", 1)
     assert status == "0" and (tmp_path / "out" / "plan.json").is_file(), out.stdout
-    assert "ns2plan" in packages and "ns2exp" not in packages, packages
+    assert "ns2plan" in packages and "ns2exp" not in packages and "ns2paper" not in packages, packages
 
 
 def test_no_import_cycles():
@@ -208,6 +227,7 @@ def test_gravity_has_one_value():
     assert float(re.search(r"#define NS2_G_MPS2 ([0-9.]+)\n", header).group(1)) == G
     literal = re.compile(r"(?<![\w.])9\.81(?![\d])")
     places = [p for p in [*REPO.glob("ns2codegen/**/*.py"), *REPO.glob("host/**/*.py"), *REPO.glob("planner/*.py"),
-                          *REPO.glob("experiments/**/*.py"), *REPO.glob("firmware/**/*.c"), *REPO.glob("host/*.c")]
+                          *REPO.glob("experiments/**/*.py"), *REPO.glob("paper/**/*.py"), *REPO.glob("firmware/**/*.c"),
+                          *REPO.glob("host/*.c"), *REPO.glob("paper/c/*.c")]
               if literal.search(p.read_text())]
     assert sorted(p.relative_to(REPO).as_posix() for p in places) == ["ns2codegen/vehicle.py"], places

@@ -15,7 +15,7 @@ import pytest
 from conftest import REAL_DATA, needs, real_logs
 from ns2codegen.data.from_logs import Flight, flights_to_dataset, sample_info
 from ns2codegen.logs.align import LogError, logs_to_flights
-from ns2codegen.logs.collection import BY_KEY, COLLECTIONS, CollectionError, flights, write_collection_manifest
+from ns2paper.collection import BY_KEY, COLLECTIONS, CollectionError, flights, write_collection_manifest
 from ns2exp.real import _with_masses
 from ns2exp.realscore import causal_offset, relabel, score
 

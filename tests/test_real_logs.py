@@ -14,7 +14,7 @@ from conftest import FIRMWARE, REAL_DATA, needs, real_logs
 from ns2codegen.data.from_logs import flight_queries, flights_to_dataset
 from ns2codegen.logs import usdlog
 from ns2codegen.logs.align import RobotLog, logs_to_flights
-from ns2codegen.logs.collection import COLLECTION, write_manifest
+from ns2paper.collection import COLLECTION, write_manifest
 from ns2codegen.logs.compressed import quat_decompress
 from ns2codegen.logs.usdlog import UsdLogError
 

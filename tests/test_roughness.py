@@ -1,5 +1,5 @@
 """The rough simulator (issue 23): each effect of host/sim/roughness.py switchable and
-doing only its part, the statistics of host/sim/flightstats.py (the same code on real
+doing only its part, the statistics of paper/flightstats.py (the same code on real
 and simulated flights), the fit's arithmetic, and the replay of a real swap."""
 from __future__ import annotations
 
@@ -12,12 +12,12 @@ import pytest
 from conftest import REAL_DATA, needs, real_logs
 from ns2codegen.data.labels import psi1_newtons
 from ns2codegen.logs.align import logs_to_flights
-from ns2codegen.logs.collection import COLLECTION
+from ns2paper.collection import COLLECTION
 from ns2exp.calibrate import _quadrature, lateral_k_xy, thrust_sd
-from ns2host.sim import flightstats as fs
+from ns2paper import flightstats as fs
 from ns2host.sim.aero import K_XY
 from ns2host.sim.cloop import CLoopSwarm, hover_setpoints, robots_of
-from ns2exp.replay import logged_battery, logged_prediction, logged_setpoints, pieces_by_flight, replay
+from ns2paper.replay import logged_battery, logged_prediction, logged_setpoints, pieces_by_flight, replay
 from ns2host.sim import collect as collect_mod
 from ns2host.sim.roughness import EFFECTS, LOW_BATTERY_V, Roughness, Turbulence, hp_share
 from ns2host.sim.scenarios import swap
@@ -267,7 +267,7 @@ def test_the_swap_experiments_fly_the_real_swaps_geometry(cfg):
     profile within 3 % of the medians over every swap of the 16 June collection."""
     import tarfile
 
-    from ns2codegen.logs.collection import write_manifest
+    from ns2paper.collection import write_manifest
     from ns2exp.calibrate import swap_flights
     from ns2exp.swarm import SWAP_RADIUS_M, SWAP_S
     from ns2host import crazyflie
@@ -316,7 +316,7 @@ def test_a_real_swap_measured_and_replayed(cfg, exported):
     for u in (ur["S2L"], us["S2L"]):
         assert u["samples"] > 50 and 0 < u["rms_g"] < u["label_rms_g"] + abs(u["mean_g"]) + 10
     assert np.isfinite(sim.fa_onboard_g).all() and np.abs(sim.fa_onboard_g[:, 1]).max() > 1.0   # the bottom robot
-    # the controller that flew it (host/ctrl_authors.c) flies the same replay, every robot known by its id
+    # the controller that flew it (paper/c/ctrl_authors.c) flies the same replay, every robot known by its id
     auth = replay(cfg, pieces, exported.gen_dir, learned="float", rough=Roughness(), controller="authors")
     assert auth.robots == pieces[0].robots == [SL[0], SL[1]]
     sa = fs.swap_errors([auth])
@@ -566,7 +566,7 @@ def test_the_vibration_fit_flies_without_turbulence(monkeypatch):
     from types import SimpleNamespace
 
     from ns2exp import calibrate as cal
-    from ns2host.sim import flightstats as fs
+    from ns2paper import flightstats as fs
     from ns2host.sim.roughness import Roughness
 
     flown = []

@@ -5,11 +5,11 @@ import math
 import numpy as np
 import pytest
 
-from ns2host.sim.cloop import (AuthorsController, CLoopSwarm, MellingerController, Robot, figure_eight,
-                               hover_setpoints, robots_of)
+from ns2host.sim.cloop import CLoopSwarm, MellingerController, Robot, figure_eight, hover_setpoints, robots_of
 from ns2host.sim.collect import CRASH_MARGIN_S, crash_cut
 from ns2host.sim.dynamics import Dynamics, SwarmState
 from ns2host.sim.vehicle import G, vehicle
+from ns2paper.controller import AuthorsController
 
 
 @pytest.fixture(scope="module")

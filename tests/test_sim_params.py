@@ -1,4 +1,5 @@
-"""The simulator's parameter files (host/sim/params/*.toml, host/sim/paramfile.py): the
+"""The simulator's parameter files (host/sim/params/*.toml, host/sim/paramfile.py) and the
+paper's (paper/params/*.toml, paper/gains.py): the
 shipped files are the numbers the code held before they became data, to the bit; a
 calibrate run's files load back as what it fitted; a bad file is one line naming the
 file and the field."""
@@ -12,8 +13,8 @@ import pytest
 
 from ns2host.sim.paramfile import ParamsError, load_params
 from ns2host.sim.roughness import ROUGH_FILE, ROUGH_PARAMS, Roughness, dump_roughness, load_roughness
-from ns2host.sim.vehicle import (AUTHORS_GAINS, AUTHORS_GAINS_FILE, AUTHORS_ROBOT_TYPE, AUTHORS_TYPE, READ_LAW,
-                                 READ_LAW_FILE, dump_read_law, load_authors_gains, load_read_law)
+from ns2paper.gains import (AUTHORS_GAINS, AUTHORS_GAINS_FILE, AUTHORS_ROBOT_TYPE, AUTHORS_TYPE, READ_LAW,
+                            READ_LAW_FILE, dump_read_law, load_authors_gains, load_read_law)
 
 # The dataclass defaults of host/sim/roughness.py and the constants of host/sim/vehicle.py
 # at 0281169, the last commit that kept them in the code (make calibrate at a8cacab), less
@@ -67,7 +68,7 @@ def test_the_shipped_files_are_the_former_defaults_to_the_bit():
 
 
 def _schema(path: Path) -> dict:
-    from ns2host.sim.vehicle import AUTHORS_PARAMS, READ_LAW_PARAMS
+    from ns2paper.gains import AUTHORS_PARAMS, READ_LAW_PARAMS
     return {ROUGH_FILE: ROUGH_PARAMS, READ_LAW_FILE: READ_LAW_PARAMS, AUTHORS_GAINS_FILE: AUTHORS_PARAMS}[path]
 
 
@@ -103,7 +104,7 @@ def test_a_calibrate_run_writes_parameter_files_that_load_back(tmp_path, monkeyp
 
 
 def test_the_shipped_files_are_what_the_writers_write():
-    """The files in host/sim/params/ have the writers' form: a calibrate run's file can
+    """The files in host/sim/params/ and paper/params/ have the writers' form: a calibrate run's file can
     replace them line for line (units and sources included)."""
     _, origin = load_params(ROUGH_FILE, ROUGH_PARAMS)
     assert dump_roughness(Roughness(), origin).splitlines()[2:] == ROUGH_FILE.read_text().splitlines()[2:]

@@ -43,8 +43,9 @@ def test_wheel_installs_and_runs_the_core_pipeline_outside_the_checkout(tmp_path
     templates = {p.name for p in (REPO / "templates").glob("*.j2")}  # the checkout's top-level templates/
     assert len(templates) == 5
     assert {f"ns2codegen/templates/{t}" for t in templates} <= names and "ns2codegen/default.toml" in names
-    params = {p.name for p in (REPO / "host" / "sim" / "params").glob("*.toml")}   # the simulator's parameter files
-    assert len(params) == 3 and {f"ns2host/sim/params/{p}" for p in params} <= names
+    params = {*(f"ns2host/sim/params/{p.name}" for p in (REPO / "host" / "sim" / "params").glob("*.toml")),
+              *(f"ns2paper/params/{p.name}" for p in (REPO / "paper" / "params").glob("*.toml"))}
+    assert len(params) == 3 and params <= names    # the simulator's parameter files and the paper's
     requires = re.findall(r"^Requires-Dist: ([A-Za-z0-9_.-]+)(.*)$", meta, re.M)
     core = {name.lower() for name, rest in requires if "extra ==" not in rest}
     assert core == CORE, core                                   # nothing heavy without an extra

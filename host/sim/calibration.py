@@ -164,7 +164,7 @@ def _within(sim: float, real: float) -> bool:
 
 
 def roughness_table(cmp: dict, judged: str = "rough") -> str:
-    """Every statistic of host/sim/flightstats.py: real against each simulator of
+    """Every statistic of paper/flightstats.py: real against each simulator of
     ``cmp`` (experiments/calibrate.py compare: ``real`` and ``simulators``, in order),
     with ``judged`` / real."""
     sims = list(cmp["simulators"])

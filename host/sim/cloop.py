@@ -2,7 +2,8 @@
 C (host/ns2_fly.c): IMU with noise and bias -> the firmware's own EKF (kalman_core,
 fed by one mocap marker at 100 Hz with latency and loss) -> the drone's code path
 ns2_pilot (firmware/src: peer table from the same broadcast, sliced prediction, the
-controller at 500/100 Hz, psi_2 PWM) or the firmware's Mellinger controller -> motors
+controller at 500/100 Hz, psi_2 PWM), ns2_pilot with a position law of its own (a
+PositionLaw, its C compiled into the kernel) or the firmware's Mellinger controller -> motors
 (psi_1) -> rigid-body dynamics.  The learned term is off in the baseline (f_a = 0, as
 in the paper).  The ground truth (true state, interaction force) stays in Python and
 in the log's ``truth_*`` fields; the drone's log fields are what the drone knows."""
@@ -18,17 +19,16 @@ from ns2codegen.config import Config
 from ns2codegen.onboard import AdaptCfg, adapt_cfg_ok
 
 from ..cbuild import fill_gains, fill_vehicle
-from ..cfhost import load_fly
+from ..cfhost import FlyLaw, load_fly
 from ..onboard import fill_adapt_cfg
 from .aero import calibrated
 from .dynamics import Dynamics, SwarmState
 from .roughness import Roughness, Turbulence
 from .sensing import Sensing
-from .vehicle import AUTHORS_PWM_EXACT, G, authors_gains, base_type, default_gains, vehicle
+from .vehicle import G, base_type, default_gains, vehicle
 
 TICK_HZ, ATT_HZ, POS_HZ = 1000, 500, 100
 STEP_TICKS = TICK_HZ // ATT_HZ  # ticks per Python step (the interaction force is held over it)
-CONTROLLERS = ("ns2", "mellinger", "authors")
 
 
 @dataclass
@@ -101,21 +101,39 @@ class NS2Controller:
             raise ValueError(f"adapt: None or an AdaptCfg within ns2_adapt.h's ranges, got {self.adapt!r}")
 
 
-@dataclass(frozen=True)
-class AuthorsController:
-    """ns2_pilot with the position law of the controller that flew the real flights
-    (host/ctrl_authors.c), its motor forces realized through the exact inverse of psi_1
-    (vehicle.AUTHORS_PWM_EXACT).  gains: None (vehicle.authors_gains of the robot's
-    type) or a dict of ns2_authors_gains_t, with its attitude gains under "att";
-    learned: as NS2Controller's; given: None, or ``given(t)`` -> the f_a,z-hat (g) the
-    robot flies instead of its network's (read at 100 Hz: a real flight's logged
-    prediction, ns2exp.replay; 0 while settling)."""
-    gains: dict | None = None
+class LawRobot:
+    """One robot's position law in a flight (what PositionLaw.bind returns): ``gains``,
+    the ns2_gains_t fields it replaces in the defaults (a robot's own gains still
+    override them); ``position(t)`` runs before each 100 Hz tick of the law (t: flight
+    time, None while settling); ``fa_flown_g(pilot)``: the f_a,z (g) the law flies, as
+    logged (pilot: the robot's ns2_pilot_t)."""
+    gains: dict = {}
+
+    def position(self, t: float | None) -> None:
+        pass
+
+    def fa_flown_g(self, pilot) -> float:
+        raise NotImplementedError
+
+
+class PositionLaw:
+    """A controller that flies ns2_pilot with a position law of its own in C
+    (NS2_FLY_LAW, host/ns2_fly.h: the pilot's prediction, attitude loop and mixing stay);
+    a subclass is a frozen dataclass with ``learned`` (as NS2Controller's) and gives
+    ``fly_law()``, its C (a FlyLaw: compiled into the flight kernel of every swarm with
+    such a robot), and ``bind(ffi, lib, robot, veh, it)``: one robot's law, which fills
+    the kernel's ns2_fly_init_t ``it`` (law, law_ctx; pwm_exact, psi1_nominal) and
+    returns its LawRobot (which keeps the law's C state alive)."""
     learned: str | None = None
-    given: Callable | None = None
 
     def __post_init__(self):
         _check_learned(self.learned)
+
+    def fly_law(self) -> FlyLaw:
+        raise NotImplementedError
+
+    def bind(self, ffi, lib, robot: "Robot", veh, it) -> LawRobot:
+        raise NotImplementedError
 
 
 @dataclass(frozen=True)
@@ -125,21 +143,21 @@ class MellingerController:
     learned = None
 
 
-Controller = NS2Controller | AuthorsController | MellingerController
+Controller = NS2Controller | PositionLaw | MellingerController
 
 
 @dataclass(frozen=True)
 class Robot:
     """One simulated robot.  type: a robot type of the config (with vehicle.py's
     variants, e.g. "small*"); p0: its start position (m; it starts hovering there);
-    controller: NS2Controller (default), AuthorsController or MellingerController;
-    gains: None (default_gains, with the authors' "att" for AuthorsController) or a dict
+    controller: NS2Controller (default), a PositionLaw or MellingerController;
+    gains: None (default_gains, with a position law's own: LawRobot.gains) or a dict
     of ns2_gains_t fields replacing some of them; radio_id: None (its index + 1) or its
     radio id; type_table: None (it knows its peers' true types), or the words of its
     type table (the app's PARAM ns2type.t0..t15) in which it looks each peer's type up
     by radio id, as the app does (ns2 fly --sim); battery: its supply voltage (V): a
     number (the nominal one; the rough simulator's sag applies), or ``battery(t)`` -> V
-    (a real flight's logged one, ns2exp.replay; read every step, the settling reads t = 0);
+    (a real flight's logged one, ns2paper.replay; read every step, the settling reads t = 0);
     payload_g: an unmodelled payload (g): the true mass grows by it, the controller, the
     label and the network keep the vehicle's; thrust_scale: this robot's psi_1 (PWM ->
     force) times this, on top of the rough simulator's thrust scatter."""
@@ -172,7 +190,12 @@ def robots_of(types, positions, controller: Controller | list = NS2Controller(),
     return [Robot(t, tuple(float(c) for c in p), c, g, **kw) for t, p, c, g in zip(types, positions, ctrls, gains)]
 
 
-_KIND = {NS2Controller: "NS2_FLY_PILOT", AuthorsController: "NS2_FLY_AUTHORS", MellingerController: "NS2_FLY_MELLINGER"}
+_KIND = {NS2Controller: "NS2_FLY_PILOT", PositionLaw: "NS2_FLY_LAW", MellingerController: "NS2_FLY_MELLINGER"}
+
+
+def _kind(ctrl) -> str | None:
+    """The kernel's kind (ns2_fly.h) of a controller object, None if it is none."""
+    return next((k for c, k in _KIND.items() if isinstance(ctrl, c)), None)
 
 
 class CLoopSwarm:
@@ -185,7 +208,7 @@ class CLoopSwarm:
         robots = list(robots)
         if not robots or not all(isinstance(r, Robot) for r in robots):
             raise ValueError("robots: a non-empty list of cloop.Robot")
-        if any(type(r.controller) not in _KIND for r in robots):
+        if any(_kind(r.controller) is None for r in robots):
             raise ValueError(f"controller: one of {[c.__name__ for c in _KIND]} per robot")
         self.cfg = cfg
         self.spec = robots
@@ -199,7 +222,8 @@ class CLoopSwarm:
                                 **(rough.aero_kwargs(types) if rough is not None else {})) if aero else None)
         self.sensing = sensing or Sensing()
         self.rng = np.random.default_rng(seed)
-        self.ffi, self.lib = load_fly(gen_dir)
+        self.ffi, self.lib = load_fly(gen_dir, tuple(r.controller.fly_law() for r in robots
+                                                      if isinstance(r.controller, PositionLaw)))
         ffi, lib = self.ffi, self.lib
         if n > lib.NS2_FLY_MAX_ROBOTS:
             raise ValueError(f"at most {lib.NS2_FLY_MAX_ROBOTS} robots, got {n}")
@@ -209,15 +233,13 @@ class CLoopSwarm:
         self.rough = rough
         thrust = rough.thrust_factors(seed, n) if rough is not None else np.ones(n)
         self.turbulence = Turbulence(rough, n, 1.0 / ATT_HZ, seed) if rough is not None else None
+        self.laws: dict[int, LawRobot] = {}   # the robots flying a position law of their own
         for i, (rb, veh) in enumerate(zip(robots, self.vehicles)):
             ctrl = rb.controller
             it = ffi.new("ns2_fly_init_t *")
-            it.kind = getattr(lib, _KIND[type(ctrl)])
-            a = (ctrl.gains or authors_gains(rb.type)) if isinstance(ctrl, AuthorsController) else None
-            if a is not None:
-                it.authors.mass_kg, it.authors.i_max, it.authors.k_fa = a["mass_kg"], a["i_max"], a.get("k_fa", 1.0)
-                it.authors.kp, it.authors.kd, it.authors.ki = list(a["kp"]), list(a["kd"]), list(a["ki"])
-                it.pwm_exact, it.psi1_nominal = int(AUTHORS_PWM_EXACT), list(veh.psi1)
+            it.kind = getattr(lib, _kind(ctrl))
+            if isinstance(ctrl, PositionLaw):
+                self.laws[i] = ctrl.bind(ffi, lib, rb, veh, it)
             it.id, it.type = rb.radio_id if rb.radio_id is not None else i + 1, int(self.type_idx[i])
             if rb.type_table is not None:
                 it.use_type_table, it.type_table = 1, list(rb.type_table)
@@ -231,8 +253,8 @@ class CLoopSwarm:
             it.sd_acc_g, it.sd_gyro_dps, it.ext_pos_std_m = sd_acc, sd_gyro, se.ext_pos_std_m
             fill_vehicle(it.veh, veh)
             g = default_gains(veh)
-            if a is not None:   # and their attitude gains (vehicle.AUTHORS_GAINS "att")
-                g.update(a.get("att", {}))
+            if i in self.laws:   # and a position law's own (e.g. its attitude gains)
+                g.update(self.laws[i].gains)
             g.update(rb.gains or {})
             fill_gains(it.gains, g)
             lib.ns2_pilot_default_cfg(ffi.addressof(it, "pilot_cfg"), it.type)
@@ -241,9 +263,6 @@ class CLoopSwarm:
             ad = getattr(ctrl, "adapt", None) or AdaptCfg(enable=0)   # the app's PARAM ns2adapt at boot
             fill_adapt_cfg(it.adapt_cfg, ad)
             lib.ns2_fly_init(ffi.addressof(self.robots, i), it)
-        # the predictions given from outside (AuthorsController.given), by robot
-        self.given = {i: r.controller.given for i, r in enumerate(robots)
-                      if isinstance(r.controller, AuthorsController) and r.controller.given is not None}
         self.sps = np.zeros((n, 13), np.float32)      # ns2_setpoint_t: p, v, a, yaw, w
         self.est = ffi.new("float[13]")
         self._ms, self._k, self._frames = 0, 0, deque()   # where a later run() goes on from
@@ -256,8 +275,8 @@ class CLoopSwarm:
 
     def _fa_flown_g(self, i: int) -> float:
         r = self.robots[i]
-        if r.fa_given:
-            return float(r.fa_given_g)
+        if i in self.laws:
+            return self.laws[i].fa_flown_g(r.pilot)
         if not self.spec[i].controller.learned:
             return 0.0
         # the app's path flies f_a,z with the adapted term (= the network's bit for bit with it off)
@@ -312,8 +331,8 @@ class CLoopSwarm:
                 sp = hover if k < settle else setpoints(t, st)
                 self.sps[:, 0:3], self.sps[:, 3:6], self.sps[:, 6:9] = sp.p, sp.v, sp.a
                 self.sps[:, 9], self.sps[:, 10:13] = sp.yaw, 0.0
-                for i, given in self.given.items():
-                    self.robots[i].fa_given, self.robots[i].fa_given_g = 1, float(given(t)) if k >= settle else 0.0
+                for law in self.laws.values():
+                    law.position(t if k >= settle else None)
             if ms % frame_every == 0:  # a mocap frame of every marker, broadcast after latency_ms
                 p_meas = (st.p + self.rng.normal(0.0, se.mocap_sd_m, st.p.shape)).astype(np.float32)
                 rx = (self.rng.random(n) >= se.loss).astype(np.uint8)

@@ -30,8 +30,8 @@ import re
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..errors import Ns2Error
-from ..fileio import atomic_write_bytes
+from ns2codegen.errors import Ns2Error
+from ns2codegen.fileio import atomic_write_bytes
 
 GROUND_PLANE_M = {"small": 0.05, "large": 0.06}
 _FILE = re.compile(r"^(cf\d+)_(\d+)$")
@@ -136,7 +136,7 @@ def flights(root: str | Path, collection: Collection = JUNE_2020) -> list[dict]:
 def manifest_text(root: str | Path, collection: Collection = JUNE_2020, relative_to: str = "") -> str:
     """``flights.toml`` of the collection (deterministic); file paths relative to
     ``root/relative_to``."""
-    lines = [f"# The Neural-Swarm2 authors' collection of {collection.key} (ns2codegen.logs.collection)",
+    lines = [f"# The Neural-Swarm2 authors' collection of {collection.key} (ns2paper.collection)",
              "rate_hz = 100", "",
              "[ground_plane_m]   # z of a robot standing on the floor (collection readme)"]
     lines += [f"{t} = {z}" for t, z in GROUND_PLANE_M.items()]

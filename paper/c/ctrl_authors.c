@@ -33,3 +33,11 @@ void ns2_authors_position(ns2_authors_t *a, ns2_ctrl_t *c, const ns2_ctrl_state_
     f_d[2] += g->mass_kg * (float)NS2_G_MPS2;
     ns2_ctrl_force(c, s, sp, f_d, dt);
 }
+
+void ns2_authors_law(void *ctx, ns2_pilot_t *pl, const ns2_ctrl_state_t *s, const ns2_setpoint_t *sp, float dt)
+{
+    ns2_authors_t *a = (ns2_authors_t *)ctx;
+    const float fa_g = a->fa_given ? a->fa_given_g : (pl->cfg.enable ? pl->fa_hat_g : 0.0f);
+    const float fa_z_N = fa_g * 1e-3f * (float)NS2_G_MPS2;
+    ns2_authors_position(a, &pl->ctrl, s, sp, fa_z_N, dt);
+}

@@ -27,9 +27,9 @@ from pathlib import Path
 
 import torch
 
-from .config import Config, ConfigError
-from .model import HeteroDeepSet, lipschitz_bound
-from .errors import Ns2Error
+from ns2codegen.config import Config, ConfigError
+from ns2codegen.model import HeteroDeepSet, lipschitz_bound
+from ns2codegen.errors import Ns2Error
 
 # the authors' file stem -> (kind, project type name); environment last, as in Config
 NETS = {"phi_S": ("phi", "small"), "phi_L": ("phi", "large"), "phi_G": ("phi", "env"),

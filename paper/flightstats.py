@@ -42,7 +42,7 @@ from ns2codegen.config import Config
 from ns2codegen.data.from_logs import Flight, labelled_steps
 from ns2codegen.data.labels import psi1_newtons, quat_to_R
 
-from .vehicle import G
+from ns2codegen.vehicle import G
 
 FREE_AIR = {"min_z_m": 0.4, "min_horizontal_m": 0.6}
 HP_WINDOW = 21            # samples (0.2 s at 100 Hz): the fast part of a signal is what is left around this mean
@@ -332,7 +332,7 @@ def z_law(cfg: Config, flights: list[Flight]) -> dict:
     + c, e = z - z_d, e_v = v_z - v_d,z, int e from the start of each stretch of logged
     setpoint (c takes the integral's start), f_a,z-hat the logged ``fa_onboard_g``
     (0 where not logged).  The controller that flew is f_d = m (a_d + g e3 - Kp e - Kd
-    e_v - Ki int e) - k_fa f_a-hat (host/ctrl_authors.c; k_fa = 1: the prediction
+    e_v - Ki int e) - k_fa f_a-hat (paper/c/ctrl_authors.c; k_fa = 1: the prediction
     taken off whole); a stiffer or softer law, an integral or none, a prediction taken
     off in part read as such (k_fa None where a type never logged a prediction).  Also
     the z error's mean (m) over those samples."""

@@ -5,12 +5,12 @@ the loop (the collection of 16 June 2020 flew the authors' network: import it wi
 ``ns2 real import-authors`` and export it; or fly the prediction the real robots
 logged, learned="logged"), each robot on the supply voltage its real robot logged.
 The simulated flight comes back as a
-``Flight`` with the same time base and setpoints, so host/sim/flightstats.py measures
+``Flight`` with the same time base and setpoints, so paper/flightstats.py measures
 both the same way (the sim-to-real table, docs/simulator.md).
 
 What is not the real flight: the controller is the project's (ns2_pilot with its
 default gains), or with controller="authors" the position law and gains of the
-authors' firmware controller (host/ctrl_authors.c, vehicle.authors_gains) under the
+authors' firmware controller (paper/c/ctrl_authors.c, gains.authors_gains) under the
 project's attitude loop; the robots' masses and thrust maps are the config's (the
 hover-measured masses of experiments/real.py when given its real.toml), and the
 interactions are the simulator's ground truth."""
@@ -21,10 +21,13 @@ import numpy as np
 from ns2codegen.config import Config
 from ns2codegen.data.from_logs import Flight
 
-from ns2host.sim.cloop import AuthorsController, CLoopSwarm, NS2Controller, Robot, Setpoints
-from ns2host.sim.flightstats import setpoint_derivatives
+from ns2codegen.vehicle import G
+from ns2host.sim.cloop import CLoopSwarm, NS2Controller, Robot, Setpoints
 from ns2host.sim.roughness import Roughness
-from ns2host.sim.vehicle import G, authors_gains, read_law_gains
+
+from .controller import AuthorsController
+from .flightstats import setpoint_derivatives
+from .gains import authors_gains, read_law_gains
 
 
 def pieces_by_flight(flights: list[Flight]) -> dict[str, list[Flight]]:
@@ -110,7 +113,7 @@ def replay(cfg: Config, pieces: list[Flight], gen_dir, learned: str | None = "fl
     """Fly one real flight's setpoints with its team in the simulator; the drones'
     log as a Flight (time as the real flight's, estimated states, setpoints).
     controller: "ns2" (the project's) or "authors" (the one that flew it, each robot
-    with its own gains: vehicle.authors_gains); learned: cloop.CLoopSwarm's, or
+    with its own gains: gains.authors_gains); learned: cloop.CLoopSwarm's, or
     "logged": the "authors" robots fly the prediction the real robots flew
     (logged_prediction), not a network of ``gen_dir``; law: with controller "authors",
     every robot flies the z law read off the real logs (vehicle.read_law_gains; READ_LAW's
