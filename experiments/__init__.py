@@ -5,6 +5,7 @@ planning/    the planning experiments (SL, SS, LL, SSL, SLL; NN vs BL), model ch
 margin.py    the planning margin from the model's error on held-out flights
 tracking.py  flying a plan in the simulator with the firmware controller
 calibrate.py the simulator's roughness fitted to the real flights, the replays compared
+calibrate_tables.py  calibration.md's tables
 real.py, blind.py, realscore.py, onboard_faz.py  the 2020 collection: data, scores, the
              on-board prediction reproduced
 

@@ -613,8 +613,8 @@ def param_files(rough: Roughness, law: dict, command: str) -> dict:
 
 def markdown(res: dict) -> str:
     """calibration.md of calibrate's JSON (as written: its simulators in VARIANTS' order)."""
-    from ns2host.sim.calibration import (lateral_table, paper_l2s_table, read_law_table,
-                                         roughness_table, sim_to_real_table, wake_profile_table)
+    from .calibrate_tables import (lateral_table, paper_l2s_table, read_law_table, roughness_table,
+                                   sim_to_real_table, wake_profile_table)
 
     fit_report = res["fit"]
     sims = res["compare"]["simulators"]     # the JSON's keys are sorted

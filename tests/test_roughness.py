@@ -389,7 +389,7 @@ def test_a_real_swap_measured_and_replayed(cfg, exported):
 
 
 def test_sim_to_real_and_paper_tables():
-    from ns2host.sim.calibration import paper_l2s_table, sim_to_real_table
+    from ns2exp.calibrate_tables import paper_l2s_table, sim_to_real_table
 
     sw = lambda x: {"L2S": {"median_worst_z_error_m": x, "swaps": 5}}   # noqa: E731
     cmp = {"flights": [], "real": {"swaps": {"L2S": {"median_worst_z_error_m": 0.059, "swaps": 5},
@@ -427,7 +427,7 @@ def test_calibration_markdown_keeps_the_simulators_in_their_order():
 
 
 def test_roughness_table_rows_of_the_wake_and_the_swaps():
-    from ns2host.sim.calibration import roughness_table
+    from ns2exp.calibrate_tables import roughness_table
 
     side = lambda push, tilt: {"free_air": {}, "wake_scatter": {}, "battery": {},   # noqa: E731
                                "wake_lateral": {"large under small": {"push_out_g": push, "fz_g": -4.0}},
@@ -459,7 +459,7 @@ def test_read_law_step_and_table():
     z error raises the mass parameter by 1 cm x m Kp / g; the table prints the law and
     each iteration against the real reading."""
     from ns2exp.calibrate import law_step
-    from ns2host.sim.calibration import read_law_table
+    from ns2exp.calibrate_tables import read_law_table
 
     law = {"small": {"kp": 7.0, "kd": 2.0, "ki": 0.3, "k_fa": 0.7, "mass_kg": 0.034}}
     real = {"small": {"kp_per_s2": 7.0, "kd_per_s": 2.0, "ki_per_s3": 0.3, "k_fa": 0.7, "z_error_mean_m": 0.008}}
@@ -528,7 +528,7 @@ def test_the_wake_read_off_labels_at_logged_states(cfg):
     profile and its table put real and truth side by side per pair and offset."""
     from ns2exp.calibrate import fit_wake_scales, wake_profile, wake_truth_g
     from ns2host.sim.aero import calibrated, forces_of_snapshots
-    from ns2host.sim.calibration import wake_profile_table
+    from ns2exp.calibrate_tables import wake_profile_table
     from ns2host.sim.vehicle import vehicle
 
     types = ("small", "large")
@@ -620,7 +620,7 @@ def test_the_lateral_fit_solves_the_line_of_two_replays(monkeypatch):
     assert all(r.on("lateral") and not r.on("turbulence") and r.on("wake") for r, _ in flown)
     assert all(kw == {"controller": "authors", "learned": "logged"} for _, kw in flown)
     assert rows["check"] == {t: {"k_xy": pytest.approx(-0.02 if t == "small" else -0.07, abs=2e-3)} for t in line}
-    from ns2host.sim.calibration import lateral_table
+    from ns2exp.calibrate_tables import lateral_table
     t = lateral_table(rows).splitlines()
     assert t[0] == "| reading (K_XY of the labels) | large | small |" and t[2] == "| real | -0.070 | -0.020 |"
     assert t[3].startswith("| replay, K_XY 0.15 | 0.069 | 0.070 |") and t[5].startswith("| replay at the fit |")
