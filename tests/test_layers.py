@@ -112,6 +112,26 @@ def test_no_product_package_imports_the_paper_or_the_experiments(tmp_path):
     assert [_layer_of(n) for n in names] == ["ns2paper"] and "ns2paper" not in LAYERS["ns2host.sim"][1]
 
 
+def test_the_product_names_no_c_of_the_paper():
+    """The simulator's kernel knows a position law only by its hook (NS2_FLY_LAW,
+    ns2_fly_law_fn; cfhost.FlyLaw brings its C): no product source, C or Python, includes
+    a header of paper/c/ or names one of its functions or types."""
+    import re
+
+    headers = sorted((REPO / "paper" / "c").glob("*.h"))
+    product_h = [*(REPO / "firmware" / "include").glob("*.h"), *(REPO / "host").glob("*.h")]
+    names = {n for h in headers for n in re.findall(r"\b(ns2_\w+)\b", h.read_text())} - set(
+        re.findall(r"\b(ns2_\w+)\b", "".join(p.read_text() for p in product_h)))   # the paper's own names
+    assert headers and "ns2_authors_law" in names and "ns2_pilot_t" not in names, names
+    product = [p for p in [*REPO.glob("firmware/**/*.[ch]"), *REPO.glob("host/**/*.[ch]"), *REPO.glob("host/**/*.py"),
+                           *REPO.glob("ns2codegen/**/*.py"), *REPO.glob("planner/**/*.py"), *REPO.glob("ground/**/*.py")]
+               if "/build/" not in p.as_posix()]
+    bad = [f"{p.relative_to(REPO)}: {hit}" for p in product
+           for hit in sorted({*re.findall(r"\b(ns2_\w+)\b", p.read_text())} & names
+                             | {h.name for h in headers if f'"{h.name}"' in p.read_text()})]
+    assert not bad, "the product names the paper's C:\n" + "\n".join(bad)
+
+
 def _all_modules():
     """module name -> path, every module of every layer."""
     return {_module_name(pkg, path): path for pkg in LAYERS for path in _files(pkg)}
