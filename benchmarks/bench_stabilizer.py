@@ -11,7 +11,9 @@ by mocap at 100 Hz, 4 positions per packet and millisecond, all of them in the a
 With the on-board adaptation on (issue 53, "<infer>_adaptation"): the stabilizer with
 ns2adapt.enable = 1 (in the ring every tick is a wake: no update), and as an upper bound
 that plus one whole label-and-update step (budget.adapt_runs) in the same worst tick;
-the issue's budget: at most 10 % of 1 ms added to the stock worst tick.
+the issue's budget: at most 10 % of 1 ms added to the stock worst tick.  The network is
+the export's (--gen; its ns2_config.toml): with wake memory (model.history_ms) the app keeps
+its peers' and its own past and runs 6 (1 + lags) inputs per neighbour.
 
     python benchmarks/bench_stabilizer.py [--gen firmware/generated]
 """
@@ -23,7 +25,8 @@ import sys
 import tempfile
 from pathlib import Path
 
-from ns2codegen.config import Config
+from ns2codegen.export import export_config
+from ns2codegen.results import stamp
 from ns2host import budget, cm4_count, crazyflie, stabilizer, target
 from ns2host.cbuild import REPO
 
@@ -34,7 +37,7 @@ def with_adaptation(gen: Path, infer: str) -> dict:
     """The app with the adaptation on against the stock worst tick, and the bound with
     a whole label-and-update step added to its worst tick."""
     it = stabilizer.iteration(gen, 15, infer, adapt=True)
-    runs = budget.adapt_runs(gen, Config.load())
+    runs = budget.adapt_runs(gen, export_config(gen))
     out = {"app_worst_tick": it["app_worst_tick"], "app_adds_to_worst_tick": it["app_adds_to_worst_tick"]}
     for model, attr in stabilizer.MODELS.items():
         step = getattr(runs["label_step"], attr) + getattr(runs["adapt_step_update"], attr)
@@ -63,12 +66,15 @@ def main() -> None:
             from bench_target import default_export
 
             gen = default_export(Path(tmp))
-        result = {"cost_model": "ns2host/cm4_count.py (Cortex-M4 TRM cycle counts; zero_wait: no wait "
+        cfg = export_config(gen)
+        result = {"network": {"phi": cfg.phi_dims(), "rho": cfg.rho_dims(), "history_ms": cfg.history_ms,
+                              "input_dim": cfg.input_dim},
+                  "cost_model": "ns2host/cm4_count.py (Cortex-M4 TRM cycle counts; zero_wait: no wait "
                                 "states, memory: STM32F405_168MHZ, flash wait states and ART accelerator)",
                   "loop": "stabilizer at RATE_MAIN_LOOP = 1000 Hz, 168 MHz",
                   **{infer: stabilizer.iteration(gen, 15, infer) for infer in ("fixed", "float")},
                   **{f"{infer}_adaptation": with_adaptation(gen, infer) for infer in ("fixed", "float")}}
-    print(json.dumps(result, indent=2))
+    print(json.dumps(stamp(result), indent=2))
 
 
 if __name__ == "__main__":

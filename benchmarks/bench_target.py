@@ -9,6 +9,9 @@ stack from the cross build; everything at zero wait states and on the modelled
 memory system of the STM32F405 (flash wait states, ART accelerator), with the
 weight tables in flash and the hot ones in SRAM, against the firmware's 1 kHz
 stabilizer loop; the machine's bound for the paper-sized network in one tick.
+The network is the export's (--gen; its ns2_config.toml): with wake memory
+(model.history_ms) each neighbour has 6 (1 + lags) inputs and the counts run the
+*_hist entry points with the robot's own past, as the app does.
 
     python benchmarks/bench_target.py [--gen firmware/generated]
 """
@@ -27,7 +30,8 @@ import numpy as np
 from ns2codegen.checkpoint import load_checkpoint, save_checkpoint
 from ns2codegen.config import ONBOARD_WIDTHS, Config
 from ns2codegen.data.analytic import downwash_dataset
-from ns2codegen.export import export
+from ns2codegen.export import export, export_config
+from ns2codegen.results import stamp
 from ns2codegen.train import train
 from ns2host import budget, cm4_count, firmware_report, target
 from ns2host.cbuild import REPO, flags
@@ -50,14 +54,14 @@ def _run(r: cm4_count.Run) -> dict:
 
 def measure_library(elf: Path, cfg: Config) -> dict:
     cm = cm4_count.Cm4(elf)
-    nb = budget.neighbors(cfg, 16, np.random.default_rng(0))
+    nb, past = budget.neighbors(cfg, 16, np.random.default_rng(0)), budget.own_past(cfg)
     out = {}
     phi_macs, rho_macs = macs(cfg.phi_dims()), macs(cfg.rho_dims())
     for name, fn in (("float", "ns2_predict_f32"), ("fixed", "ns2_predict_q15")):
         runs = {}
         for n in (0, 1, 4, 15, 16):
-            runs[n], args = budget.prediction_run(cm, fn, nb, n)
-        sliced = measure_sliced(cm, name, args["p"], args["v"], args["nbrs"], args["info"])
+            runs[n], args = budget.prediction_run(cm, fn, nb, n, past)
+        sliced = measure_sliced(cm, name, args)
         per_phi = (runs[16].instructions - runs[1].instructions) / 15
         per_phi_cyc = (runs[16].cycles - runs[1].cycles) / 15
         kernel = sum(c for f, c in runs[16].by_function.items() if f.startswith("dense"))
@@ -75,22 +79,21 @@ def measure_library(elf: Path, cfg: Config) -> dict:
     return out
 
 
-def measure_sliced(cm: cm4_count.Cm4, name: str, p: int, v: int, nbrs: int, info: int,
+def measure_sliced(cm: cm4_count.Cm4, name: str, args: dict,
                    n: int = 15, per_step: int = PHI_PER_TICK, ticks: int = 5) -> dict:
     """The app's schedule (firmware/app): the prediction with n neighbours is
     spread over the five 500 Hz ticks of a 100 Hz position period, per_step phi
     evaluations per tick (ns2_job_step_*); at the position tick the previous job
     is finished (rho only, its phi all done) and the next one begun, and that
     tick also steps.  Its cost is the worst tick.  (At 1 kHz: ten 1 ms iterations
-    per position period, ``ticks=10``.)"""
+    per position period, ``ticks=10``.)  ``args``: budget.prediction_run's."""
     path = "q15" if name == "fixed" else "f32"
-    job = cm.write(bytes(2048))  # >= sizeof(ns2_job_t)
-    _, _, begin = cm.call("ns2_job_begin", job, 0, p, v, nbrs, n)
+    job, begin = budget.job_begin(cm, args, n)
     steps, left = [], n + 1
     while left > 0:
         left, _, step = cm.call(f"ns2_job_step_{path}", job, per_step)
         steps.append(step)
-    _, _, fin = cm.call(f"ns2_job_finish_{path}", job, info)
+    _, _, fin = cm.call(f"ns2_job_finish_{path}", job, args["info"])
     worst = fin.cycles + begin.cycles + max(s.cycles for s in steps)
     worst_mem = fin.memory_cycles + begin.memory_cycles + max(s.memory_cycles for s in steps)
     return {"neighbors": n, "phi_per_tick": per_step, "ticks_with_phi": len(steps),
@@ -126,7 +129,7 @@ def measure_stabilizer(gen: Path, cfg: Config, ctrl: dict, sliced: bool = True, 
     prediction spread over the ten 1 ms iterations of the 100 Hz position period
     (2 phi per iteration) and over the five 500 Hz attitude ticks (4 phi per tick),
     each with the controller step (position + attitude: the worst iteration)."""
-    nb = budget.neighbors(cfg, 16, np.random.default_rng(0))
+    nb, past = budget.neighbors(cfg, 16, np.random.default_rng(0)), budget.own_past(cfg)
     step = {k: sum(ctrl[s][k] for s in ("position_step", "attitude_step")) for k in ("cycles", "memory_model_cycles")}
     us = 1e6 / cm4_count.CLOCK_HZ
     out = {"iteration_us": budget.STABILIZER_ITERATION_US, "controller_step_us": round(step["cycles"] * us, 1),
@@ -136,7 +139,7 @@ def measure_stabilizer(gen: Path, cfg: Config, ctrl: dict, sliced: bool = True, 
         out[name] = {}
         for where, defines in (("flash", ()), ("ram", target.ram_placement(cfg.robot_types[0], path))):
             cm = cm4_count.Cm4(target.build_image(gen, defines=defines))
-            run, args = budget.prediction_run(cm, fn, nb, n)
+            run, args = budget.prediction_run(cm, fn, nb, n, past)
             ram = sum(v["in_ram_bytes"] for v in target.table_bytes(cm.elf).values())
             one = (run.memory_cycles + step["memory_model_cycles"]) * us
             r = {"tables_in_ram_bytes": ram, "fits_ram_budget": ram <= budget.TABLE_RAM_BUDGET_BYTES,
@@ -147,7 +150,7 @@ def measure_stabilizer(gen: Path, cfg: Config, ctrl: dict, sliced: bool = True, 
             if sliced:
                 for key, per, ticks in (("sliced_1kHz_2_phi_per_iteration", 2, 10),
                                         ("sliced_500Hz_4_phi_per_tick", PHI_PER_TICK, 5)):
-                    sl = measure_sliced(cm, name, args["p"], args["v"], args["nbrs"], args["info"], n, per, ticks)
+                    sl = measure_sliced(cm, name, args, n, per, ticks)
                     worst = (sl["memory_model_worst_tick_cycles"] + step["memory_model_cycles"]) * us
                     r[key] = {"worst_iteration_with_controller_us": round(worst, 1),
                               "worst_iteration_with_controller_us_zero_wait":
@@ -281,7 +284,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
         gen = Path(args.gen) if args.gen else default_export(work)
-        cfg = load_checkpoint(work / "model.pt").cfg if not args.gen else Config.load()
+        cfg = load_checkpoint(work / "model.pt").cfg if not args.gen else export_config(gen)
         elf = target.build_image(gen)
         lib = measure_library(elf, cfg)
         ctrl = measure_controller(gen, cfg)
@@ -293,6 +296,8 @@ def main() -> None:
     result = {"cost_model": "ns2host/cm4_count.py: Cortex-M4 TRM cycle counts at zero wait states (cycles, "
                             "us_at_168MHz) and on the modelled memory system (memory_model_*): "
                             + cm4_count.STM32F405_168MHZ.name + "; docs/target.md",
+              "network": {"phi": cfg.phi_dims(), "rho": cfg.rho_dims(), "history_ms": cfg.history_ms,
+                          "input_dim": cfg.input_dim},
               "macs": {"phi": macs(cfg.phi_dims()), "rho": macs(cfg.rho_dims())}, **lib,
               "adaptation_per_position_tick": adapt}
     if eml:
@@ -327,7 +332,7 @@ def main() -> None:
     result["moonshot_one_tick"] = moonshot(cfg, stab, lib)
     result["onboard_variant_one_tick"] = onboard
     result["memory"] = {k: mem[k] for k in firmware_report.ENTRY_POINTS}
-    print(json.dumps(result, indent=2))
+    print(json.dumps(stamp(result), indent=2))
 
 
 if __name__ == "__main__":

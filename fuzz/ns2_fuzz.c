@@ -10,7 +10,17 @@
  * input.  Beyond the sanitizers (any report aborts: -fno-sanitize-recover) each
  * target checks the documented contract and, after a glitch, recovery within
  * the documented bound.  A failed check prints "FAIL <target> <input index>: why"
- * and exits 1.  On success one line of JSON: target, inputs, checks.
+ * and exits 1.  On success one line of JSON: target, inputs, checks, the export's
+ * NS2_INPUT_DIM and predictions_ok (predictions with status NS2_OK and at least one
+ * neighbour used: that the inference was reached, not only refused).
+ *
+ * Wake memory (an export with NS2_HISTORY_LAGS > 0): every neighbour's past inputs
+ * and the robot's own past are drawn like the present (hostile values included) and
+ * the *_hist entry points are called (own_past sometimes NULL: refused); the plain
+ * ones must refuse (NS2_ERR_STATE); the peer table's history ring is recorded with
+ * any own state and, after a glitch, must hold only good states within
+ * NS2_PEERS_HIST history ticks; HIL PREDICT bodies carry 6 (1 + lags) inputs per
+ * neighbour and the own past.  Without it the driver runs as before.
  */
 #include <float.h>
 #include <math.h>
@@ -29,6 +39,7 @@
 
 static uint64_t rng_state;
 static unsigned long long n_checks;
+static unsigned long long n_ok; /* predictions with NS2_OK and n_used > 0 */
 static const char *target_name = "";
 static unsigned long long input_index;
 
@@ -108,6 +119,21 @@ static void check(int ok, const char *why)
 /* ------------------------------------------------------------------ inference */
 #define NB_CAP (2u * NS2_MAX_NEIGHBORS + 8u)
 
+#if NS2_HISTORY_LAGS > 0
+static float fz_past[6u * NS2_HISTORY_LAGS]; /* the robot's own [p; v] at each lag */
+static const float *past_arg = fz_past;      /* fz_past, sometimes NULL (refused) */
+#endif
+
+/* The entry points of the export: HIST(ns2_predict_f32)(rt, p, v, OWN_PAST nb, n, info) is
+ * ns2_predict_f32_hist with the own past past_arg with wake memory, else ns2_predict_f32. */
+#if NS2_HISTORY_LAGS > 0
+#define HIST(fn) fn##_hist
+#define OWN_PAST past_arg,
+#else
+#define HIST(fn) fn
+#define OWN_PAST
+#endif
+
 static uint16_t random_query(uint8_t *rt, float p[3], float v[3], ns2_neighbor_t *nb, uint32_t p_bad)
 {
     *rt = (uint8_t)(below(8) == 0 ? below(256) : below(NS2_NUM_ROBOT_TYPES));
@@ -123,7 +149,24 @@ static uint16_t random_query(uint8_t *rt, float p[3], float v[3], ns2_neighbor_t
             nb[j].rel[a] = value(-0.6f, 0.6f, p_bad);
             nb[j].rel[a + 3] = value(-2.0f, 2.0f, p_bad);
         }
+#if NS2_HISTORY_LAGS > 0
+        for (int k = 6; k < NS2_INPUT_DIM; k += 6) { /* the past at each lag: rarer hostile values */
+            for (int a = 0; a < 3; ++a) {
+                nb[j].rel[k + a] = value(-0.6f, 0.6f, 4u * p_bad);
+                nb[j].rel[k + a + 3] = value(-2.0f, 2.0f, 4u * p_bad);
+            }
+        }
+#endif
     }
+#if NS2_HISTORY_LAGS > 0
+    for (int l = 0; l < NS2_HISTORY_LAGS; ++l) {
+        for (int a = 0; a < 3; ++a) {
+            fz_past[6 * l + a] = value(-1.5f, 1.5f, 4u * p_bad);
+            fz_past[6 * l + a + 3] = value(-2.0f, 2.0f, 4u * p_bad);
+        }
+    }
+    past_arg = below(64) == 0 ? NULL : fz_past;
+#endif
     return n;
 }
 
@@ -143,7 +186,13 @@ static void check_prediction(uint16_t n, float f, int16_t q, const ns2_info_t *f
         check((uint32_t)fi->n_used + fi->n_invalid + fi->n_outside + fi->n_truncated == n,
               "neighbour counters do not add up to n");
         check(fi->n_used <= NS2_MAX_NEIGHBORS, "more than NS2_MAX_NEIGHBORS used");
+        n_ok += fi->n_used > 0u;
     }
+#if NS2_HISTORY_LAGS > 0
+    if (past_arg == NULL) {
+        check(fi->status < 0, "wake memory: a NULL own past accepted");
+    }
+#endif
 }
 
 static void fuzz_infer(unsigned long long count)
@@ -155,19 +204,28 @@ static void fuzz_infer(unsigned long long count)
         const uint16_t n = random_query(&rt, p, v, nb, 8u);
         ns2_info_t fi, qi, gi;
         const int null_nb = below(64) == 0;
-        const float f = ns2_predict_f32(rt, p, v, null_nb ? NULL : nb, n, &fi);
-        const int16_t q = ns2_predict_q15(rt, p, v, null_nb ? NULL : nb, n, &qi);
+        const float f = HIST(ns2_predict_f32)(rt, p, v, OWN_PAST null_nb ? NULL : nb, n, &fi);
+        const int16_t q = HIST(ns2_predict_q15)(rt, p, v, OWN_PAST null_nb ? NULL : nb, n, &qi);
         const float g = ns2_predict_q15_g(rt, p, v, null_nb ? NULL : nb, n, &gi);
         check_prediction(n, f, q, &fi, &qi);
+#if NS2_HISTORY_LAGS > 0
+        { /* the plain entry points (no own past) refuse a model with wake memory */
+            ns2_info_t pi;
+            check(g == 0.0f && gi.status < 0, "wake memory: ns2_predict_q15_g without own past accepted");
+            check(ns2_predict_f32(rt, p, v, null_nb ? NULL : nb, n, &pi) == 0.0f && pi.status < 0,
+                  "wake memory: ns2_predict_f32 without own past accepted");
+        }
+#else
         check(g == ldexpf((float)q, -NS2_Q_OUT_FRAC), "q15_g is not q * 2^-NS2_Q_OUT_FRAC");
+#endif
         if (null_nb && n > 0u) {
             check(fi.status == NS2_ERR_NULL || fi.status == NS2_ERR_ROBOT_TYPE || fi.status == NS2_ERR_STATE,
                   "NULL neighbours not refused");
         }
         if (below(16) == 0) { /* NULL own state and NULL info are refused / allowed */
             ns2_info_t ni;
-            check(ns2_predict_f32(rt, NULL, v, nb, n, &ni) == 0.0f && ni.status < 0, "NULL p accepted");
-            (void)ns2_predict_q15(rt, p, v, nb, n, NULL);
+            check(HIST(ns2_predict_f32)(rt, NULL, v, OWN_PAST nb, n, &ni) == 0.0f && ni.status < 0, "NULL p accepted");
+            (void)HIST(ns2_predict_q15)(rt, p, v, OWN_PAST nb, n, NULL);
         }
     }
 }
@@ -183,14 +241,15 @@ static void fuzz_sliced(unsigned long long count)
         const uint16_t n = random_query(&rt, p, v, nb, 16u);
         const int fixed = (int)below(2);
         ns2_info_t one, sl;
-        const float f1 = fixed ? 0.0f : ns2_predict_f32(rt, p, v, nb, n, &one);
-        const int16_t q1 = fixed ? ns2_predict_q15(rt, p, v, nb, n, &one) : 0;
+        const float f1 = fixed ? 0.0f : HIST(ns2_predict_f32)(rt, p, v, OWN_PAST nb, n, &one);
+        const int16_t q1 = fixed ? HIST(ns2_predict_q15)(rt, p, v, OWN_PAST nb, n, &one) : 0;
+        n_ok += one.status == NS2_OK && one.n_used > 0u;
         if (below(32) == 0) { /* a job never begun (zeroed) or stepped by the other path */
             memset(&job, 0, sizeof job);
             check(ns2_job_step_f32(&job, 3) == 0u && ns2_job_finish_q15(&job, &sl) == 0 &&
                       sl.status == NS2_ERR_JOB, "zeroed job not refused");
         }
-        const int32_t st = ns2_job_begin(&job, rt, p, v, nb, n);
+        const int32_t st = HIST(ns2_job_begin)(&job, rt, p, v, OWN_PAST nb, n);
         check(st == one.status, "ns2_job_begin status differs from the one-shot call");
         uint16_t left = 1u;
         for (int guard = 0; left > 0u && guard < 200; ++guard) {
@@ -217,7 +276,7 @@ static void fuzz_sliced(unsigned long long count)
             const float f2 = ns2_job_finish_f32(&job, &sl);
             check(bits_of(f2) == bits_of(f1) && same_info(&sl, &one), "sliced float result differs from one-shot");
         }
-        check(ns2_job_begin(NULL, rt, p, v, nb, n) == NS2_ERR_JOB, "NULL job not refused");
+        check(HIST(ns2_job_begin)(NULL, rt, p, v, OWN_PAST nb, n) == NS2_ERR_JOB, "NULL job not refused");
     }
 }
 
@@ -230,7 +289,7 @@ static void check_neighbors(const ns2_peers_t *s, uint32_t now, int require_all_
     const uint16_t n = ns2_peers_neighbors(s, 255u, p_self, v0, now, 5000u, out, max);
     check(n <= max && n <= NS2_PEERS_MAX, "more neighbours than asked for");
     for (uint16_t k = 0; k < n; ++k) {
-        for (int a = 0; a < 6; ++a) {
+        for (int a = 0; a < NS2_INPUT_DIM; ++a) { /* now and, with wake memory, each lag */
             check(isfinite(out[k].rel[a]), "non-finite neighbour state");
         }
         if (k > 0u) {
@@ -274,6 +333,40 @@ static void check_type_table(void)
     check(ns2_type_table_get(NULL, (uint8_t)below(256), n_types) == 0u, "type table: NULL is not type 0");
 }
 
+#if NS2_HISTORY_LAGS > 0
+/* The robot's own past is finite whatever the ring holds (given a finite present). */
+static void check_own_past(const ns2_peers_t *s)
+{
+    const float z[3] = {0.0f, 0.0f, 0.0f};
+    float own[6u * NS2_HISTORY_LAGS];
+    ns2_peers_own_past(s, z, z, own);
+    for (uint32_t a = 0; a < 6u * NS2_HISTORY_LAGS; ++a) {
+        check(isfinite(own[a]), "non-finite own past");
+    }
+}
+
+/* After NS2_PEERS_HIST history ticks of the robot at rest at the origin and no new
+ * sample, the ring holds only those ticks: every lag of every neighbour is its
+ * present (bit for bit: the same subtraction), and the own past is the origin. */
+static void check_history_settled(const ns2_peers_t *s, uint32_t now)
+{
+    const float z[3] = {0.0f, 0.0f, 0.0f};
+    float own[6u * NS2_HISTORY_LAGS];
+    ns2_peers_own_past(s, z, z, own);
+    for (uint32_t a = 0; a < 6u * NS2_HISTORY_LAGS; ++a) {
+        check(own[a] == 0.0f, "own past is not the recorded state after NS2_PEERS_HIST history ticks");
+    }
+    ns2_neighbor_t out[NS2_PEERS_MAX];
+    const uint16_t n = ns2_peers_neighbors(s, 255u, z, z, now, 100u, out, NS2_PEERS_MAX);
+    for (uint16_t k = 0; k < n; ++k) {
+        for (int a = 6; a < NS2_INPUT_DIM; ++a) {
+            check(bits_of(out[k].rel[a]) == bits_of(out[k].rel[a % 6]),
+                  "a neighbour's past is not its steady state after NS2_PEERS_HIST history ticks");
+        }
+    }
+}
+#endif
+
 static void fuzz_peers(unsigned long long count)
 {
     static ns2_peers_t s;
@@ -299,6 +392,13 @@ static void fuzz_peers(unsigned long long count)
             check_table(&s);
             float self[3] = {value(-3.0f, 3.0f, 8u), value(-3.0f, 3.0f, 8u), value(0.0f, 2.0f, 8u)};
             check_neighbors(&s, t + below(100), 0, self);
+#if NS2_HISTORY_LAGS > 0
+            if (below(3) == 0u) { /* a history tick, with any own state */
+                const float sv[3] = {value(-2.0f, 2.0f, 8u), value(-2.0f, 2.0f, 8u), value(-2.0f, 2.0f, 8u)};
+                ns2_peers_record(&s, below(32) ? self : NULL, sv);
+            }
+            check_own_past(&s);
+#endif
         }
         /* good phase: every known peer flies at constant velocity, 10 ms samples;
          * after at most 3 samples each its velocity must be the true one */
@@ -330,6 +430,12 @@ static void fuzz_peers(unsigned long long count)
         }
         const float origin[3] = {0.0f, 0.0f, 0.0f};
         check_neighbors(&s, t + 30u, 1, origin);
+#if NS2_HISTORY_LAGS > 0
+        for (uint32_t k = 0; k < NS2_PEERS_HIST; ++k) {
+            ns2_peers_record(&s, origin, origin);
+        }
+        check_history_settled(&s, t + 30u);
+#endif
         ns2_neighbor_t out[NS2_PEERS_MAX];
         const float z[3] = {0.0f, 0.0f, 0.0f};
         uint16_t others = 0; /* every peer but the robot itself (radio id 255 here) */
@@ -688,6 +794,7 @@ static void hil_write(const uint8_t *d, uint16_t n)
     check(type == NS2_HIL_RESULT || type == NS2_HIL_PONG || type == NS2_HIL_ERROR, "unknown reply type");
     if (type == NS2_HIL_RESULT) {
         check(len == 3u + 18u, "RESULT body not 18 bytes");
+        n_ok += len == 3u + 18u && le16(&d[7]) == 0u && le16(&d[9]) == 0u && le16(&d[17]) > 0u; /* NS2_OK, n_used */
     }
     if (type == NS2_HIL_PONG) {
         got_pong = 1;
@@ -712,24 +819,32 @@ static uint16_t make_frame(uint8_t *out, uint8_t type, uint16_t seq, const uint8
     return (uint16_t)(9u + n);
 }
 
+#define HIL_NB_BYTES (1u + 4u * NS2_INPUT_DIM)          /* u8 type, f32 rel[NS2_INPUT_DIM] */
+#define HIL_PAST_BYTES (24u * NS2_HISTORY_LAGS)           /* f32 own_past[6 NS2_HISTORY_LAGS] */
+#define HIL_FIT ((NS2_HIL_MAX_PAYLOAD - 8u - 26u - HIL_PAST_BYTES) / HIL_NB_BYTES) /* room for the padding */
+
 static uint16_t predict_body(uint8_t *b)
 {
     static ns2_neighbor_t nb[NB_CAP];
     uint8_t rt;
     float p[3], v[3];
     uint16_t n = random_query(&rt, p, v, nb, 8u);
-    if (n > NS2_HIL_MAX_NEIGHBORS) {
-        n = NS2_HIL_MAX_NEIGHBORS;
+    const uint16_t cap = NS2_HIL_MAX_NEIGHBORS < HIL_FIT ? NS2_HIL_MAX_NEIGHBORS : HIL_FIT;
+    if (n > cap) {
+        n = cap;
     }
     b[0] = rt;
     b[1] = (uint8_t)(below(16) == 0 ? below(256) : n); /* sometimes a lying count */
     memcpy(&b[2], p, 12);
     memcpy(&b[14], v, 12);
     for (uint16_t j = 0; j < n; ++j) {
-        b[26u + 25u * j] = nb[j].type;
-        memcpy(&b[27u + 25u * j], nb[j].rel, 24);
+        b[26u + HIL_NB_BYTES * j] = nb[j].type;
+        memcpy(&b[27u + HIL_NB_BYTES * j], nb[j].rel, 4u * NS2_INPUT_DIM);
     }
-    uint16_t len = (uint16_t)(26u + 25u * n);
+#if NS2_HISTORY_LAGS > 0
+    memcpy(&b[26u + HIL_NB_BYTES * n], fz_past, HIL_PAST_BYTES); /* NULL is not sent: the body carries one */
+#endif
+    uint16_t len = (uint16_t)(26u + HIL_NB_BYTES * n + HIL_PAST_BYTES);
     if (below(16) == 0) {
         len = (uint16_t)below(len + 8u); /* truncated or padded body */
     }
@@ -859,8 +974,13 @@ static void regress(void)
     const float z[3] = {0.0f, 0.0f, 0.0f};
     check(ns2_peers_neighbors(&ps, 9u, z, z, 11000u, 100u, out, 4u) == 1u, "peer missing");
     ns2_info_t info;
+#if NS2_HISTORY_LAGS > 0
+    const float own[6u * NS2_HISTORY_LAGS] = {0.0f};
+    (void)ns2_predict_f32_hist(0u, z, z, own, out, 1u, &info);
+#else
     (void)ns2_predict_f32(0u, z, z, out, 1u, &info);
-    check(info.n_invalid == 0u, "peer counted invalid by the prediction");
+#endif
+    check(info.status == NS2_OK && info.n_invalid == 0u, "peer counted invalid by the prediction");
     input_index = 1;
 }
 
@@ -891,6 +1011,7 @@ int main(int argc, char **argv)
         fprintf(stderr, "unknown target %s\n", argv[1]);
         return 2;
     }
-    printf("{\"target\": \"%s\", \"inputs\": %llu, \"checks\": %llu}\n", argv[1], input_index, n_checks);
+    printf("{\"target\": \"%s\", \"inputs\": %llu, \"checks\": %llu, \"input_dim\": %d, \"predictions_ok\": %llu}\n",
+           argv[1], input_index, n_checks, (int)NS2_INPUT_DIM, n_ok);
     return 0;
 }

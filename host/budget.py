@@ -11,6 +11,11 @@ free (../shared/crazyflie-firmware/README.md); APP_RESERVE_BYTES of it are kept
 for the app itself (jobs, peers, its task), an assumption until the app's own RAM
 is measured in the real firmware build.
 
+A network with wake memory (model.history_ms, NS2_HISTORY_LAGS > 0 in its export) is
+counted through the entry points the app calls (ns2_predict_*_hist, ns2_job_begin_hist),
+with each neighbour's 6 (1 + lags) inputs and the robot's own past; a network without
+it through the plain ones, as before.
+
 Used by benchmarks/bench_target.py (the numbers) and by the tests (the on-board
 network variant must stay within the budget; counts are deterministic)."""
 from __future__ import annotations
@@ -25,7 +30,7 @@ from ns2codegen.vehicle import vehicle
 
 from . import cm4_count, target
 from .cbuild import CModel
-from .target import NBR_DT
+from .target import nbr_dtype
 
 TICK_US, BUDGET_FRACTION = 2000.0, 0.2
 BUDGET_US = TICK_US * BUDGET_FRACTION
@@ -35,28 +40,64 @@ APP_RESERVE_BYTES = 4096
 TABLE_RAM_BUDGET_BYTES = SRAM_FREE_BYTES - APP_RESERVE_BYTES
 
 
+P_SELF, V_SELF = np.float32([0.1, -0.2, 0.8]), np.float32([0.2, 0.0, -0.1])  # the counted robot
+
+
 def neighbors(cfg: Config, n: int, rng: np.random.Generator) -> np.ndarray:
     """n neighbours of random types close above and around the robot (all inside
-    the interaction volume, so all of them are evaluated)."""
-    nb = np.zeros(max(n, 1), NBR_DT)
+    the interaction volume, so all of them are evaluated), ns2_neighbor_t of the
+    config's phi input (cfg.input_dim).  With wake memory each neighbour's past
+    relative state at each lag of cfg.history_ms is that of constant relative
+    velocity (the same random draws as without: the present states are the same)."""
+    nb = np.zeros(max(n, 1), nbr_dtype(cfg.input_dim))
     nb["type"] = rng.integers(0, cfg.num_robot_types, len(nb))
-    nb["rel"] = np.column_stack([rng.uniform(-0.2, 0.2, (len(nb), 2)), rng.uniform(0.1, 1.0, len(nb)),
-                                 rng.normal(0, 0.3, (len(nb), 3))])
+    now = np.column_stack([rng.uniform(-0.2, 0.2, (len(nb), 2)), rng.uniform(0.1, 1.0, len(nb)),
+                           rng.normal(0, 0.3, (len(nb), 3))])
+    nb["rel"] = np.concatenate([now] + [np.column_stack([now[:, :3] - now[:, 3:] * (ms / 1000), now[:, 3:]])
+                                        for ms in cfg.history_ms], 1)
     return nb
 
 
-def prediction_run(cm: cm4_count.Cm4, fn: str, nb: np.ndarray, n: int) -> tuple[cm4_count.Run, dict]:
+def own_past(cfg: Config) -> np.ndarray | None:
+    """The counted robot's own [p; v] at each lag of cfg.history_ms (constant
+    velocity: ns2_predict_*_hist's own_past); None without wake memory."""
+    if not cfg.history_ms:
+        return None
+    return np.float32([[*(P_SELF - V_SELF * np.float32(ms / 1000)), *V_SELF] for ms in cfg.history_ms])
+
+
+def prediction_run(cm: cm4_count.Cm4, fn: str, nb: np.ndarray, n: int,
+                   past: np.ndarray | None = None) -> tuple[cm4_count.Run, dict]:
     """``fn`` (ns2_predict_f32 / _q15) for a small robot at 0.8 m with the first n of
-    ``nb``; returns the run and the addresses of its arguments (for further calls)."""
+    ``nb``; with ``past`` (own_past: a network with wake memory) ``fn``_hist with it.
+    Returns the run and the addresses of its arguments (for further calls:
+    job_begin)."""
+    if (past is None) != (nb["rel"].shape[-1] == 6):
+        raise ValueError(f"neighbours of {nb['rel'].shape[-1]} inputs with {'no' if past is None else 'an'} "
+                         "own past: give own_past(cfg) exactly for a network with wake memory")
     cm.reset_scratch()
-    args = {"p": cm.write(np.float32([0.1, -0.2, 0.8]).tobytes()),
-            "v": cm.write(np.float32([0.2, 0.0, -0.1]).tobytes()),
+    args = {"p": cm.write(P_SELF.tobytes()), "v": cm.write(V_SELF.tobytes()),
             "info": cm.write(bytes(16)), "nbrs": cm.write(nb.tobytes())}
-    _, _, run = cm.call(fn, 0, args["p"], args["v"], args["nbrs"], n, args["info"])
+    if past is None:
+        _, _, run = cm.call(fn, 0, args["p"], args["v"], args["nbrs"], n, args["info"])
+    else:
+        args["past"] = cm.write(np.ascontiguousarray(past, "<f4").tobytes())
+        _, _, run = cm.call(f"{fn}_hist", 0, args["p"], args["v"], args["past"], args["nbrs"], n, args["info"])
     used = int.from_bytes(cm.read(args["info"] + 4, 2), "little")
     if used != n:
         raise AssertionError(f"{used} of {n} neighbours used")
     return run, args
+
+
+def job_begin(cm: cm4_count.Cm4, args: dict, n: int) -> tuple[int, cm4_count.Run]:
+    """ns2_job_begin_hist of the robot and the first n neighbours of ``args``
+    (prediction_run's; own_past NULL without wake memory: that is ns2_job_begin, a
+    wrapper the vector image does not keep) into a fresh job in the scratch area;
+    returns the job's address and the run."""
+    size = cm.symbols["job"][1] if "job" in cm.symbols else 0   # the image's static ns2_job_t
+    job = cm.write(bytes(max(2048, size)))
+    _, _, run = cm.call("ns2_job_begin_hist", job, 0, args["p"], args["v"], args.get("past", 0), args["nbrs"], n)
+    return job, run
 
 
 def controller_runs(gen: Path, cfg: Config) -> dict[str, cm4_count.Run]:
@@ -82,27 +123,28 @@ def controller_runs(gen: Path, cfg: Config) -> dict[str, cm4_count.Run]:
 
 
 def one_tick(gen: Path, cfg: Config, n: int = 15, seed: int = 0) -> dict:
-    """A whole prediction with n neighbours + the environment and one controller
-    step in one tick, float and fixed point, against BUDGET_US: at zero wait
+    """A whole prediction with n neighbours + the environment (with wake memory: their
+    pasts and the robot's own) and one controller step in one tick, float and
+    fixed point, against BUDGET_US: at zero wait
     states (prediction_us, total_us, meets_budget) and on the modelled memory
     system with the tables in flash and with each path's hot tables in SRAM
     (``memory_model``: {"flash": ..., "ram": ...})."""
-    nb = neighbors(cfg, n, np.random.default_rng(seed))
+    nb, past = neighbors(cfg, n, np.random.default_rng(seed)), own_past(cfg)
     ctrl = controller_runs(gen, cfg).values()
     ctrl_us = sum(r.microseconds for r in ctrl)
     ctrl_mem_us = sum(r.memory_microseconds for r in ctrl)
-    out = {"neighbors": n, "budget_us": BUDGET_US, "controller_step_us": round(ctrl_us, 2),
-           "controller_step_us_memory_model": round(ctrl_mem_us, 2)}
+    out = {"neighbors": n, "history_ms": cfg.history_ms, "input_dim": cfg.input_dim, "budget_us": BUDGET_US,
+           "controller_step_us": round(ctrl_us, 2), "controller_step_us_memory_model": round(ctrl_mem_us, 2)}
     flash = cm4_count.Cm4(target.build_image(gen))
     for name, fn, path in (("float", "ns2_predict_f32", "f32"), ("fixed", "ns2_predict_q15", "q15")):
-        run, _ = prediction_run(flash, fn, nb, n)
+        run, _ = prediction_run(flash, fn, nb, n, past)
         total = run.microseconds + ctrl_us
         out[name] = {"prediction_us": round(run.microseconds, 1), "total_us": round(total, 1),
                      "meets_budget": total <= BUDGET_US, "memory_model": {}}
         defines = target.ram_placement(cfg.robot_types[0], path)
         ram_elf = target.build_image(gen, defines=defines)
         for where, cm in (("flash", flash), ("ram", cm4_count.Cm4(ram_elf))):
-            r = run if where == "flash" else prediction_run(cm, fn, nb, n)[0]
+            r = run if where == "flash" else prediction_run(cm, fn, nb, n, past)[0]
             t = r.memory_microseconds + ctrl_mem_us
             ram_bytes = sum(v["in_ram_bytes"] for v in target.table_bytes(cm.elf).values())
             out[name]["memory_model"][where] = {

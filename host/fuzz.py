@@ -5,7 +5,11 @@ controller) and the HIL parser are compiled with gcc
 ``-fsanitize=address,undefined,float-cast-overflow -fno-sanitize-recover=all``
 against the headers of one export folder, together with the driver.  Each target
 runs COUNT structured inputs from a fixed seed; any sanitizer report, failed
-contract check or failed recovery check ends the run with a non-zero status.
+contract check or failed recovery check ends the run with a non-zero status.  The
+inputs take their width from the export (NS2_INPUT_DIM): a network with wake memory
+gets each neighbour's past and the robot's own through the *_hist entry points, the
+peer table's history ring and HIL bodies with the past; each target's JSON names
+input_dim and predictions_ok (inference reached with status NS2_OK).
 
     python -m ns2host.fuzz --gen firmware/generated --count 1000000   (make fuzz)
 """
@@ -87,7 +91,7 @@ def main(argv=None) -> int:
             print(json.dumps({"failed": t, "report": str(e)}, indent=2))
             return 1
     total = sum(r["inputs"] for r in results[1:])
-    print(json.dumps({"sanitizers": SANITIZE[0], "inputs": total,
+    print(json.dumps({"sanitizers": SANITIZE[0], "input_dim": results[0]["input_dim"], "inputs": total,
                       "seconds": round(sum(r["seconds"] for r in results), 1), "targets": results}, indent=2))
     return 0
 

@@ -18,6 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ns2codegen.export import export_config
+
 from . import cfapp, cm4_count, crazyflie
 from .cbuild import BUILD_ROOT, REPO, cached, compile_error, content_hash, flags
 from .target import ARM_CC, TARGET_DIR
@@ -41,6 +43,7 @@ KBUILD_CFLAGS = ("-Os", "-std=gnu11", "-fno-strict-aliasing", "-ffunction-sectio
 DRIVER = REPO / "host" / "cf_stabilizer.c"
 ENTRY_POINTS = ("bench_init", "bench_radio", "bench_estimator", "bench_pid", "bench_app")
 TICK_US, CLOCK_HZ = 1000.0, cm4_count.CLOCK_HZ
+HIST_PERIOD_MS = 10  # NS2_PEERS_HIST_PERIOD_MS: the app records its wake memory at its 100 Hz position tick
 
 
 def build_image(gen_dir: Path, infer: str = "fixed") -> Path:
@@ -108,7 +111,11 @@ def iteration(gen_dir: Path, n_peers: int = 15, infer: str = "fixed", adapt: boo
     priority task, so its worst tick may spill into the next millisecond; the mean
     load says whether the CPU keeps up.  ``adapt``: with the on-board adaptation on
     (PARAM ns2adapt.enable = 1 written into the app's adaptCfg after boot; the label is
-    computed either way)."""
+    computed either way).  With wake memory (the export's model.history_ms) the warm-up
+    lasts until the app's history ring holds the longest lag (a 200 ms lag: 21 periods),
+    so that every past state comes from the ring."""
+    lag_ticks = max(((ms + HIST_PERIOD_MS // 2) // HIST_PERIOD_MS for ms in export_config(gen_dir).history_ms),
+                    default=0)  # the app's rounding (ns2_peers.c), in history ticks = 100 Hz periods
     cm = cm4_count.Cm4(build_image(gen_dir, infer))
     a = 2.0 * np.pi * np.arange(n_peers) / n_peers  # a ring 0.3 m around and 0.3 m above (inside V)
     ring = np.stack([0.3 * np.cos(a), 0.3 * np.sin(a), np.full(n_peers, 1.3)], 1).astype("<f4")
@@ -117,13 +124,14 @@ def iteration(gen_dir: Path, n_peers: int = 15, infer: str = "fixed", adapt: boo
         cm.mu.mem_write(cm.addr("adaptCfg"), b"\x01")   # ns2_adapt_cfg_t.enable, its first byte
     runs: dict[str, list] = {"estimator": [], "estimator_other": [], "pid": [], "app": []}
     period = 10  # PREDICT_RATE = 100 Hz, mocap at 100 Hz; the controllers' 100 Hz period
-    for tick in range(1, 3 * period + 1):
+    warm = period * (1 + lag_ticks)  # ticks before counting (one period without wake memory)
+    for tick in range(1, warm + 2 * period + 1):
         heavy = int(tick % period == 0)
         cm.call("bench_radio", tick)  # mocap broadcasts (the radio task's time, not counted)
         _, _, e = cm.call("bench_estimator", tick, heavy, heavy)
         _, _, p = cm.call("bench_pid", tick)
         _, _, a = cm.call("bench_app", tick)
-        if tick > period:
+        if tick > warm:
             runs["estimator" if heavy else "estimator_other"].append(e)
             runs["pid"].append(p)
             runs["app"].append(a)
@@ -136,7 +144,7 @@ def iteration(gen_dir: Path, n_peers: int = 15, infer: str = "fixed", adapt: boo
         costly tick at the ticks with tick % 10 == f; share_by_phase[f])"""
         out = {}
         for model, attr in MODELS.items():
-            c = {t: getattr(r, attr) for t, r in zip(range(period + 1, 3 * period + 1), runs[ctrl])}
+            c = {t: getattr(r, attr) for t, r in zip(range(warm + 1, warm + 2 * period + 1), runs[ctrl])}
             est = [w["estimator_other"][attr], w["estimator"][attr]]
             by_phase = [max(est[int(t % period == f)] + c[t] for t in c) for f in range(period)]
             out[model] = {"cycles": max(by_phase), "share_of_1ms": _share(max(by_phase)),
@@ -149,6 +157,7 @@ def iteration(gen_dir: Path, n_peers: int = 15, infer: str = "fixed", adapt: boo
 
     stock, app = worst_tick("pid"), worst_tick("app")
     return {"tick_us": TICK_US, "clock_hz": CLOCK_HZ, "peers_broadcast": n_peers, "app_neighbors_used": n_used,
+            "warm_up_ticks": warm,
             "infer": infer, "adaptation": adapt, "estimator_kalman_predict_and_position": w["estimator"],
             "estimator_kalman_other_ticks": w["estimator_other"],
             "stock_controller_pid": w["pid"], "app_controller_oot": w["app"],

@@ -1,13 +1,14 @@
 """Instruction counting on the emulated Cortex-M4 (unicorn) and the cross-build
 memory report: the harness computes what the host computes, and the generated
-kernels stay within their instruction budgets (deterministic counts)."""
+kernels stay within their instruction budgets (deterministic counts); a network
+with wake memory (24 inputs per neighbour) is counted through the same helpers."""
 import numpy as np
 import pytest
 
 from ns2codegen.queries import random_queries
 from conftest import ARM, needs
 from ns2host import budget, cm4_count, firmware_report, target
-from ns2host.target import NBR_DT
+from ns2host.target import nbr_dtype
 
 pytestmark = needs(ARM)
 
@@ -18,19 +19,24 @@ def cm(exported):
 
 
 def _call(cm, fn, q, i):
+    """fn on query i; with wake memory (q.lags > 0) fn_hist with the query's own past."""
     cm.reset_scratch()
     p = cm.write(q.p[i].tobytes())
     v = cm.write(q.v[i].tobytes())
     info = cm.write(bytes(16))
-    nb = np.zeros(max(int(q.n[i]), 1), NBR_DT)
+    nb = np.zeros(max(int(q.n[i]), 1), nbr_dtype(q.nbr_rel.shape[-1]))
     nb["type"][:q.n[i]] = q.nbr_type[i, :q.n[i]]
     nb["rel"][:q.n[i]] = q.nbr_rel[i, :q.n[i]]
+    if q.lags:
+        past = cm.write(np.ascontiguousarray(q.past[i], "<f4").tobytes())
+        return cm.call(f"{fn}_hist", int(q.robot_type[i]), p, v, past, cm.write(nb.tobytes()), int(q.n[i]), info)
     return cm.call(fn, int(q.robot_type[i]), p, v, cm.write(nb.tobytes()), int(q.n[i]), info)
 
 
-def test_emulated_calls_match_the_host(exported, cm):
-    c = exported.cmodel()
-    q = random_queries(exported.cfg, 12, seed=4, max_given=6)
+def _match_host(ex, cm, count):
+    """count random queries of the export ``ex`` on the emulator: the host's bits."""
+    c = ex.cmodel()
+    q = random_queries(ex.cfg, count, seed=4, max_given=6)
     f_host, _ = c.predict(q, False)
     q_host, _ = c.predict(q, True)
     for i in range(len(q)):
@@ -39,6 +45,11 @@ def test_emulated_calls_match_the_host(exported, cm):
         assert np.float32(s0).view(np.uint32) == f_host[i:i + 1].view(np.uint32)[0]
         assert np.int16(np.uint16(r0 & 0xFFFF).view(np.int16)) == q_host[i]
         assert run_f.instructions > 1000 and run_f.cycles >= run_f.instructions
+    return q
+
+
+def test_emulated_calls_match_the_host(exported, cm):
+    _match_host(exported, cm, 12)
 
 
 def test_tables_in_ram_same_results_fewer_stalls(exported, cm):
@@ -95,6 +106,61 @@ def test_one_tick_budget(exported, onboard):
     assert flash["total_us"] > ram["total_us"] >= small["fixed"]["total_us"]
     paper = budget.one_tick(exported.gen_dir, exported.cfg)
     assert paper["fixed"]["prediction_us"] > 1.5 * small["fixed"]["prediction_us"]  # 3550 vs 1536 MACs per phi
+
+
+@pytest.fixture(scope="module")
+def cm_hist(history):
+    return cm4_count.Cm4(target.build_image(history.gen_dir))
+
+
+def test_history_emulated_calls_match_the_host(history, cm_hist):
+    """The network with wake memory (24 inputs per neighbour, the robot's own past)
+    through ns2_predict_*_hist on the emulated Cortex-M4: the host's bits."""
+    q = _match_host(history, cm_hist, 4)
+    assert q.lags == 3 and q.nbr_rel.shape[-1] == 24
+
+
+def test_history_budget_path(exported, history, cm, cm_hist):
+    """budget's helpers take the input width from the export: the wake-memory network's
+    phi evaluation costs more than the present-state one's (18 more inputs to clamp,
+    quantize and multiply) and stays within the instruction budgets per multiply-
+    accumulate (its dense kernels under 1, fixed point; its input handling costs about
+    0.14 per MAC more), the sliced job (ns2_job_begin_hist) gives the one-shot bits, and
+    the one-tick budget counts 24 inputs per neighbour (3 neighbours here: the counts
+    of bench_target's 15 take long on the emulator)."""
+    per_phi, kernels, three = {}, {}, {}
+    for name, ex, image in (("now", exported, cm), ("hist", history, cm_hist)):
+        nb, past = budget.neighbors(ex.cfg, 3, np.random.default_rng(0)), budget.own_past(ex.cfg)
+        assert nb["rel"].shape[-1] == ex.cfg.input_dim and (past is None) == (name == "now")
+        for fn in ("ns2_predict_f32", "ns2_predict_q15"):
+            one, _ = budget.prediction_run(image, fn, nb, 1, past)
+            three[name, fn], args = budget.prediction_run(image, fn, nb, 3, past)
+            per_phi[name, fn] = (three[name, fn].instructions - one.instructions) / 2   # one pair of phi
+            kernels[name, fn] = sum(n for f, n in three[name, fn].by_function.items() if f.startswith("dense"))
+        with pytest.raises(ValueError, match="own past"):
+            budget.prediction_run(image, "ns2_predict_q15", nb, 1, None if name == "hist" else np.zeros((1, 6)))
+    dims, rho_dims = history.cfg.phi_dims(), history.cfg.rho_dims()
+    assert dims[0] == 24 and exported.cfg.phi_dims()[0] == 6
+    phi = sum(a * b for a, b in zip(dims[:-1], dims[1:]))
+    rho = sum(a * b for a, b in zip(rho_dims[:-1], rho_dims[1:]))
+    for fn, bound in (("ns2_predict_f32", 3.0), ("ns2_predict_q15", 1.25)):
+        assert per_phi["now", fn] < per_phi["hist", fn] < bound * phi, (fn, per_phi)
+        assert kernels["now", fn] < kernels["hist", fn]
+    assert kernels["hist", "ns2_predict_q15"] / (4 * phi + rho) < 1.0
+    # the sliced job of the wake-memory network (args: its last q15 call): the one-shot bits
+    r0 = cm_hist.call("ns2_predict_q15_hist", 0, args["p"], args["v"], args["past"], args["nbrs"], 3, args["info"])[0]
+    job, begin = budget.job_begin(cm_hist, args, 3)
+    assert begin.instructions > 100
+    while cm_hist.call("ns2_job_step_q15", job, 1)[0] > 0:
+        pass
+    r_job = cm_hist.call("ns2_job_finish_q15", job, args["info"])[0]
+    assert r_job & 0xFFFF == r0 & 0xFFFF and int.from_bytes(cm_hist.read(args["info"], 4), "little") == 0  # NS2_OK
+    tick = budget.one_tick(history.gen_dir, history.cfg, n=3)
+    assert tick["input_dim"] == 24 and tick["history_ms"] == [50, 100, 200]
+    assert tick["fixed"]["prediction_us"] == round(three["hist", "ns2_predict_q15"].microseconds, 1)
+    assert tick["fixed"]["prediction_us"] > round(three["now", "ns2_predict_q15"].microseconds, 1)
+    ram, flash = tick["fixed"]["memory_model"]["ram"], tick["fixed"]["memory_model"]["flash"]
+    assert flash["total_us"] > ram["total_us"] >= tick["fixed"]["total_us"] and ram["tables_in_ram_bytes"] > 0
 
 
 def test_memory_report(exported):

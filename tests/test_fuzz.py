@@ -1,7 +1,8 @@
 """The firmware library under ASan + UBSan (fuzz/ns2_fuzz.c via ns2host.fuzz): the
 smallest triggers of issue 17 (D1 HIL PING echo, D2 controller stuck on NaN,
 D3 peers stuck on NaN) and a bounded, fixed-seed run of every fuzz target with
-its recovery checks.  `make fuzz` runs the same targets with >= 1,000,000 inputs."""
+its recovery checks, for the default export and for a network with wake memory
+(24 inputs per neighbour).  `make fuzz` runs the same targets with >= 1,000,000 inputs."""
 import pytest
 
 from ns2host import fuzz
@@ -17,10 +18,32 @@ def test_issue17_triggers_d1_d2_d3(exe):
     assert out["checks"] > 1000
 
 
+INFERENCE = ("infer", "sliced", "hil")  # the targets that run predictions
+
+
 @pytest.mark.parametrize("target", fuzz.TARGETS)
 def test_bounded_fuzz_run(exe, target):
     out = fuzz.run(exe, target, 3000, seed=17)
-    assert out["inputs"] >= 3000 and out["checks"] > out["inputs"]
+    assert out["inputs"] >= 3000 and out["checks"] > out["inputs"] and out["input_dim"] == 6
+    if target in INFERENCE:
+        assert out["predictions_ok"] > 0.05 * out["inputs"]
+
+
+@pytest.fixture(scope="module")
+def exe_hist(history):
+    return fuzz.build(history.gen_dir)
+
+
+@pytest.mark.parametrize("target", ("regress",) + fuzz.TARGETS)
+def test_bounded_fuzz_run_with_wake_memory(exe_hist, target):
+    """The driver on a network with wake memory: every neighbour's past and the own
+    past drawn (hostile values too) through the *_hist entry points, which must reach
+    the inference (not only be refused), the peers' history ring recovered after
+    glitches, HIL bodies with 24 inputs per neighbour and the own past."""
+    out = fuzz.run(exe_hist, target, 1000, seed=17)
+    assert out["input_dim"] == 24 and out["checks"] > out["inputs"] >= (1 if target == "regress" else 1000)
+    if target in INFERENCE:
+        assert out["predictions_ok"] > 0.05 * out["inputs"]
 
 
 def test_a_failed_check_is_reported(exe, tmp_path):
