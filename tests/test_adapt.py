@@ -12,7 +12,7 @@ import pytest
 from conftest import ARM, QEMU, REAL_DATA, needs, real_logs
 from ns2codegen import onboard as ob
 from ns2codegen.onboard import AdaptCfg, LabelCfg
-from ns2paper.collection import COLLECTION
+from ns2codegen.logs.collection import COLLECTION
 from ns2codegen.vehicle import G
 from ns2host import onboard as host
 
@@ -23,7 +23,7 @@ REAL_LABEL_TOLERANCE_G = 1e-4
 
 def reference(lcfg: LabelCfg, t: host.Ticks) -> dict:
     lab_N, lab_g, lst = ob.label_f32(lcfg, t.vz, t.z, t.q, t.pwm, t.battery_V)
-    res = ob.adapt_f32(t.cfgs, t.nn_g, t.wake, lab_g, lst, t.reset)
+    res = ob.adapt_f32(t.cfgs, t.nn_g, t.wake, lab_g, lst, t.reset, t.s_h)
     return {"label_N": lab_N, "label_g": lab_g, "label_status": lst, "adapt_status": res.pop("status"), **res}
 
 
@@ -84,10 +84,17 @@ def wild_ticks(cfg, seed: int, n: int) -> tuple[LabelCfg, host.Ticks]:
             cur = AdaptCfg(**{**base.as_dict(), "forget": float(rng.uniform(0.9, 1.0)),
                               "p_max": float(rng.uniform(1, 100)), "wake_g": float(rng.uniform(0, 5)),
                               "scale_max": float(rng.choice([0.0, rng.uniform(0, 1)])),
-                              "gate_neighbours": int(rng.integers(0, 2))})
+                              "gate_neighbours": int(rng.integers(0, 2)),
+                              "track_gain": float(rng.choice([0.0, rng.uniform(0, 1e5)]))})
         cfgs.append(cur)
+    # every sequence has the composite law at its defaults, then a gate other than 0/1 written
+    cfgs[n // 3:n // 3 + 300] = [AdaptCfg(track_gain=2e4)] * 300
+    cfgs[n // 2:n // 2 + 20] = [AdaptCfg(**{**cfgs[n // 2].as_dict(), "gate_neighbours": 2})] * 20
     lc = label_cfg(cfg, min_z_m=0.2)
-    return lc, host.ticks(vz, z, q, pwm, bat, nn, cfgs, rng.random(n) < 0.002, rng.random(n) < 0.1)
+    s_h = rng.normal(0, 0.005, n)                   # the composite tracking error times 10 ms, m
+    m = rng.random(n) < 0.01
+    s_h[m] = rng.choice(wild, m.sum())
+    return lc, host.ticks(vz, z, q, pwm, bat, nn, cfgs, rng.random(n) < 0.002, rng.random(n) < 0.1, s_h)
 
 
 def test_exp_neg_bit_exact_and_accurate(exported):
@@ -119,6 +126,9 @@ def test_random_and_hostile_sequences_bit_exact(cfg, exported, seed):
     for g in (0, 1):
         assert ((gate == g) & ((st & ob.ADAPT_UPDATED) != 0)).any(), g
     assert ((gate > 1) & (st == ob.ADAPT_BAD_PARAM)).any()
+    # the composite law flown on some updates, its bad tracking input seen
+    track = np.array([cf.track_gain for cf in t.cfgs])
+    assert ((track > 0) & ((st & ob.ADAPT_UPDATED) != 0)).any() and (st & ob.ADAPT_BAD_TRACK).any()
     for bit in (ob.LABEL_BAD_INPUT, ob.LABEL_WARMUP, ob.LABEL_GROUND, ob.LABEL_TILTED, ob.LABEL_SATURATED):
         assert (c["label_status"] & bit).any(), bit
     for k in ("label_N", "out_g", "term_g", "theta", "P"):
@@ -257,6 +267,46 @@ def test_neighbour_gate_default_and_bad_values(cfg, exported):
     assert abs(th[-1, 0] + 4.5) < 0.3                    # the label (-3 g) less NN (1.5 g)
 
 
+def test_composite_law_tracking_term(cfg, exported):
+    """Neural-Fly's composite law (track_gain > 0): the C equals the reference bit for bit
+    with a tracking error s_h; theta moves with s (a positive s, the robot above its
+    reference's motion, raises the bias against the RLS alone); track_gain = 0 (the
+    default, the C's and the reference's) ignores s_h entirely (bit for bit the run with
+    s_h = 0); no update, no tracking term either (a wake); a non-finite or absurd s_h skips
+    the term (BAD_TRACK) but not the RLS update; a negative or absurd gain is a bad
+    parameter (the C's check equals the reference's)."""
+    from ns2host import cbuild
+
+    ffi, lib = cbuild.load(exported.gen_dir)
+    c_cfg = ffi.new("ns2_adapt_cfg_t *")
+    lib.ns2_adapt_default_cfg(c_cfg)
+    assert c_cfg.track_gain == 0.0 == AdaptCfg().track_gain
+    for g in (0.0, 1.0, 2e4, 1e6, 1.1e6, -1.0, -0.0, float("nan"), float("inf")):
+        c_cfg.track_gain = g
+        assert bool(lib.ns2_adapt_cfg_ok(c_cfg)) == ob.adapt_cfg_ok(AdaptCfg(track_gain=g)) == (0 <= g <= 1e6), g
+    rng = np.random.default_rng(12)
+    n = 600
+    vz, z, q, pwm, bat = hover_ticks(cfg, rng, n, offset_g=3.0, noise=0.01)
+    nn = np.where((np.arange(n) // 100) % 3 == 2, -20.0, 0.5)          # a wake every third 100 ticks
+    s_h = np.full(n, 2e-4, np.float32)                                   # 0.02 m/s for 10 ms
+    s_h[[150, 151, 160]] = [np.nan, np.inf, 2.0]
+    lc = label_cfg(cfg)
+    runs = {}
+    for g in (0.0, 2e3):
+        t = host.ticks(vz, z, q, pwm, bat, nn, AdaptCfg(track_gain=g), s_h=s_h)
+        runs[g] = c = host.run_host(exported.gen_dir, lc, t)
+        assert_bits(c, reference(lc, t))
+    zero = host.run_host(exported.gen_dir, lc, host.ticks(vz, z, q, pwm, bat, nn, AdaptCfg()))
+    assert_bits(runs[0.0], zero)                                         # gain 0: s_h never read
+    st, th = runs[2e3]["adapt_status"], runs[2e3]["theta"][:, 0]
+    upd = (st & ob.ADAPT_UPDATED) != 0
+    assert (th[upd] > runs[0.0]["theta"][upd, 0]).all()                 # s > 0 raises the bias
+    wake = np.flatnonzero(st & ob.ADAPT_WAKE)
+    assert wake.size > 100 and all(th[k] == th[k - 1] for k in wake)    # no update: no tracking term
+    assert np.array_equal(np.flatnonzero(st & ob.ADAPT_BAD_TRACK), [150, 151, 160])
+    assert upd[[150, 151, 160]].all() and not (runs[0.0]["adapt_status"] & ob.ADAPT_BAD_TRACK).any()
+
+
 SWAPS = "neural-swarm-2020-06-16-swaps.tar.xz"
 REAL_MEMBERS = [f"{COLLECTION}/{f}" for f in ("swap_sl/cf51_04", "swap_sl/cf101_04", "swap_lll/cf100_01",
                                                "swap_lll/cf101_01", "swap_lll/cf102_01")]
@@ -266,7 +316,7 @@ REAL_MEMBERS = [f"{COLLECTION}/{f}" for f in ("swap_sl/cf51_04", "swap_sl/cf101_
 def real_flights(cfg):
     """Two real 16 June 2020 flights (swap_sl/04, swap_lll/01), aligned and cut into pieces."""
     from ns2codegen.logs.align import logs_to_flights
-    from ns2paper.collection import write_manifest
+    from ns2codegen.logs.collection import write_manifest
 
     root = real_logs(SWAPS, REAL_MEMBERS)
     write_manifest(root)
