@@ -12,7 +12,7 @@ import pytest
 from conftest import ARM, QEMU, REAL_DATA, needs, real_logs
 from ns2codegen import onboard as ob
 from ns2codegen.onboard import AdaptCfg, LabelCfg
-from ns2codegen.logs.collection import COLLECTION
+from ns2paper.collection import COLLECTION
 from ns2codegen.vehicle import G
 from ns2host import onboard as host
 
@@ -316,7 +316,7 @@ REAL_MEMBERS = [f"{COLLECTION}/{f}" for f in ("swap_sl/cf51_04", "swap_sl/cf101_
 def real_flights(cfg):
     """Two real 16 June 2020 flights (swap_sl/04, swap_lll/01), aligned and cut into pieces."""
     from ns2codegen.logs.align import logs_to_flights
-    from ns2codegen.logs.collection import write_manifest
+    from ns2paper.collection import write_manifest
 
     root = real_logs(SWAPS, REAL_MEMBERS)
     write_manifest(root)
