@@ -90,7 +90,7 @@ def test_param_and_log_groups_in_the_elf(app):
         assert adapt == {"enable": (PARAM_UINT8, "adaptCfg"), "gateNbr": (PARAM_UINT8, "adaptCfg"),
                      "reset": (PARAM_UINT8, "adaptReset"),
                          **{n: (PARAM_FLOAT, "adaptCfg") for n in ("forget", "p0", "pMax", "biasMax", "scaleMax",
-                                                                   "faMax", "labelMax", "wakeG")}}
+                                                                   "faMax", "labelMax", "wakeG", "trackGain")}}
         assert [n for n, _, _ in logs["ns2adapt"]] == ["bias", "scale", "trP", "label", "term", "status", "lstatus"]
         log = {n: (t, where(a)) for n, t, a in logs["ns2"]}
         assert log == {"faHat": (LOG_FLOAT, "faHat"), "inferUs": (LOG_UINT32, "inferUs"),
