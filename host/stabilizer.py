@@ -85,8 +85,11 @@ MODELS = {"zero_wait": "cycles", "memory": "memory_cycles"}  # cm4_count.Run's t
 
 
 def _worst(runs: list[cm4_count.Run]) -> dict:
+    """The worst tick's counts (zero wait and memory model) and where its zero-wait
+    cycles go (the eight costliest functions)."""
     w = max(runs, key=lambda r: r.cycles)
-    out = {"instructions": w.instructions, "cycles": w.cycles, "us_at_168MHz": round(w.microseconds, 1)}
+    out = {"instructions": w.instructions, "cycles": w.cycles, "us_at_168MHz": round(w.microseconds, 1),
+           "cycles_by_function": dict(w.cycles_by_function.most_common(8))}
     m = max(runs, key=lambda r: r.memory_cycles)
     return {**out, "memory_cycles": m.memory_cycles, "memory_us_at_168MHz": round(m.memory_microseconds, 1)}
 
