@@ -194,16 +194,15 @@ $(REAL)/adapt-gen/ns2_model_config.h: $(REAL)/heldout.json
 $(REAL)/adapt.json: $(REAL)/blind.json $(REAL)/adapt-gen/ns2_model_config.h
 	$(NS2) real adapt --dir $(REAL) --gen $(REAL)/adapt-gen --seeds $(REAL_SEEDS) --quiet --out $@
 # the wake's memory (issue 52): the blind splits with every neighbour's state also 50, 100 and
-# 200 ms ago (model.history_ms), in a folder of their own; by default the blind day only (June 2020
-# left out: 276,468 samples of 2019 to train on); the 2019 days left out train on 3.5x more
-# (REAL_MEM_SPLITS="2019-12-11 2019-12-20 2020-06-16", and heldout for the held-out flights)
-REAL_MEM_SPLITS ?= 2020-06-16
+# 200 ms ago (model.history_ms), in a folder of their own; every collection left out and the
+# held-out flights (12 trainings, about 25 min on one free core), or fewer with REAL_MEM_SPLITS
+REAL_MEM_SPLITS ?= $(REAL_COLLECTIONS) heldout
 REAL_MEM_LAGS ?= 50,100,200
 $(REAL)-mem/blind.json: $(REAL)/authors.pt
 	$(MAKE) REAL=$(REAL)-mem REAL_HISTORY=$(REAL_MEM_LAGS) $(foreach c,$(filter-out heldout,$(REAL_MEM_SPLITS)),$(REAL)-mem/loco-$(c).json) \
 		$(if $(filter heldout,$(REAL_MEM_SPLITS)),$(REAL)-mem/heldout.json)
 	$(NS2) real blind --dir $(REAL)-mem --authors $(REAL)/authors.pt --seeds $(REAL_SEEDS) \
-		$(foreach c,$(filter-out heldout,$(REAL_MEM_SPLITS)),--collection $(c)) --out $@
+		$(foreach c,$(REAL_MEM_SPLITS),--collection $(c)) --out $@
 $(REAL)/memory.json: $(REAL)/blind.json $(REAL)-mem/blind.json
 	$(NS2) real memory --now $(REAL)/blind.json --past $(REAL)-mem/blind.json --out $@
 # the authors' published networks (trained on all their collections, these flights included)

@@ -126,7 +126,7 @@ def real_score(checkpoint, data_dir, out, as_json):
               help="the authors' published network (`ns2 real import-authors`): scored beside ours (a training score)")
 @click.option("--seeds", type=int, default=3, show_default=True, help="networks per split scored (mean +- std)")
 @click.option("--collection", "collections", multiple=True,
-              help="score only these collections left out (repeat; default every one, and the held-out flights)")
+              help="score only these blind splits: a collection left out, or heldout for the held-out flights (repeat; default every one)")
 @click.option("--out", type=click.Path(dir_okay=False), required=True, help="JSON (and a .md table beside it)")
 @_json_option
 def real_blind(out_dir, authors, seeds, collections, out, as_json):

@@ -31,6 +31,7 @@ from .real import AUTHORS_MASSES_G, RealDataError
 from .realscore import both_conventions, gain
 
 ONBOARD_COLLECTION = "2020-06-16"
+HELDOUT = "heldout"          # the split of the whole held-out flights (every fifth of each scenario)
 MODEL_ORDER = ["ours", "authors", "zero", "onboard"]     # the rows of a split in the tables
 
 
@@ -109,7 +110,8 @@ def gains(split: dict, ours: str = "ours", refs=("onboard", "authors", "zero")) 
 
 def blind(data_dir: str | Path, authors: str | Path | None = None, seeds: int = 3, collections=None) -> dict:
     """The blind splits of ``data_dir`` (``make real``'s folder) scored (module docstring);
-    ``collections``: only these left out, and no held-out flights (default: every one)."""
+    ``collections``: only these splits, each a collection left out or ``heldout`` (the whole
+    held-out flights); default every one."""
     from ns2codegen.config import Config
     from ns2codegen.data.dataset import Dataset
 
@@ -126,9 +128,10 @@ def blind(data_dir: str | Path, authors: str | Path | None = None, seeds: int = 
         m["zero"] = [np.zeros(len(ds))]
         return m
 
-    unknown = sorted(set(collections or ()) - {c.key for c in COLLECTIONS})
+    names = [c.key for c in COLLECTIONS] + [HELDOUT]
+    unknown = sorted(set(collections or ()) - set(names))
     if unknown:
-        raise RealDataError(f"collection {unknown[0]}: not one of {', '.join(c.key for c in COLLECTIONS)}")
+        raise RealDataError(f"collection {unknown[0]}: not one of {', '.join(names)}")
     for c in COLLECTIONS:
         if collections is not None and c.key not in collections:
             continue
@@ -140,7 +143,12 @@ def blind(data_dir: str | Path, authors: str | Path | None = None, seeds: int = 
             ds, load_samples(d / f"c-{c.key}_samples.npz"), models(ds, ckpts), masses, cfg.robot_types,
             onboard=c.key == ONBOARD_COLLECTION)
         out["leave_one_collection_out"][c.key]["gains"] = gains(out["leave_one_collection_out"][c.key])
-    held = sorted((d / "heldout").glob("H-20-seed*.pt"))[:seeds] if collections is None else []
+    if collections is None or HELDOUT in collections:
+        held = sorted((d / "heldout").glob("H-20-seed*.pt"))[:seeds]
+        if collections is not None and not held:
+            raise RealDataError(f"{d / 'heldout'}: no trained network (make real trains them)")
+    else:
+        held = []
     if held:
         ds = Dataset.load(d / "heldout.npz")
         info = load_samples(d / "heldout_samples.npz")

@@ -6,6 +6,7 @@ relabelling with other masses, the wake)."""
 from __future__ import annotations
 
 import shutil
+from pathlib import Path
 import struct
 import zlib
 
@@ -246,3 +247,18 @@ def test_the_memory_verdict_needs_more_than_the_seeds_spread():
     rows = memory(now, res(9.1, 0.5))
     assert not rows["collection 2020-06-16 left out"]["wake_lower_beyond_spread"]
     assert "| collection 2020-06-16 left out | 10.00 +- 0.50 / 9.10 +- 0.50 |" in memory_table(rows, [50, 100, 200])
+
+
+def test_a_blind_split_is_a_collection_left_out_or_the_held_out_flights(tmp_path):
+    """`ns2 real blind --collection` names any blind split, the held-out flights (heldout)
+    included; a split without its trained networks, or an unknown name, is one line."""
+    from ns2exp.blind import HELDOUT, blind
+    from ns2exp.real import RealDataError
+
+    shutil.copy(Path(__file__).resolve().parent.parent / "ns2codegen" / "default.toml", tmp_path / "real.toml")
+    with pytest.raises(RealDataError, match=r"heldout: no trained network"):
+        blind(tmp_path, collections=[HELDOUT])
+    with pytest.raises(RealDataError, match=r"loco-2019-12-11: no trained network"):
+        blind(tmp_path, collections=["2019-12-11", HELDOUT])
+    with pytest.raises(RealDataError, match=r"collection 2019-12-31: not one of 2019-12-11, .*, heldout"):
+        blind(tmp_path, collections=["2019-12-31"])
