@@ -139,7 +139,7 @@ void ns2_ctrl_init(ns2_ctrl_t *c, const ns2_vehicle_t *veh, const ns2_gains_t *g
 void ns2_ctrl_position(ns2_ctrl_t *c, const ns2_ctrl_state_t *s, const ns2_setpoint_t *sp,
                        const float fa_hat[3], float dt);
 /* 100 Hz, for another position law (the simulator's replay of the controller that
- * flew the real flights, host/ctrl_authors.c): T_d, T_d_dot and R_d from a desired
+ * flew the real flights, paper/c/ctrl_authors.c): T_d, T_d_dot and R_d from a desired
  * force f_d (N, world frame, gravity included) as ns2_ctrl_position does from its
  * own; the same checks of config, state, dt and setpoint (its yaw sets R_d), and a
  * non-finite f_d or one beyond NS2_CTRL_F_MAX_N per axis is a bad state. */
