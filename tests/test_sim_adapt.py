@@ -118,3 +118,18 @@ def test_the_experiment_flies_every_controller_and_reads_the_adaptation(cfg, exp
     assert json.loads((tmp_path / "adapt.json").read_text())["summary"] == res["summary"]
     assert "| S2S |" in (tmp_path / "adapt.md").read_text()
     assert len((tmp_path / "adapt.partial.jsonl").read_text().splitlines()) == len(rows)
+
+
+def test_composite_arms_fly_their_track_gain(exported):
+    """`ns2 sim adapt --composite G`: an arm "NN+composite G" flies NN+adapt with
+    ns2adapt.trackGain = G (the other parameters the defaults); --no-baselines leaves BL-tuned
+    out; every flight of the experiment is flown by every arm."""
+    from ns2exp import simadapt
+
+    arms = simadapt.controllers((2000.0, 2e4), baselines=False)
+    assert arms == ("NN", "NN+adapt", "NN+composite 2000", "NN+composite 20000")
+    assert simadapt._adapt_cfg("NN+composite 20000") == AdaptCfg(enable=1, track_gain=2e4)
+    assert simadapt._adapt_cfg("NN+adapt") == AdaptCfg(enable=1) and simadapt._adapt_cfg("NN") is None
+    js = simadapt.jobs(exported.gen_dir, {}, seeds=(0,), cases=("S2S",), rings=[], arms=arms)
+    assert sorted((j["kind"], j["controller"]) for j in js) == sorted(
+        (k, a) for k in ("swap", "swap-solo", "battery") for a in arms)
