@@ -8,7 +8,8 @@
 /* ring slot of the history tick k ticks before the latest (k < NS2_PEERS_HIST) */
 static uint32_t hist_slot(const ns2_peers_t *s, uint32_t k)
 {
-    return ((uint32_t)s->hist_head + NS2_PEERS_HIST - k) % NS2_PEERS_HIST;
+    const uint32_t j = (uint32_t)s->hist_head + NS2_PEERS_HIST - k; /* < 2 NS2_PEERS_HIST */
+    return j < NS2_PEERS_HIST ? j : j - NS2_PEERS_HIST;
 }
 
 /* the tick of lag l for a history of `count` ticks: the oldest where younger */
@@ -147,10 +148,66 @@ uint8_t ns2_type_table_get(const uint32_t table[NS2_TYPE_TABLE_WORDS], uint8_t i
     return type < n_types ? type : 0u;
 }
 
+#if NS2_HISTORY_LAGS > 0
+/* o = x - y, six floats, written out (a loop is register-starved at -Os) */
+static void sub6(float *o, const float *x, const float *y)
+{
+    o[0] = x[0] - y[0];
+    o[1] = x[1] - y[1];
+    o[2] = x[2] - y[2];
+    o[3] = x[3] - y[3];
+    o[4] = x[4] - y[4];
+    o[5] = x[5] - y[5];
+}
+#endif
+
+/* x_ij now of peer e from p, v: [p_j - p; v_j - v], v_j = 0 until two samples */
+static void present6(const ns2_peer_t *e, const float p[3], const float v[3], float *o)
+{
+    o[0] = e->p[0] - p[0];
+    o[1] = e->p[1] - p[1];
+    o[2] = e->p[2] - p[2];
+    if (e->samples > 1u) {
+        o[3] = e->v[0] - v[0];
+        o[4] = e->v[1] - v[1];
+        o[5] = e->v[2] - v[2];
+    } else {
+        o[3] = 0.0f - v[0];
+        o[4] = 0.0f - v[1];
+        o[5] = 0.0f - v[2];
+    }
+}
+
+/* Fill *nb from peer e as seen from p, v: x_ij now, then, with wake memory, x_ij
+ * of the tick of each lag; slot_full[l]: the ring slot of lag l for a peer
+ * recorded for longer than the lag. */
+static void neighbor_fill(const ns2_peers_t *s, const ns2_peer_t *e, const float p[3], const float v[3],
+                          const uint32_t *slot_full, ns2_neighbor_t *nb)
+{
+    nb->type = e->type;
+    present6(e, p, v, nb->rel);
+#if NS2_HISTORY_LAGS > 0
+    for (int l = 0; l < NS2_HISTORY_LAGS; ++l) { /* x_ij of the tick of each lag */
+        float *past = &nb->rel[6 * (l + 1)];
+        if (e->hist_count == 0u) {
+            present6(e, p, v, past); /* not recorded yet: the present (computed again, not copied) */
+        } else {
+            const uint32_t slot =
+                s->lag_ticks[l] < e->hist_count ? slot_full[l] : hist_slot(s, hist_lag(s, l, e->hist_count));
+            sub6(past, e->hist[slot], s->own[slot]);
+        }
+    }
+#else
+    (void)s;
+    (void)slot_full;
+#endif
+}
+
 uint16_t ns2_peers_neighbors(const ns2_peers_t *s, uint8_t self_id, const float p[3], const float v[3],
                              uint32_t now_ms, uint32_t max_age_ms, ns2_neighbor_t *out, uint16_t max)
 {
     float dist2[NS2_PEERS_MAX];
+    uint8_t order[NS2_PEERS_MAX]; /* table index of each kept peer, nearest first */
     uint16_t n = 0;
     if (s == NULL || out == NULL || p == NULL || v == NULL || !within3(p, NS2_PEERS_P_MAX_M) ||
         !within3(v, NS2_PEERS_V_MAX_MS)) {
@@ -159,50 +216,41 @@ uint16_t ns2_peers_neighbors(const ns2_peers_t *s, uint8_t self_id, const float 
     if (max > NS2_PEERS_MAX) {
         max = NS2_PEERS_MAX;
     }
+    /* the nearest max peers by table index: only these get their inputs (and past) computed */
     for (uint8_t i = 0; i < s->count; ++i) {
         const ns2_peer_t *e = &s->peer[i];
         if (e->id == self_id || e->samples == 0u || now_ms - e->t_ms > max_age_ms) {
             continue;
         }
+        const float r0 = e->p[0] - p[0], r1 = e->p[1] - p[1], r2 = e->p[2] - p[2];
+        const float d2 = ((0.0f + r0 * r0) + r1 * r1) + r2 * r2; /* the order of x_ij's sum */
         /* insertion sort by squared distance (stable: ties keep table order) */
-        ns2_neighbor_t nb;
-        nb.type = e->type;
-        float d2 = 0.0f;
-        for (int a = 0; a < 3; ++a) {
-            nb.rel[a] = e->p[a] - p[a];
-            nb.rel[a + 3] = (e->samples > 1u ? e->v[a] : 0.0f) - v[a];
-            d2 += nb.rel[a] * nb.rel[a];
-        }
-#if NS2_HISTORY_LAGS > 0
-        for (int l = 0; l < NS2_HISTORY_LAGS; ++l) { /* x_ij of the tick of each lag */
-            float *past = &nb.rel[6 * (l + 1)];
-            if (e->hist_count == 0u) {
-                for (int a = 0; a < 6; ++a) {
-                    past[a] = nb.rel[a]; /* not recorded yet: the present */
-                }
-            } else {
-                const uint32_t slot = hist_slot(s, hist_lag(s, l, e->hist_count));
-                for (int a = 0; a < 6; ++a) {
-                    past[a] = e->hist[slot][a] - s->own[slot][a];
-                }
-            }
-        }
-#endif
         uint16_t k = n < max ? n : max;
         while (k > 0u && dist2[k - 1u] > d2) {
             if (k < max) {
-                out[k] = out[k - 1u];
+                order[k] = order[k - 1u];
                 dist2[k] = dist2[k - 1u];
             }
             --k;
         }
         if (k < max) {
-            out[k] = nb;
+            order[k] = i;
             dist2[k] = d2;
             if (n < max) {
                 ++n;
             }
         }
+    }
+#if NS2_HISTORY_LAGS > 0
+    uint32_t slot_full[NS2_HISTORY_LAGS];
+    for (int l = 0; l < NS2_HISTORY_LAGS; ++l) {
+        slot_full[l] = hist_slot(s, s->lag_ticks[l]);
+    }
+#else
+    const uint32_t *slot_full = NULL;
+#endif
+    for (uint16_t k = 0; k < n; ++k) {
+        neighbor_fill(s, &s->peer[order[k]], p, v, slot_full, &out[k]);
     }
     return n;
 }
@@ -221,10 +269,14 @@ void ns2_peers_record(ns2_peers_t *s, const float p[3], const float v[3])
         return;
     }
     s->hist_head = (uint8_t)((s->hist_head + 1u) % NS2_PEERS_HIST);
-    for (int a = 0; a < 3; ++a) {
-        s->own[s->hist_head][a] = p[a];
-        s->own[s->hist_head][a + 3] = v[a];
-    }
+    /* element by element, no copy loops: -Os makes those calls to a byte-wise memmove */
+    float *own = s->own[s->hist_head];
+    own[0] = p[0];
+    own[1] = p[1];
+    own[2] = p[2];
+    own[3] = v[0];
+    own[4] = v[1];
+    own[5] = v[2];
     s->own_count = (uint8_t)(s->own_count < NS2_PEERS_HIST ? s->own_count + 1u : NS2_PEERS_HIST);
     for (uint8_t i = 0; i < s->count; ++i) {
         ns2_peer_t *e = &s->peer[i];
@@ -232,10 +284,14 @@ void ns2_peers_record(ns2_peers_t *s, const float p[3], const float v[3])
             e->hist_count = 0;
             continue;
         }
-        for (int a = 0; a < 3; ++a) {
-            e->hist[s->hist_head][a] = e->p[a];
-            e->hist[s->hist_head][a + 3] = e->samples > 1u ? e->v[a] : 0.0f; /* as the neighbour list */
-        }
+        float *h = e->hist[s->hist_head];
+        const int moving = e->samples > 1u;
+        h[0] = e->p[0];
+        h[1] = e->p[1];
+        h[2] = e->p[2];
+        h[3] = moving ? e->v[0] : 0.0f; /* as the neighbour list */
+        h[4] = moving ? e->v[1] : 0.0f;
+        h[5] = moving ? e->v[2] : 0.0f;
         e->hist_count = (uint8_t)(e->hist_count < NS2_PEERS_HIST ? e->hist_count + 1u : NS2_PEERS_HIST);
     }
 #else
