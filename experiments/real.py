@@ -372,29 +372,27 @@ PAPER_TABLE = {"H=20": "6.42 +- 0.18", "H=10": "6.70 +- 0.05", "H=40": "6.63 +- 
                "L=5": "7.21 +- 0.28", "V=without": "7.60"}
 
 
-def summary(out_dir: str | Path) -> dict:
-    """The tables of docs/real-flights.md from the JSON of ``make real`` (data_report,
-    paper, heldout, ablation, authors, c_check) as summary.json and summary.md."""
-    d = Path(out_dir)
-    load = lambda n: json.loads((d / n).read_text()) if (d / n).is_file() else None  # noqa: E731
-    data, paper, held, authors, cchk = (load(n) for n in ("data_report.json", "paper.json", "heldout.json",
-                                                          "authors.json", "c_check.json"))
-    abl = {}
-    for f in sorted(d.glob("ablation-*.json")):
-        abl.update({k: v for k, v in json.loads(f.read_text()).items() if k in ("H", "L", "W", "V", "P", "T")})
-    if data is None or paper is None or held is None:
-        raise RealDataError(f"{d}: run `make real` first (data_report.json, paper.json, heldout.json)")
-    key = "held_out_flights"
+def ablation_rows(held: dict, ablations: list[dict]) -> list[tuple]:
+    """(key, label, result) of the paper's network without the held-out flights and of every
+    ablation (``make real``'s heldout.json and ablation-*.json)."""
     rows = [("H=20", "H = 20, L = 4 (the paper's network)", held["H"]["20"])]
     names = {"H": "H = {}", "L": "L = {}", "V": "{} relative velocity", "P": "{}", "T": "{} deep set", "W": "widths {}"}
     same = {("L", "4"), ("W", "40/25"), ("V", "with"), ("P", "deep set"), ("T", "heterogeneous")}
-    for axis, vals in (abl or {}).items():
-        if axis in names and isinstance(vals, dict):
-            rows += [(f"{axis}={v}", names[axis].format(v), r) for v, r in vals.items() if (axis, v) not in same]
+    for doc in ablations:
+        for axis, vals in doc.items():
+            if axis in names and isinstance(vals, dict):
+                rows += [(f"{axis}={v}", names[axis].format(v), r) for v, r in vals.items() if (axis, v) not in same]
+    return rows
+
+
+def ablation_table(paper: dict, held: dict, *ablations: dict, authors: dict | None = None) -> str:
+    """docs/real-flights.md's Table-ablation: the paper's protocol, the ablations scored on the
+    held-out flights, the authors' network (training scores)."""
+    key = "held_out_flights"
     lines = ["| model | paper (g^2) | validation, paper's random split (g^2) | held-out flights (g^2) |",
              "|---|---|---|---|",
              f"| H = 20, L = 4, every flight, the paper's protocol | 6.42 +- 0.18 | {_fmt(paper['H']['20'])} | - |"]
-    for k, label, r in rows:
+    for k, label, r in ablation_rows(held, list(ablations)):
         lines.append(f"| {label}, without the held-out flights | {PAPER_TABLE.get(k, '-')} | {_fmt(r)} | "
                      f"{_fmt(r.get(key))} |")
     if authors:
@@ -404,6 +402,20 @@ def summary(out_dir: str | Path) -> dict:
         if "heldout_authors_masses_mse" in authors:
             lines.append(f"| the same, labels with the authors' masses (32 g, 67 g) | - | - | "
                          f"{authors['heldout_authors_masses_mse']:.2f} |")
+    return "\n".join(lines)
+
+
+def summary(out_dir: str | Path) -> dict:
+    """The tables of docs/real-flights.md from the JSON of ``make real`` (data_report,
+    paper, heldout, ablation, authors, c_check) as summary.json and summary.md."""
+    d = Path(out_dir)
+    load = lambda n: json.loads((d / n).read_text()) if (d / n).is_file() else None  # noqa: E731
+    data, paper, held, authors, cchk = (load(n) for n in ("data_report.json", "paper.json", "heldout.json",
+                                                          "authors.json", "c_check.json"))
+    abl = [json.loads(f.read_text()) for f in sorted(d.glob("ablation-*.json"))]
+    if data is None or paper is None or held is None:
+        raise RealDataError(f"{d}: run `make real` first (data_report.json, paper.json, heldout.json)")
+    rows, lines = ablation_rows(held, abl), ablation_table(paper, held, *abl, authors=authors).splitlines()
     out = {"label_variance_g2": {"all": paper.get("label_variance_g2"), "train": held.get("label_variance_g2")},
            "paper_protocol": paper["H"]["20"], "held_out": {k: r for k, _, r in rows},
            "authors": authors, "c_check": cchk,

@@ -26,6 +26,9 @@ from typing import Callable
 from ns2codegen.errors import Ns2Error
 
 from .blind import gains_table, mean_std, memory_rows, memory_table, table
+from .real import ablation_table as real_ablation_table
+
+REAL_AXES = ("H", "L", "P", "T", "V")   # make real's ablation-*.json (REAL_AXES), in the order of their table
 
 RUNS = Path("docs/results/runs")
 SIDECAR = "provenance.json"
@@ -246,6 +249,7 @@ EXPERIMENTS = (
                (("real/heldout.json", "build/real/heldout.json"), ("real/authors.json", "build/real/authors.json"),
                 ("real/data_report.json", "build/real/data_report.json"),
                 ("real/adapt.json", "build/real/adapt.json"),
+                *((f"real/ablation-{a}.json", f"build/real/ablation-{a}.json") for a in REAL_AXES),
                 *((f"real/loco-{c}.json", f"build/real/loco-{c}.json") for c in ("2019-12-11", "2019-12-20", "2020-06-16")),
                 *((f"real-mem/loco-{c}.json", f"build/real-mem/loco-{c}.json") for c in ("2019-12-11", "2019-12-20", "2020-06-16")),
                 ("real-mem/heldout.json", "build/real-mem/heldout.json"))),
@@ -550,6 +554,9 @@ DOC_TABLES = (
     DocTable("docs/real-flights.md", "memory", "real/memory.json",
              lambda doc: memory_table(doc, ",".join(map(str, doc["lags_ms"])))),
     DocTable("docs/real-flights.md", "memory-blind", "real-mem/blind.json", table),
+    DocTable("docs/real-flights.md", "real-ablation", "real/paper.json",
+             lambda paper, held, *rest: real_ablation_table(paper, held, *rest[:-1], authors=rest[-1]),
+             ("real/heldout.json", *(f"real/ablation-{a}.json" for a in REAL_AXES), "real/authors.json")),
     DocTable("docs/real-flights.md", "flights", "real/data_report.json", flights_table),
     DocTable("docs/simulator.md", "sim-swaps", "sim/swaps.json", sim_swaps_table),
     DocTable("docs/simulator.md", "sim-rings", "sim/rings.json", sim_rings_table),
