@@ -143,12 +143,9 @@ def blind(data_dir: str | Path, authors: str | Path | None = None, seeds: int = 
             ds, load_samples(d / f"c-{c.key}_samples.npz"), models(ds, ckpts), masses, cfg.robot_types,
             onboard=c.key == ONBOARD_COLLECTION)
         out["leave_one_collection_out"][c.key]["gains"] = gains(out["leave_one_collection_out"][c.key])
-    if collections is None or HELDOUT in collections:
-        held = sorted((d / "heldout").glob("H-20-seed*.pt"))[:seeds]
-        if collections is not None and not held:
-            raise RealDataError(f"{d / 'heldout'}: no trained network (make real trains them)")
-    else:
-        held = []
+    held = sorted((d / "heldout").glob("H-20-seed*.pt"))[:seeds] if collections is None or HELDOUT in collections else []
+    if collections is not None and HELDOUT in collections and not held:
+        raise RealDataError(f"{d / 'heldout'}: no trained network (make real trains them)")
     if held:
         ds = Dataset.load(d / "heldout.npz")
         info = load_samples(d / "heldout_samples.npz")

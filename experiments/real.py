@@ -372,7 +372,7 @@ PAPER_TABLE = {"H=20": "6.42 +- 0.18", "H=10": "6.70 +- 0.05", "H=40": "6.63 +- 
                "L=5": "7.21 +- 0.28", "V=without": "7.60"}
 
 
-def ablation_rows(held: dict, ablations: list[dict]) -> list[tuple]:
+def ablation_rows(held: dict, ablations) -> list[tuple]:
     """(key, label, result) of the paper's network without the held-out flights and of every
     ablation (``make real``'s heldout.json and ablation-*.json)."""
     rows = [("H=20", "H = 20, L = 4 (the paper's network)", held["H"]["20"])]
@@ -392,7 +392,7 @@ def ablation_table(paper: dict, held: dict, *ablations: dict, authors: dict | No
     lines = ["| model | paper (g^2) | validation, paper's random split (g^2) | held-out flights (g^2) |",
              "|---|---|---|---|",
              f"| H = 20, L = 4, every flight, the paper's protocol | 6.42 +- 0.18 | {_fmt(paper['H']['20'])} | - |"]
-    for k, label, r in ablation_rows(held, list(ablations)):
+    for k, label, r in ablation_rows(held, ablations):
         lines.append(f"| {label}, without the held-out flights | {PAPER_TABLE.get(k, '-')} | {_fmt(r)} | "
                      f"{_fmt(r.get(key))} |")
     if authors:
@@ -415,17 +415,17 @@ def summary(out_dir: str | Path) -> dict:
     abl = [json.loads(f.read_text()) for f in sorted(d.glob("ablation-*.json"))]
     if data is None or paper is None or held is None:
         raise RealDataError(f"{d}: run `make real` first (data_report.json, paper.json, heldout.json)")
-    rows, lines = ablation_rows(held, abl), ablation_table(paper, held, *abl, authors=authors).splitlines()
+    table_md = ablation_table(paper, held, *abl, authors=authors)
     out = {"label_variance_g2": {"all": paper.get("label_variance_g2"), "train": held.get("label_variance_g2")},
-           "paper_protocol": paper["H"]["20"], "held_out": {k: r for k, _, r in rows},
+           "paper_protocol": paper["H"]["20"], "held_out": {k: r for k, _, r in ablation_rows(held, abl)},
            "authors": authors, "c_check": cchk,
            "data": {k: data[k] for k in ("data_sets", "masses_g", "alignment", "cuts")},
-           "labels_all": data["labels"].get("all"), "table_md": "\n".join(lines)}
+           "labels_all": data["labels"].get("all"), "table_md": table_md}
     out["flights_md"] = flights_table(data["flights"])
     extra = [(d / f).read_text() for f in ("blind.md", "memory.md") if (d / f).is_file()]   # ns2 real blind, memory
     out["blind_md"] = extra
     atomic_write_bytes(d / "summary.json", json.dumps(stamp(out), indent=1).encode())
-    atomic_write_bytes(d / "summary.md", ("\n".join(lines) + "\n\n" + "\n".join(extra) + "\n" + out["flights_md"]
+    atomic_write_bytes(d / "summary.md", (table_md + "\n\n" + "\n".join(extra) + "\n" + out["flights_md"]
                                           + "\n").encode())
     return out
 

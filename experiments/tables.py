@@ -24,6 +24,7 @@ from pathlib import Path
 from typing import Callable
 
 from ns2codegen.errors import Ns2Error
+from ns2paper.collection import COLLECTIONS
 
 from .blind import gains_table, mean_std, memory_rows, memory_table, table
 from .real import ablation_table as real_ablation_table
@@ -250,8 +251,8 @@ EXPERIMENTS = (
                 ("real/data_report.json", "build/real/data_report.json"),
                 ("real/adapt.json", "build/real/adapt.json"),
                 *((f"real/ablation-{a}.json", f"build/real/ablation-{a}.json") for a in REAL_AXES),
-                *((f"real/loco-{c}.json", f"build/real/loco-{c}.json") for c in ("2019-12-11", "2019-12-20", "2020-06-16")),
-                *((f"real-mem/loco-{c}.json", f"build/real-mem/loco-{c}.json") for c in ("2019-12-11", "2019-12-20", "2020-06-16")),
+                *((f"{d}/loco-{c.key}.json", f"build/{d}/loco-{c.key}.json") for d in ("real", "real-mem")
+                  for c in COLLECTIONS),
                 ("real-mem/heldout.json", "build/real-mem/heldout.json"))),
     Experiment("sim", "simulated swaps and rings under Crazyflie sensing", "make sim",
                {"sim/swaps.json": "build/sim/results/swaps.json", "sim/rings.json": "build/sim/results/rings.json"},
