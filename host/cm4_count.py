@@ -354,8 +354,11 @@ class Cm4:
             self._decoded[addr] = d
         return d
 
-    def call(self, name: str, *args: int, float_args: tuple[float, ...] = ()) -> tuple[int, float, Run]:
-        """Call ``name`` (integer/pointer args, then float args in s0..); returns (r0, s0, Run)."""
+    def call(self, name: str, *args: int, float_args: tuple[float, ...] = (), count: bool = True
+             ) -> tuple[int, float, Run]:
+        """Call ``name`` (integer/pointer args, then float args in s0..); returns (r0, s0, Run).
+        ``count=False`` runs it without tracing (the same machine state after it, an empty
+        Run): a warm-up at the emulator's own speed."""
         mu = self.mu
         sp = RAM + RAM_SIZE - 64
         stack_args = list(args[4:])
@@ -369,6 +372,11 @@ class Cm4:
             mu.reg_write(A.UC_ARM_REG_S0 + i, struct.unpack("<I", struct.pack("<f", v))[0])
         mu.reg_write(A.UC_ARM_REG_SP, sp)
         mu.reg_write(A.UC_ARM_REG_LR, RETURN | 1)
+        if not count:
+            mu.emu_start(self.addr(name) | 1, RETURN, timeout=0, count=50_000_000)
+            mu.ctl_flush_tb()  # blocks translated without the hooks would run untraced later
+            return (mu.reg_read(A.UC_ARM_REG_R0), struct.unpack("<f", struct.pack("<I", mu.reg_read(A.UC_ARM_REG_S0)))[0],
+                    Run(memory=self.memory.name))
         trace: list[tuple[int, int]] = []
         flash_reads: dict[int, list[tuple[int, int]]] = {}
 

@@ -523,3 +523,19 @@ def test_stabilizer_iteration_counts(exported):
         assert 0 < r["app_adds_to_worst_tick"][model] <= 0.10
         assert 0 < r["stock_mean_load"][model] < r["app_mean_load"][model] < r["app_worst_tick"][model]["share_of_1ms"]
     assert stabilizer.iteration(exported.gen_dir) == r  # deterministic
+
+
+def test_stabilizer_budget_with_wake_memory_and_adaptation(history):
+    """Issue 53's bound with the network make real exports (wake memory: 24 inputs per
+    neighbour, the paper's H and L): the app with the adaptation on, and with a whole
+    label-and-update step added to its position tick, adds at most 10 % of 1 ms to the
+    stock worst iteration, at zero wait states and on the memory-system model.  The
+    job's begin (each neighbour's 24 inputs checked and clamped) runs at k = 1, not in
+    the position tick with the neighbour list and the position loop."""
+    from ns2host import stabilizer
+
+    assert history.cfg.phi_dims() == [24, 25, 40, 40, 20] and history.cfg.rho_dims() == [20, 40, 40, 40, 1]
+    r = stabilizer.with_adaptation(history.gen_dir)
+    for model in stabilizer.MODELS:
+        assert 0 < r["app_adds_to_worst_tick"][model] <= r[f"adds_to_worst_tick_bound_{model}"] <= 0.10, (model, r)
+        assert r[f"within_budget_{model}"] and r[f"update_step_cycles_{model}"] > 500

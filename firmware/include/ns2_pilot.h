@@ -84,6 +84,10 @@ typedef struct {
     uint16_t n_used;      /* neighbours it used */
     float e[3];           /* position error p - p_d at the last position tick, m */
     ns2_neighbor_t nbrs[NS2_PEERS_MAX];
+    uint16_t nbrs_n;      /* neighbours listed by ns2_pilot_select for the next begin */
+    uint8_t nbrs_listed;  /* 1: listed at a position tick, ns2_pilot_start not yet run */
+    float listed_p[3];    /* the own position (m) and velocity (m/s) of that tick */
+    float listed_v[3];
     ns2_adapt_cfg_t adapt_cfg; /* the adaptation's parameters (enable = 0 by default) */
     ns2_label_t label;    /* the on-board label of two position ticks back */
     ns2_adapt_t adapt;
@@ -104,12 +108,18 @@ void ns2_pilot_set_psi1(ns2_pilot_t *pl, const float psi1[5]);
 int32_t ns2_pilot_peer(ns2_pilot_t *pl, uint8_t id, uint8_t type, uint32_t t_ms, const float p[3]);
 /* The parts of a tick:
  * finish: the running prediction (its phi left, rho) into fa_hat_g; begin: the
- * next one from the peer table and the state; period: finish, then begin (100 Hz);
+ * next one from the peer table and the state, in two parts: select (the history
+ * tick, ns2_peers_record, and the neighbour list from the peer table and the state,
+ * kept with that state in pl) then start (the own past and ns2_job_begin*: each
+ * input checked and clamped into the job; nothing if nothing is listed or after a
+ * reset); period: finish, then begin (100 Hz);
  * position: the label and adaptation step, then ns2_ctrl_position with
  * f_a = [0, 0, fa_used_g] (100 Hz, after period);
  * slice: phi_per_tick phi evaluations; attitude: ns2_ctrl_attitude (500 Hz). */
 void ns2_pilot_finish(ns2_pilot_t *pl);
 void ns2_pilot_begin(ns2_pilot_t *pl, const ns2_ctrl_state_t *s, uint8_t self_id, uint32_t now_ms);
+void ns2_pilot_select(ns2_pilot_t *pl, const ns2_ctrl_state_t *s, uint8_t self_id, uint32_t now_ms);
+void ns2_pilot_start(ns2_pilot_t *pl);
 void ns2_pilot_period(ns2_pilot_t *pl, const ns2_ctrl_state_t *s, uint8_t self_id, uint32_t now_ms);
 void ns2_pilot_position(ns2_pilot_t *pl, const ns2_ctrl_state_t *s, const ns2_setpoint_t *sp);
 void ns2_pilot_slice(ns2_pilot_t *pl);
@@ -121,9 +131,11 @@ void ns2_pilot_tick(ns2_pilot_t *pl, const ns2_ctrl_state_t *s, const ns2_setpoi
                     uint8_t self_id, uint32_t now_ms, float battery_V);
 /* One 1 kHz stabilizer tick (the app's schedule): the same motor commands as
  * ns2_pilot_tick at the even ticks, with the work spread so that no 1 ms step
- * carries more than two phi evaluations (phi_per_tick = 4), rho, or the begin and
- * the position loop: k = tick % 10 = 0 begin + position, 1..8 half a slice each,
- * 9 finish; attitude at even k.  Whatever the phase of the firmware's Kalman
+ * carries more than two phi evaluations (phi_per_tick = 4), rho, or the neighbour
+ * list and the position loop: k = tick % 10 = 0 select + position, 1 start and half
+ * a slice less one phi, 2..8 half a slice each, 9 finish; attitude at even k.  The
+ * start reads only what select kept (the neighbours' state of k = 0, copied), so
+ * the peers received at k = 1 do not change the prediction.  Whatever the phase of the firmware's Kalman
  * prediction and measurement updates, the app's share of any millisecond stays
  * small (docs/app.md, "The 1 ms stabilizer iteration"). */
 void ns2_pilot_step(ns2_pilot_t *pl, const ns2_ctrl_state_t *s, const ns2_setpoint_t *sp, uint32_t tick,

@@ -33,6 +33,7 @@ void ns2_pilot_reset(ns2_pilot_t *pl, const ns2_vehicle_t *veh)
 {
     ns2_ctrl_init(&pl->ctrl, veh, &pl->gains);
     pl->job_begun = 0u;
+    pl->nbrs_listed = 0u;
     pl->fa_hat_g = 0.0f;
     pl->fa_used_g = 0.0f;
     pl->battery_V = 0.0f;
@@ -104,22 +105,43 @@ void ns2_pilot_finish(ns2_pilot_t *pl)
     }
 }
 
-void ns2_pilot_begin(ns2_pilot_t *pl, const ns2_ctrl_state_t *s, uint8_t self_id, uint32_t now_ms)
+void ns2_pilot_select(ns2_pilot_t *pl, const ns2_ctrl_state_t *s, uint8_t self_id, uint32_t now_ms)
 {
 #if NS2_HISTORY_LAGS > 0
     /* wake memory: this position tick is a history tick of the peer table */
-    float own_past[6 * NS2_HISTORY_LAGS];
     ns2_peers_record(&pl->peers, s->p, s->v);
 #endif
-    const uint16_t n = ns2_peers_neighbors(&pl->peers, self_id, s->p, s->v, now_ms, pl->cfg.max_age_ms,
-                                           pl->nbrs, NS2_PEERS_MAX);
+    pl->nbrs_n = ns2_peers_neighbors(&pl->peers, self_id, s->p, s->v, now_ms, pl->cfg.max_age_ms, pl->nbrs,
+                                     NS2_PEERS_MAX);
+    for (int a = 0; a < 3; ++a) {
+        pl->listed_p[a] = s->p[a];
+        pl->listed_v[a] = s->v[a];
+    }
+    pl->nbrs_listed = 1u;
+}
+
+void ns2_pilot_start(ns2_pilot_t *pl)
+{
+    if (!pl->nbrs_listed) {
+        return;
+    }
 #if NS2_HISTORY_LAGS > 0
-    ns2_peers_own_past(&pl->peers, s->p, s->v, own_past);
-    (void)ns2_job_begin_hist(&pl->job, pl->cfg.self_type, s->p, s->v, own_past, pl->nbrs, n);
+    /* the own ring changes only at a history tick (ns2_peers_record), so it still is the select's */
+    float own_past[6 * NS2_HISTORY_LAGS];
+    ns2_peers_own_past(&pl->peers, pl->listed_p, pl->listed_v, own_past);
+    (void)ns2_job_begin_hist(&pl->job, pl->cfg.self_type, pl->listed_p, pl->listed_v, own_past, pl->nbrs,
+                             pl->nbrs_n);
 #else
-    (void)ns2_job_begin(&pl->job, pl->cfg.self_type, s->p, s->v, pl->nbrs, n);
+    (void)ns2_job_begin(&pl->job, pl->cfg.self_type, pl->listed_p, pl->listed_v, pl->nbrs, pl->nbrs_n);
 #endif
+    pl->nbrs_listed = 0u;
     pl->job_begun = 1u;
+}
+
+void ns2_pilot_begin(ns2_pilot_t *pl, const ns2_ctrl_state_t *s, uint8_t self_id, uint32_t now_ms)
+{
+    ns2_pilot_select(pl, s, self_id, now_ms);
+    ns2_pilot_start(pl);
 }
 
 void ns2_pilot_period(ns2_pilot_t *pl, const ns2_ctrl_state_t *s, uint8_t self_id, uint32_t now_ms)
@@ -181,9 +203,10 @@ void ns2_pilot_tick(ns2_pilot_t *pl, const ns2_ctrl_state_t *s, const ns2_setpoi
     ns2_pilot_attitude(pl, s, battery_V);
 }
 
-/* k = tick % 10: 0 begin + position, 1..8 half a slice (rounded up at odd k), 9 finish;
- * attitude at even k.  Same motor commands as ns2_pilot_tick: the prediction begun at
- * k = 0 is finished before the next k = 0 either way, and slicing does not change its
+/* k = tick % 10: 0 select + position, 1 start + half a slice less one phi (the start costs
+ * about one phi), 2..8 half a slice (rounded up at odd k), 9 finish; attitude at even k.
+ * Same motor commands as ns2_pilot_tick: the prediction begun from the state and neighbours
+ * of k = 0 is finished before the next k = 0 either way, and slicing does not change its
  * result (ns2_deepset.h). */
 void ns2_pilot_step(ns2_pilot_t *pl, const ns2_ctrl_state_t *s, const ns2_setpoint_t *sp, uint32_t tick,
                     uint8_t self_id, uint32_t now_ms, float battery_V)
@@ -195,11 +218,16 @@ void ns2_pilot_step(ns2_pilot_t *pl, const ns2_ctrl_state_t *s, const ns2_setpoi
         return;
     }
     if (k == 0u) {
-        ns2_pilot_begin(pl, s, self_id, now_ms);
+        ns2_pilot_select(pl, s, self_id, now_ms);
         ns2_pilot_position(pl, s, sp);
     } else {
         const uint16_t half = (uint16_t)(pl->cfg.phi_per_tick / per_att);
-        pilot_step_phi(pl, (uint16_t)(k % per_att ? pl->cfg.phi_per_tick - half : half));
+        uint16_t n = (uint16_t)(k % per_att ? pl->cfg.phi_per_tick - half : half);
+        if (k == 1u) {
+            ns2_pilot_start(pl);
+            n = n > 0u ? (uint16_t)(n - 1u) : 0u;
+        }
+        pilot_step_phi(pl, n);
     }
     if (k % per_att == 0u) {
         ns2_pilot_attitude(pl, s, battery_V);
