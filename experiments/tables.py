@@ -538,6 +538,72 @@ def flights_table(doc: dict) -> str:
     return real_flights(doc["flights"])
 
 
+def _k(x: float) -> str:
+    return f"{round(x):,}"
+
+
+def stabilizer_parts_table(doc: dict) -> str:
+    """bench_stabilizer: each part's worst 1 ms tick (the firmware's Kalman estimator, the
+    stock PID, the app fixed point and float), instructions and cycles."""
+    fx, fl = doc["fixed"], doc["float"]
+
+    def row(label: str, r: dict) -> str:
+        return (f"| {label} | {_k(r['instructions'])} | {_k(r['cycles'])} | {r['us_at_168MHz']:.0f} | "
+                f"{r['memory_us_at_168MHz']:.0f} |")
+
+    def costliest(x: dict) -> str:
+        return f"k = {max(range(10), key=lambda k: x['app_by_tick']['memory'][k])}"
+
+    return "\n".join([
+        "| part (worst 1 ms tick) | instructions | cycles | µs, zero wait | µs, memory model |", "|---|---|---|---|---|",
+        row("Kalman: 100 Hz prediction + a mocap position measurement", fx["estimator_kalman_predict_and_position"]),
+        row("Kalman: the other ticks (process noise, finalize, externalize)", fx["estimator_kalman_other_ticks"]),
+        row("stock PID controller", fx["stock_controller_pid"]),
+        row(f"ns2 app, fixed point: its costliest millisecond ({costliest(fx)} on the memory model)",
+            fx["app_controller_oot"]),
+        row(f"ns2 app, float ({costliest(fl)})", fl["app_controller_oot"])])
+
+
+def stabilizer_app_table(present: dict, memory: dict) -> str:
+    """bench_stabilizer on the present-state network and on the wake-memory network side by
+    side: the app's cycles per millisecond of its period, the worst iteration with the
+    estimator over every phase, what the app adds to the stock worst iteration (issue 53's
+    bound: 10 %), with the adaptation on and its bound, the float app, the mean load."""
+    nets = (present, memory)
+
+    def cells(f) -> str:
+        return " | ".join(f(d) for d in nets)
+
+    def share(x: float) -> str:
+        return f"{100 * x:.2f} %"
+
+    fx = [d["fixed"] for d in nets]
+    stock = fx[0]["stock_worst_tick"]["memory"]["share_of_1ms"]
+    return "\n".join([
+        f"| | present state ({present['network']['phi'][0]} inputs) | wake memory ({memory['network']['phi'][0]} inputs, "
+        f"{', '.join(str(ms) for ms in memory['network']['history_ms'])} ms) |", "|---|---|---|",
+        "| the app's cycles in each millisecond k = 0..9 of its 100 Hz period, memory model | "
+        + cells(lambda d: " / ".join(_k(c) for c in d["fixed"]["app_by_tick"]["memory"])) + " |",
+        "| its costliest millisecond, zero wait / memory model | "
+        + cells(lambda d: f"{_k(max(d['fixed']['app_by_tick']['zero_wait']))} / "
+                          f"{_k(max(d['fixed']['app_by_tick']['memory']))} cycles") + " |",
+        f"| worst 1 ms iteration, Kalman + the app, all phases, memory model (stock PID: {share(stock)}) | "
+        + cells(lambda d: share(d["fixed"]["app_worst_tick"]["memory"]["share_of_1ms"])) + " |",
+        "| **the app adds to the stock worst iteration**, zero wait / memory model (issue 53's bound: 10 %) | "
+        + cells(lambda d: f"**{share(d['fixed']['app_adds_to_worst_tick']['zero_wait'])} / "
+                          f"{share(d['fixed']['app_adds_to_worst_tick']['memory'])}**") + " |",
+        "| the same with the adaptation on (`ns2adapt.enable` 1), memory model | "
+        + cells(lambda d: share(d["fixed_adaptation"]["app_adds_to_worst_tick"]["memory"])) + " |",
+        "| and with a whole label-and-update step in its position tick (bound), zero wait / memory model | "
+        + cells(lambda d: f"{share(d['fixed_adaptation']['adds_to_worst_tick_bound_zero_wait'])} / "
+                          f"{share(d['fixed_adaptation']['adds_to_worst_tick_bound_memory'])}") + " |",
+        "| the float app (`NS2_INFER=float`, not the default) adds, zero wait / memory model | "
+        + cells(lambda d: f"{share(d['float']['app_adds_to_worst_tick']['zero_wait'])} / "
+                          f"{share(d['float']['app_adds_to_worst_tick']['memory'])}") + " |",
+        f"| mean CPU load, memory model (stock: {share(fx[0]['stock_mean_load']['memory'])}) | "
+        + cells(lambda d: share(d["fixed"]["app_mean_load"]["memory"])) + " |"])
+
+
 @dataclass(frozen=True)
 class DocTable:
     doc: str
@@ -559,6 +625,10 @@ DOC_TABLES = (
              lambda paper, held, *rest: real_ablation_table(paper, held, *rest[:-1], authors=rest[-1]),
              ("real/heldout.json", *(f"real/ablation-{a}.json" for a in REAL_AXES), "real/authors.json")),
     DocTable("docs/real-flights.md", "flights", "real/data_report.json", flights_table),
+    DocTable("docs/app.md", "stabilizer-parts", "wake-memory-cycles/bench_stabilizer_default.json",
+             stabilizer_parts_table),
+    DocTable("docs/app.md", "stabilizer-app", "wake-memory-cycles/bench_stabilizer_default.json",
+             stabilizer_app_table, ("wake-memory-cycles/bench_stabilizer.json",)),
     DocTable("docs/simulator.md", "sim-swaps", "sim/swaps.json", sim_swaps_table),
     DocTable("docs/simulator.md", "sim-rings", "sim/rings.json", sim_rings_table),
     DocTable("docs/simulator.md", "sim-clean-swaps", "sim-clean/swaps.json", sim_swaps_table),
