@@ -2,7 +2,7 @@
  * ns2_fuzz.c - structured fuzzing of the firmware library under ASan + UBSan
  * (built and run by host/fuzz.py; `make fuzz`, bounded run in the tests).
  *
- *   ns2_fuzz TARGET COUNT SEED     TARGET: infer sliced peers ctrl adapt hil regress
+ *   ns2_fuzz TARGET COUNT SEED     TARGET: infer sliced peers ctrl adapt pilot hil regress
  *
  * Every target draws structured inputs from a seeded generator: plausible values
  * mixed with NaN (both signs, payloads), +-Inf, +-FLT_MAX, huge finite values,
@@ -35,6 +35,7 @@
 #include "ns2_hil.h"
 #include "ns2_label.h"
 #include "ns2_peers.h"
+#include "ns2_pilot.h"
 #include "ns2_vehicles.h"
 
 static uint64_t rng_state;
@@ -776,6 +777,214 @@ static void fuzz_adapt(unsigned long long count)
 #endif
 }
 
+/* ------------------------------------------------------------------ pilot (the app's per tick) */
+#define PILOT_SWARM 20u        /* robots heard: more than the peer table holds */
+#define PILOT_RECOVERY_MS 120u /* good milliseconds after the glitches before hover is required */
+#define PILOT_HOVER_MS 40u     /* hover checked for that long */
+
+/* A pilot after any call: motor commands and forces within the controller's range
+ * (check_outputs), f_a finite, fa_hat_g within +-lim (lim: the fa_limit_g its last
+ * finish read) for a finite lim >= 0, else exactly 0 (ns2_pilot.h). */
+static void check_pilot(const ns2_pilot_t *pl, float lim, float f_max)
+{
+    check_outputs(&pl->ctrl, f_max);
+    check(isfinite(pl->fa_hat_g) && isfinite(pl->fa_used_g), "pilot: f_a not finite");
+    if (isfinite(lim) && lim >= 0.0f) {
+        check(fabsf(pl->fa_hat_g) <= lim, "pilot: fa_hat_g beyond fa_limit_g");
+    } else {
+        check(pl->fa_hat_g == 0.0f, "pilot: fa_hat_g not 0 with fa_limit_g not a finite number >= 0");
+    }
+    check(pl->n_used <= NS2_MAX_NEIGHBORS, "pilot: more than NS2_MAX_NEIGHBORS used");
+}
+
+/* A live change of the PARAM group ns2 or of the adaptation's parameters (hostile with
+ * probability p_bad in 100).  which: 4 those read at k = 0 only (the neighbour list, the
+ * position loop) and the slicing, which may change at any millisecond; 6 also the
+ * limit (read by the finish: k = 9 of ns2_pilot_step, k = 0 of ns2_pilot_tick) and the
+ * robot type (read by the start: k = 1 against 0), the same for both at k = 9; 7 also
+ * the inference path, which every phi evaluation reads (a job sliced on one path is
+ * refused by the other: ns2_pilot_step and ns2_pilot_tick may differ until a reset). */
+static void pilot_cfg_change(ns2_pilot_cfg_t *cfg, ns2_adapt_cfg_t *ac, uint32_t p_bad, uint32_t which)
+{
+    switch (below(which)) {
+    case 0: cfg->phi_per_tick = (uint8_t)below(256); break;
+    case 1: cfg->enable = (uint8_t)(below(8) ? below(2) : below(256)); break;
+    case 2: cfg->max_age_ms = (uint16_t)(below(2) ? below(300) : rnd()); break;
+    case 3: random_adapt_cfg(ac, p_bad); break;
+    case 4: cfg->fa_limit_g = below(100) < p_bad ? (below(2) ? special() : uniform(-40.0f, 0.0f)) : uniform(0.0f, 40.0f);
+        break;
+    case 5: cfg->self_type = (uint8_t)(below(8) ? below(NS2_NUM_ROBOT_TYPES) : below(256)); break;
+    default: cfg->fixed = (uint8_t)(below(8) ? below(2) : below(256)); break;
+    }
+}
+
+/* Hover on good input near the setpoint after the glitches: no fault, the position
+ * loop's collective thrust T_d within m g +- (fa_max_N + Kv_z Gv_z int_v_max + m g / 5):
+ * the learned force and the integral term at their limits (ns2_controller.h) and the
+ * tracking of the sane manoeuvre; once the controller was reset (wound-up integrators
+ * may saturate a motor otherwise, as in fuzz_ctrl) every motor turning below full PWM. */
+static void pilot_check_hover(const ns2_pilot_t *pl, const ns2_vehicle_t *veh, int was_reset)
+{
+    const ns2_ctrl_t *c = &pl->ctrl;
+    const ns2_gains_t *g = &pl->gains;
+    const float mg = veh->mass_kg * (float)NS2_G_MPS2;
+    const float slack = g->fa_max_N + g->Kv[2] * g->Gv[2] * g->int_v_max + 0.2f * mg;
+    check((c->status & (NS2_CTRL_BAD_STATE | NS2_CTRL_RESET | NS2_CTRL_BAD_SETPOINT | NS2_CTRL_RECOVERING)) == 0u,
+          "pilot: controller fault on good input after the recovery time");
+    for (int i = 0; i < 4 && was_reset; ++i) {
+        check(c->pwm[i] > 0.0f && c->pwm[i] < 1.0f, "pilot: a motor off or at full PWM in hover");
+    }
+    check(fabsf(c->T_d - mg) <= slack, "pilot: collective thrust T_d beyond its bound in hover");
+}
+
+static void fuzz_pilot(unsigned long long count)
+{
+#if NS2_HAVE_VEHICLES
+    static ns2_pilot_t A, B;
+    static const float psi1[NS2_NUM_ROBOT_TYPES][5] = NS2_PSI1_INIT;
+    unsigned long long done = 0;
+    for (input_index = 0; done < count; ++input_index) {
+        const uint8_t rt = (uint8_t)below(NS2_NUM_ROBOT_TYPES), self_id = (uint8_t)below(256);
+        const ns2_vehicle_t *veh = &fz_veh[rt];
+        ns2_pilot_cfg_t cfg;
+        ns2_adapt_cfg_t ac;
+        ns2_pilot_default_cfg(&cfg, rt);
+        cfg.fixed = (uint8_t)below(2);
+        cfg.phi_per_tick = (uint8_t)below(9);
+        random_adapt_cfg(&ac, 0u);
+        for (ns2_pilot_t *pl = &A; pl; pl = pl == &A ? &B : NULL) {
+            ns2_pilot_init(pl, &cfg, veh, &fz_gains[rt]);
+            ns2_pilot_set_psi1(pl, psi1[rt]);
+            pl->adapt_cfg = ac;
+            ns2_pilot_reset(pl, veh);
+        }
+        /* the swarm: robots on circles around the origin, any radio ids (the own one too) */
+        uint8_t ids[PILOT_SWARM], types[PILOT_SWARM];
+        float ang[PILOT_SWARM], rad[PILOT_SWARM];
+        const uint32_t n_swarm = below(PILOT_SWARM + 1u);
+        for (uint32_t i = 0; i < n_swarm; ++i) {
+            ids[i] = (uint8_t)below(256);
+            types[i] = (uint8_t)below(NS2_NUM_ROBOT_TYPES);
+            ang[i] = uniform(0.0f, 6.2832f);
+            rad[i] = uniform(0.2f, 1.0f);
+        }
+        /* good flight, glitches, then good input again from a millisecond k = 9 on (the
+         * sane parameters set there); in a quarter of the runs ("chaos") the parameters
+         * change at any millisecond and the glitches end with a reset on the ground */
+        const uint32_t tick0 = (uint32_t)below(1u << 30), n_good = below(200);
+        uint32_t end_bad = n_good + 1u + below(150);
+        while ((tick0 + end_bad) % 10u != 9u) {
+            ++end_bad;
+        }
+        const int chaos = below(4) == 0u;
+        const uint32_t ending = chaos ? 2u : below(3); /* 0 nothing, 1 a non-finite state, 2 a reset */
+        uint32_t now = (uint32_t)rnd();
+        float lim_a = cfg.fa_limit_g, lim_b = cfg.fa_limit_g;
+        int same = 1; /* A and B must agree */
+        for (uint32_t j = 0; j < end_bad + PILOT_RECOVERY_MS + PILOT_HOVER_MS; ++j, ++done) {
+            const uint32_t tick = tick0 + j, k = tick % 10u;
+            const int bad = j >= n_good && j < end_bad;
+            now += 1u;
+            if (bad && below(64) == 0u) {
+                now += below(2) ? (uint32_t)rnd() : below(5000); /* the clock jumps */
+            }
+            for (uint32_t m = below(4); m > 0u && n_swarm > 0u; --m) { /* positions received this ms */
+                const uint32_t i = below(n_swarm);
+                const float a = ang[i] + 1e-3f * (float)j;
+                float p[3] = {rad[i] * cosf(a), rad[i] * sinf(a), 1.0f + 0.1f * (float)(i % 3u)};
+                uint8_t id = ids[i], type = types[i];
+                uint32_t t = now;
+                if (bad && below(4) == 0u) {
+                    hostile(p, 3);
+                    id = below(2) ? (uint8_t)below(256) : id;
+                    type = below(2) ? (uint8_t)below(256) : type;
+                    t = below(2) ? (uint32_t)rnd() : t;
+                }
+                check(ns2_pilot_peer(&A, id, type, t, p) == ns2_pilot_peer(&B, id, type, t, p),
+                      "pilot: the peer tables answer differently");
+            }
+            ns2_ctrl_state_t s;
+            ns2_setpoint_t sp;
+            float fa_unused[3], bat = uniform(3.6f, 4.2f);
+            good_tick(&s, &sp, fa_unused, j / 2u); /* (its k: 500 Hz ticks) */
+            if (j >= end_bad) {
+                sp.yaw = 0.0f; /* hover: the state's yaw (a yaw manoeuvre open loop saturates the small robot) */
+            }
+            int reset = j == end_bad && ending == 2u; /* the first good millisecond */
+            if (bad) {
+                switch (below(10)) {
+                case 0: hostile(s.p, 3); hostile(s.v, 3); break;
+                case 1: hostile(s.q, 4); hostile(s.w, 3); break;
+                case 2: { /* a quaternion not normalised */
+                    const float f = below(2) ? uniform(0.6f, 1.8f) : uniform(0.0f, 4.0f);
+                    for (int a = 0; a < 4; ++a) {
+                        s.q[a] *= f;
+                    }
+                    break;
+                }
+                case 3: hostile(sp.p, 3); hostile(sp.v, 3); hostile(sp.a, 3); hostile(&sp.yaw, 1); break;
+                case 4: sp.p[below(3)] = uniform(-1e3f, 1e3f); break; /* absurd but within the limits */
+                case 5: bat = below(2) ? special() : uniform(-5.0f, 20.0f); break;
+                case 6: reset = below(4) == 0u; break; /* on the ground, at any millisecond */
+                default: break;
+                }
+                if (ending == 1u && j + 1u == end_bad) {
+                    s.w[below(3)] = NAN;
+                }
+                if (below(8) == 0u) {
+                    pilot_cfg_change(&cfg, &ac, 50u, chaos ? 7u : k == 9u ? 6u : 4u);
+                    same = same && !chaos; /* from here on until a reset */
+                }
+            } else if (j < n_good && below(200) == 0u) {
+                reset = 1;
+            }
+            if (j == end_bad) { /* sane parameters again (k = 9) */
+                const uint8_t fixed = cfg.fixed; /* (the path changes only in chaos runs, before their reset) */
+                ns2_pilot_default_cfg(&cfg, rt);
+                cfg.fixed = fixed;
+                cfg.phi_per_tick = (uint8_t)below(9);
+                cfg.fa_limit_g = uniform(0.0f, 30.0f);
+                random_adapt_cfg(&ac, 0u);
+                ac.enable = 0u; /* the label of an open-loop state is no measurement: it would learn the mismatch */
+            }
+            if (reset) { /* the app resets and skips the pilot */
+                ns2_pilot_reset(&A, veh);
+                ns2_pilot_reset(&B, veh);
+                same = 1;
+            } else {
+                A.cfg = B.cfg = cfg; /* live parameters, every millisecond as the app */
+                A.adapt_cfg = B.adapt_cfg = ac;
+                const int finishing = k == 9u && A.job_begun;
+                lim_a = finishing ? cfg.fa_limit_g : lim_a;
+                ns2_pilot_step(&A, &s, &sp, tick, self_id, now, bat);
+                n_ok += finishing && A.status == NS2_OK && A.n_used > 0u;
+                if (tick % 2u == 0u) {
+                    if (k == 0u && B.job_begun) {
+                        lim_b = cfg.fa_limit_g;
+                    }
+                    ns2_pilot_tick(&B, &s, &sp, k == 0u, self_id, now, bat);
+                }
+            }
+            check_pilot(&A, lim_a, veh->f_max_N);
+            check_pilot(&B, lim_b, veh->f_max_N);
+            if (same && tick % 2u == 0u) {
+                check(memcmp(A.ctrl.pwm, B.ctrl.pwm, sizeof A.ctrl.pwm) == 0 &&
+                          bits_of(A.fa_hat_g) == bits_of(B.fa_hat_g) && A.n_used == B.n_used && A.status == B.status,
+                      "pilot: ns2_pilot_step differs from ns2_pilot_tick");
+            }
+            if (j >= end_bad + PILOT_RECOVERY_MS) {
+                pilot_check_hover(&A, veh, ending != 0u);
+                pilot_check_hover(&B, veh, ending != 0u);
+            }
+        }
+    }
+    input_index = done;
+#else
+    (void)count;
+    fail("the export has no vehicle parameters (NS2_HAVE_VEHICLES 0)");
+#endif
+}
+
 /* ------------------------------------------------------------------ HIL parser */
 static uint16_t last_pong_seq;
 static int got_pong;
@@ -987,7 +1196,7 @@ static void regress(void)
 int main(int argc, char **argv)
 {
     if (argc != 4) {
-        fprintf(stderr, "usage: %s infer|sliced|peers|ctrl|adapt|hil|regress COUNT SEED\n", argv[0]);
+        fprintf(stderr, "usage: %s infer|sliced|peers|ctrl|adapt|pilot|hil|regress COUNT SEED\n", argv[0]);
         return 2;
     }
     target_name = argv[1];
@@ -1003,6 +1212,8 @@ int main(int argc, char **argv)
         fuzz_ctrl(count);
     } else if (strcmp(argv[1], "adapt") == 0) {
         fuzz_adapt(count);
+    } else if (strcmp(argv[1], "pilot") == 0) {
+        fuzz_pilot(count);
     } else if (strcmp(argv[1], "hil") == 0) {
         fuzz_hil(count);
     } else if (strcmp(argv[1], "regress") == 0) {

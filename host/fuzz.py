@@ -1,7 +1,8 @@
 """Structured fuzzing of the firmware library under ASan + UBSan (fuzz/ns2_fuzz.c).
 
 The very sources of firmware/flags.mk (inference, sliced API, peer table,
-controller) and the HIL parser are compiled with gcc
+controller, label and adaptation, the app's per-tick ns2_pilot) and the HIL
+parser are compiled with gcc
 ``-fsanitize=address,undefined,float-cast-overflow -fno-sanitize-recover=all``
 against the headers of one export folder, together with the driver.  Each target
 runs COUNT structured inputs from a fixed seed; any sanitizer report, failed
@@ -26,9 +27,9 @@ from pathlib import Path
 from .cbuild import BUILD_ROOT, GENERATED, REPO, BuildError, cached, compile_error, content_hash, flags, host_cc
 
 DRIVER = REPO / "fuzz" / "ns2_fuzz.c"
-TARGETS = ("infer", "sliced", "peers", "ctrl", "adapt", "hil")
-# share of the inputs of `--count` per target (cheap targets get more)
-SHARE = {"infer": 0.25, "sliced": 0.10, "peers": 0.20, "ctrl": 0.25, "adapt": 0.10, "hil": 0.10}
+TARGETS = ("infer", "sliced", "peers", "ctrl", "adapt", "pilot", "hil")
+# share of the inputs of `--count` per target (cheap targets get more; pilot: one input a millisecond)
+SHARE = {"infer": 0.20, "sliced": 0.10, "peers": 0.20, "ctrl": 0.20, "adapt": 0.10, "pilot": 0.10, "hil": 0.10}
 SANITIZE = ["-fsanitize=address,undefined,float-cast-overflow", "-fno-sanitize-recover=all",
             "-fno-omit-frame-pointer", "-g", "-O1"]
 ENV = {"ASAN_OPTIONS": "abort_on_error=0:halt_on_error=1:detect_leaks=1:exitcode=86",

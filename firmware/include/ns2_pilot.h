@@ -69,7 +69,7 @@ typedef struct {
     uint8_t self_type;    /* robot type of this robot (NS2_TYPE_*) */
     uint8_t phi_per_tick; /* phi evaluations per 500 Hz tick */
     uint16_t max_age_ms;  /* peers older than this are left out */
-    float fa_limit_g;     /* |f_a,z| limit, g */
+    float fa_limit_g;     /* |f_a,z| limit, g; not a finite number >= 0 (NaN, < 0, Inf): fa_hat 0 */
 } ns2_pilot_cfg_t;
 
 typedef struct {

@@ -1,6 +1,7 @@
 /* ns2_pilot.c - see ns2_pilot.h. */
 #include "ns2_pilot.h"
 
+#include <float.h>
 #include <math.h>
 #include <stddef.h>
 
@@ -35,6 +36,8 @@ void ns2_pilot_reset(ns2_pilot_t *pl, const ns2_vehicle_t *veh)
     pl->job_begun = 0u;
     pl->nbrs_listed = 0u;
     pl->fa_hat_g = 0.0f;
+    pl->status = 0; /* no prediction: the same after a reset at any millisecond of ns2_pilot_step */
+    pl->n_used = 0u;
     pl->fa_used_g = 0.0f;
     pl->battery_V = 0.0f;
     pilot_label_init(pl);
@@ -54,8 +57,6 @@ void ns2_pilot_init(ns2_pilot_t *pl, const ns2_pilot_cfg_t *cfg, const ns2_vehic
     pl->cfg = *cfg;
     pl->gains = *g;
     ns2_peers_init(&pl->peers, 0.5f);
-    pl->status = 0;
-    pl->n_used = 0u;
     pl->e[0] = pl->e[1] = pl->e[2] = 0.0f;
     ns2_adapt_default_cfg(&pl->adapt_cfg);
     pl->adapt_cfg.enable = 0u;
@@ -100,7 +101,8 @@ void ns2_pilot_finish(ns2_pilot_t *pl)
         const float lim = pl->cfg.fa_limit_g;
         pl->status = info.status;
         pl->n_used = info.n_used;
-        pl->fa_hat_g = f > lim ? lim : (f < -lim ? -lim : f);
+        /* a limit that is not a finite number >= 0 (NaN, negative, infinite) gives 0: no learned force */
+        pl->fa_hat_g = !(lim >= 0.0f && lim <= FLT_MAX) ? 0.0f : (f > lim ? lim : (f < -lim ? -lim : f));
         pl->job_begun = 0u;
     }
 }
