@@ -174,6 +174,24 @@ def test_memory_report(exported):
     assert rep["ns2_predict_q15"]["flash_bytes"] < 0.7 * rep["ns2_predict_f32"]["flash_bytes"]
 
 
+APP_TASK_STACK_BYTES = 1400  # firmware/app/src/ns2_app.c's task (docs/app.md)
+
+
+def test_memory_report_of_the_apps_step(exported):
+    """The app's per-millisecond step within its task's stack, with the default app's
+    fixed-point path alone (NS2_PILOT_F32=0) less than with both paths; its chain and the
+    simulator's ns2_pilot_tick end in library functions (libm's leaves have no stack data)."""
+    both = firmware_report.report(exported.gen_dir, "-Os")
+    fixed = firmware_report.report(exported.gen_dir, "-Os", ("NS2_PILOT_F32=0",))
+    for rep in (both, fixed):
+        for entry in ("ns2_pilot_step", "ns2_pilot_tick"):
+            r = rep[entry]
+            assert r["deepest_chain"][0] == entry and len(r["deepest_chain"]) > 2
+            assert all(not u.startswith("ns2_") for u in r["without_stack_data"]), r["without_stack_data"]
+            assert 300 < r["worst_case_stack_bytes"] < APP_TASK_STACK_BYTES
+    assert fixed["ns2_pilot_step"]["worst_case_stack_bytes"] < both["ns2_pilot_step"]["worst_case_stack_bytes"]
+
+
 # --- the memory system (flash wait states, ART caches, prefetch): hand-computed stalls
 
 F = cm4_count.FLASH  # flash code/data; one 128-bit line = 16 bytes
