@@ -611,14 +611,19 @@ def param_files(rough: Roughness, law: dict, command: str) -> dict:
     return dict(zip(PARAM_FILES, (dump_roughness(rough, origin), dump_read_law(law, origin))))
 
 
+def compare_in_order(res: dict) -> dict:
+    """calibrate's comparison with its simulators in VARIANTS' order (the JSON's keys are sorted)."""
+    sims = res["compare"]["simulators"]
+    return {**res["compare"], "simulators": {k: sims[k] for k in VARIANTS if k in sims}}
+
+
 def markdown(res: dict) -> str:
     """calibration.md of calibrate's JSON (as written: its simulators in VARIANTS' order)."""
     from .calibrate_tables import (lateral_table, paper_l2s_table, read_law_table, roughness_table,
                                    sim_to_real_table, wake_profile_table)
 
     fit_report = res["fit"]
-    sims = res["compare"]["simulators"]     # the JSON's keys are sorted
-    cmp = {**res["compare"], "simulators": {k: sims[k] for k in VARIANTS if k in sims}}
+    cmp = compare_in_order(res)
     return ("# The simulator against the real flights\n\n" + roughness_table(cmp) + "\n\n## Replayed swaps\n\n"
             + sim_to_real_table(cmp) + "\n\n## The paper's L2S swap, the authors' controller, rough simulator\n\n"
             + paper_l2s_table(res["paper_l2s"]) + "\n\n## The z law read off the logs\n\n"

@@ -604,6 +604,24 @@ def stabilizer_app_table(present: dict, memory: dict) -> str:
         + cells(lambda d: share(d["fixed"]["app_mean_load"]["memory"])) + " |"])
 
 
+def calibrate_table(part: str) -> Callable[[dict], str]:
+    """One table of calibration.md (experiments/calibrate_tables.py) of the committed
+    calibration.json: roughness, replays, paper-l2s, read-law, wake, lateral."""
+    from . import calibrate_tables as ct
+    from .calibrate import compare_in_order
+
+    def render(doc: dict) -> str:
+        cmp, fit = compare_in_order(doc), doc["fit"]
+        if part in ("wake", "lateral") and not fit:
+            return "No fit in this run (`--no-refit`)."
+        return {"roughness": lambda: ct.roughness_table(cmp), "replays": lambda: ct.sim_to_real_table(cmp),
+                "paper-l2s": lambda: ct.paper_l2s_table(doc["paper_l2s"]),
+                "read-law": lambda: ct.read_law_table(doc["read_law"], fit["read_law"] if fit else None),
+                "wake": lambda: ct.wake_profile_table(fit["wake"]),
+                "lateral": lambda: ct.lateral_table(fit["lateral"])}[part]()
+    return render
+
+
 @dataclass(frozen=True)
 class DocTable:
     doc: str
@@ -629,6 +647,12 @@ DOC_TABLES = (
              stabilizer_parts_table),
     DocTable("docs/app.md", "stabilizer-app", "wake-memory-cycles/bench_stabilizer_default.json",
              stabilizer_app_table, ("wake-memory-cycles/bench_stabilizer.json",)),
+    DocTable("docs/simulator.md", "calibrate-lateral", "calibrate/calibration.json", calibrate_table("lateral")),
+    DocTable("docs/simulator.md", "calibrate-replays", "calibrate/calibration.json", calibrate_table("replays")),
+    DocTable("docs/simulator.md", "calibrate-paper-l2s", "calibrate/calibration.json", calibrate_table("paper-l2s")),
+    DocTable("docs/simulator.md", "calibrate-wake", "calibrate/calibration.json", calibrate_table("wake")),
+    DocTable("docs/simulator.md", "calibrate-roughness", "calibrate/calibration.json", calibrate_table("roughness")),
+    DocTable("docs/simulator.md", "calibrate-read-law", "calibrate/calibration.json", calibrate_table("read-law")),
     DocTable("docs/simulator.md", "sim-swaps", "sim/swaps.json", sim_swaps_table),
     DocTable("docs/simulator.md", "sim-rings", "sim/rings.json", sim_rings_table),
     DocTable("docs/simulator.md", "sim-clean-swaps", "sim-clean/swaps.json", sim_swaps_table),
