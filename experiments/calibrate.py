@@ -617,17 +617,29 @@ def compare_in_order(res: dict) -> dict:
     return {**res["compare"], "simulators": {k: sims[k] for k in VARIANTS if k in sims}}
 
 
-def markdown(res: dict) -> str:
-    """calibration.md of calibrate's JSON (as written: its simulators in VARIANTS' order)."""
+# calibration.md's sections after the roughness table, in its order
+SECTIONS = {"replays": "Replayed swaps", "paper-l2s": "The paper's L2S swap, the authors' controller, rough simulator",
+            "read-law": "The z law read off the logs", "wake": "The wake at the real states",
+            "lateral": "The wake's lateral push"}
+
+
+def report_parts(res: dict) -> dict:
+    """calibration.md's tables of calibrate's JSON: part -> a function making it (roughness
+    first, then SECTIONS' order; wake and lateral only with a fit)."""
     from .calibrate_tables import (lateral_table, paper_l2s_table, read_law_table, roughness_table,
                                    sim_to_real_table, wake_profile_table)
 
-    fit_report = res["fit"]
-    cmp = compare_in_order(res)
-    return ("# The simulator against the real flights\n\n" + roughness_table(cmp) + "\n\n## Replayed swaps\n\n"
-            + sim_to_real_table(cmp) + "\n\n## The paper's L2S swap, the authors' controller, rough simulator\n\n"
-            + paper_l2s_table(res["paper_l2s"]) + "\n\n## The z law read off the logs\n\n"
-            + read_law_table(res["read_law"], fit_report["read_law"] if fit_report else None)
-            + ("\n\n## The wake at the real states\n\n" + wake_profile_table(fit_report["wake"]) if fit_report else "")
-            + ("\n\n## The wake's lateral push\n\n" + lateral_table(fit_report["lateral"]) if fit_report else "")
-            + "\n")
+    fit, cmp = res["fit"], compare_in_order(res)
+    parts = {"roughness": lambda: roughness_table(cmp), "replays": lambda: sim_to_real_table(cmp),
+             "paper-l2s": lambda: paper_l2s_table(res["paper_l2s"]),
+             "read-law": lambda: read_law_table(res["read_law"], fit["read_law"] if fit else None)}
+    if fit:
+        parts.update({"wake": lambda: wake_profile_table(fit["wake"]), "lateral": lambda: lateral_table(fit["lateral"])})
+    return parts
+
+
+def markdown(res: dict) -> str:
+    """calibration.md of calibrate's JSON (as written: its simulators in VARIANTS' order)."""
+    parts = report_parts(res)
+    return ("# The simulator against the real flights\n\n" + parts.pop("roughness")()
+            + "".join(f"\n\n## {SECTIONS[k]}\n\n" + make() for k, make in parts.items()) + "\n")

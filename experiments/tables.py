@@ -605,20 +605,13 @@ def stabilizer_app_table(present: dict, memory: dict) -> str:
 
 
 def calibrate_table(part: str) -> Callable[[dict], str]:
-    """One table of calibration.md (experiments/calibrate_tables.py) of the committed
+    """One table of calibration.md (experiments/calibrate.py's report_parts) of the committed
     calibration.json: roughness, replays, paper-l2s, read-law, wake, lateral."""
-    from . import calibrate_tables as ct
-    from .calibrate import compare_in_order
+    from .calibrate import report_parts
 
     def render(doc: dict) -> str:
-        cmp, fit = compare_in_order(doc), doc["fit"]
-        if part in ("wake", "lateral") and not fit:
-            return "No fit in this run (`--no-refit`)."
-        return {"roughness": lambda: ct.roughness_table(cmp), "replays": lambda: ct.sim_to_real_table(cmp),
-                "paper-l2s": lambda: ct.paper_l2s_table(doc["paper_l2s"]),
-                "read-law": lambda: ct.read_law_table(doc["read_law"], fit["read_law"] if fit else None),
-                "wake": lambda: ct.wake_profile_table(fit["wake"]),
-                "lateral": lambda: ct.lateral_table(fit["lateral"])}[part]()
+        make = report_parts(doc).get(part)
+        return make() if make else "No fit in this run (`--no-refit`)."
     return render
 
 
