@@ -10,7 +10,7 @@ from .common import _emit, _export_config, _gen_option, _json_option, _progress,
 from .sim import _rough, _rough_option, sim
 
 # BL-tuned's gains of the committed gain search (make sim's, docs/simulator.md)
-GAIN_SEARCH = Path(__file__).resolve().parents[1] / "docs" / "results" / "sim-gain_search.json"
+GAIN_SEARCH = Path(__file__).resolve().parents[1] / "docs" / "results" / "runs" / "sim" / "gain_search.json"
 
 
 def _sim_experiment(name: str):
@@ -60,7 +60,7 @@ def sim_rings(gen_dir, out_dir, duration, learned, simulator, quiet, as_json):
 @_sim_experiment("adapt")
 @click.option("--tuning", "tuning_file", type=click.Path(dir_okay=False), default=None,
               help="BL-tuned's gains: the \"tuning\" of a gain search (`ns2 sim swaps`' gain_search.json)  "
-              "[default: the checkout's docs/results/sim-gain_search.json]")
+              "[default: the checkout's docs/results/runs/sim/gain_search.json, make sim's]")
 @click.option("--swaps", type=click.IntRange(min=1), default=6, show_default=True, help="swaps per flight")
 @click.option("--seed", "seeds", type=int, multiple=True, default=(0, 1, 2), show_default=True,
               help="seeds of the swap and ring flights (repeat)")

@@ -256,7 +256,15 @@ EXPERIMENTS = (
                 ("real-mem/heldout.json", "build/real-mem/heldout.json"))),
     Experiment("sim", "simulated swaps and rings under Crazyflie sensing", "make sim",
                {"sim/swaps.json": "build/sim/results/swaps.json", "sim/rings.json": "build/sim/results/rings.json"},
-               sim_summary, "below, [docs/simulator.md](docs/simulator.md)"),
+               sim_summary, "below, [docs/simulator.md](docs/simulator.md)",
+               (("sim/gain_search.json", "build/sim/results/gain_search.json"),)),
+    Experiment("sim-clean", "the same on the clean simulator (none of the rough effects)",
+               "make sim SIMULATOR=clean SIM=build/sim-clean",
+               {"sim-clean/swaps.json": "build/sim-clean/results/swaps.json",
+                "sim-clean/rings.json": "build/sim-clean/results/rings.json"},
+               lambda d: sim_summary({k.replace("sim-clean/", "sim/"): v for k, v in d.items()}),
+               "[docs/simulator.md](docs/simulator.md)",
+               (("sim-clean/gain_search.json", "build/sim-clean/results/gain_search.json"),)),
     Experiment("calibrate", "the simulator against the real flights", "make calibrate",
                {"calibrate/calibration.json": "build/sim/calibration/calibration.json"},
                calibrate_summary, "[docs/simulator.md](docs/simulator.md)"),
@@ -337,6 +345,78 @@ def sim_rings_table(doc: dict) -> str:
                      if (r := by.get((case, kind, c))) else "(BL)" for c in ctrls]
             lines.append(f"| {case} | {kind} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
+
+
+def _tuning(t: dict) -> str:
+    return (f"Lp = {t['Lp_xy']:g} / {t['Lp_xy']:g} / {t['Lp_z']:g} 1/s, "
+            f"Kv = {t['Kv_xy']:g} / {t['Kv_xy']:g} / {t['Kv_z']:g} N s/m per kg")
+
+
+def sim_tuning_table(swaps: dict, search: dict) -> str:
+    """make sim's BL-tuned: the gains its swaps and rings flew (swaps.json's tuning, which
+    must be the gain search's) and the search that chose them (gain_search.json)."""
+    from .swarm import DEFAULT_TUNING
+
+    t = search["tuning"]
+    if swaps["tuning"] != t:
+        raise ValueError("swaps.json's tuning is not gain_search.json's")
+    cands = search["candidates"]
+    chosen = [c for c in cands if all(c[k] == v for k, v in t.items())][-1]
+    n_ok = sum(bool(c["admissible"]) for c in cands)
+    return "\n".join([
+        f"| gains of | x / y / z | L2S median worst z error, f_a = 0 (cm) | "
+        f"hover motor-command noise of a small robot (% PWM rms; bound {100 * search['hover_noise_limit']:.2f}) |",
+        "|---|---|---|---|",
+        f"| default (BL, NN-default) | {_tuning(DEFAULT_TUNING)} | - | - |",
+        f"| BL-tuned (BL-tuned, NN): {n_ok} of {len(cands)} candidates within the bound | {_tuning(t)} | "
+        f"{_cm(chosen['median_worst_z_error_m'], 2)} | {100 * chosen['hover_motor_cmd_rms']:.2f} |"])
+
+
+def sim_noise_table(doc: dict) -> str:
+    """make sim's swaps: per controller, the range over the cases of the bottom robot's z
+    error rms and motor-command noise (PWM rms after removing a moving average)."""
+    ctrls = list(dict.fromkeys(r["controller"] for r in doc["rows"]))
+    lines = ["| swaps, range over the cases | " + " | ".join(ctrls) + " |", "|---" * (len(ctrls) + 1) + "|"]
+    for key, label, scale, digits in (("z_error_rms_m", "z error rms (cm)", 100, 1),
+                                      ("motor_cmd_rms", "motor-command noise (% PWM rms)", 100, 1)):
+        cells = []
+        for c in ctrls:
+            v = [scale * r[key] for r in doc["rows"] if r["controller"] == c]
+            cells.append(f"{min(v):.{digits}f}-{max(v):.{digits}f}")
+        lines.append(f"| {label} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+PAPER_DATA_AXES = {"H": "H (at L = 4)", "L": "L (at H = 20)", "W": "widths phi/rho (24/16 on board)"}
+
+
+def paper_data_table(doc: dict) -> str:
+    """make paper-data: the data set, its network's validation MSE overall and per scenario,
+    and the short ablation on the same set (one seed)."""
+    d, t, a = doc["data"], doc["training"], doc["ablation"]
+    per = t["validation_mse_per_scenario_g2"]
+    lines = [f"{d['samples']:,} labelled samples of the {d['simulator']} simulator: {d['teams']} teams flying the "
+             f"{d['scenarios']} scenarios, {d['flight_seconds_per_team']:g} s of flight per team, made in "
+             f"{d['generation_s']:.0f} s; the 5 networks trained {t['epochs']} epochs on {t['train_samples']:,} of "
+             f"them ({t['train_time_s']:.0f} s). Validation MSE (g^2; label variance of the training part "
+             f"{t['label_variance_g2']:.2f}):", "",
+             "| overall | " + " | ".join(per) + " |", "|---" * (len(per) + 1) + "|",
+             f"| {t['validation_mse_g2']:.2f} | " + " | ".join(f"{v:.2f}" for v in per.values()) + " |", "",
+             f"The short ablation on the same set ({a['epochs']} epochs each, one seed), validation MSE (g^2):", "",
+             "| " + " | ".join(PAPER_DATA_AXES.get(k, k) for k in a if k != "epochs") + " |",
+             "|---" * (len(a) - 1) + "|"]
+    axes = {k: v for k, v in a.items() if k != "epochs"}
+    lines.append("| " + " | ".join(", ".join(f"{x} {m:.2f}" for x, m in sorted(v.items(), key=_numeric))
+                                         for v in axes.values()) + " |")
+    return "\n".join(lines)
+
+
+def _numeric(item) -> tuple:
+    k = item[0]
+    try:
+        return (0, float(k), k)
+    except ValueError:
+        return (1, 0.0, k)
 
 
 def planning_table(doc: dict) -> str:
@@ -646,9 +726,13 @@ DOC_TABLES = (
     DocTable("docs/simulator.md", "calibrate-wake", "calibrate/calibration.json", calibrate_table("wake")),
     DocTable("docs/simulator.md", "calibrate-roughness", "calibrate/calibration.json", calibrate_table("roughness")),
     DocTable("docs/simulator.md", "calibrate-read-law", "calibrate/calibration.json", calibrate_table("read-law")),
+    DocTable("docs/simulator.md", "sim-tuning", "sim/swaps.json", sim_tuning_table, ("sim/gain_search.json",)),
     DocTable("docs/simulator.md", "sim-swaps", "sim/swaps.json", sim_swaps_table),
+    DocTable("docs/simulator.md", "sim-noise", "sim/swaps.json", sim_noise_table),
     DocTable("docs/simulator.md", "sim-rings", "sim/rings.json", sim_rings_table),
+    DocTable("docs/simulator.md", "paper-data", "paper-data/paper_data.json", paper_data_table),
     DocTable("docs/simulator.md", "sim-clean-swaps", "sim-clean/swaps.json", sim_swaps_table),
+    DocTable("docs/simulator.md", "sim-clean-rings", "sim-clean/rings.json", sim_rings_table),
     DocTable("docs/planning.md", "planning", "planning/plan.json", planning_table),
     DocTable("docs/planning.md", "planning-model", "planning/plan.json", planning_model_table),
     DocTable("docs/ground-truth.md", "ablation", "ablation/ablation.json", ablation_table),

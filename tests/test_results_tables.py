@@ -71,8 +71,10 @@ def test_stamp_names_commit_command_and_date(tmp_path):
 
 def _swaps(nn, bl):
     return {"swaps": 6, "tuning": {}, "simulator": "rough", "rows": [
-        {"case": "L2S", "controller": "NN", "median_worst_z_error_m": nn, "max_worst_z_error_m": nn},
-        {"case": "L2S", "controller": "BL-tuned", "median_worst_z_error_m": bl, "max_worst_z_error_m": bl}]}
+        {"case": "L2S", "controller": "NN", "median_worst_z_error_m": nn, "max_worst_z_error_m": nn,
+         "z_error_rms_m": nn / 3, "motor_cmd_rms": 0.02},
+        {"case": "L2S", "controller": "BL-tuned", "median_worst_z_error_m": bl, "max_worst_z_error_m": bl,
+         "z_error_rms_m": bl / 3, "motor_cmd_rms": 0.02}]}
 
 
 def _checkout(tmp_path) -> Path:
@@ -248,3 +250,32 @@ def test_docs_tables_carry_the_runs_numbers():
     assert "| H = 20, L = 4, every flight, the paper's protocol | 6.42 +- 0.18 | 3.33 +- 0.09 | - |" in block["real-ablation"]
     assert "| all | **32.07 g** | **62.53 g** | |" in block["hover"]
     assert "| 2019-12-11/swap_ll/02 | cf101, cf102 | setpoint events | -8.3, +8.3 | 1.9 | - | 59.8 |" in block["flights"]
+
+
+def test_sim_tuning_noise_and_paper_data_tables():
+    """make sim's gain search and noise tables and make paper-data's table read what the
+    files say; a swaps.json whose tuning is not its gain search's is refused."""
+    t = {"Lp_xy": 3.0, "Lp_z": 5.6, "Kv_xy": 6.0, "Kv_z": 9.0}
+    cands = [{**t, "median_worst_z_error_m": 0.0123, "hover_motor_cmd_rms": 0.0251, "admissible": True},
+             {**t, "Kv_z": 30.0, "median_worst_z_error_m": 0.009, "hover_motor_cmd_rms": 0.04, "admissible": False}]
+    search = {"tuning": t, "hover_noise_limit": 0.0274, "candidates": cands}
+    rows = [{"case": c, "controller": k, "z_error_rms_m": z, "motor_cmd_rms": n}
+            for c, k, z, n in (("S2S", "BL", 0.021, 0.011), ("L2S", "BL", 0.05, 0.03), ("S2S", "NN", 0.002, 0.025))]
+    out = tables.sim_tuning_table({"tuning": t}, search)
+    assert "bound 2.74)" in out and "| Lp = 2 / 2 / 2.5 1/s, Kv = 4 / 4 / 4 N s/m per kg |" in out
+    assert out.endswith("1 of 2 candidates within the bound | Lp = 3 / 3 / 5.6 1/s, Kv = 6 / 6 / 9 N s/m per kg "
+                        "| 1.23 | 2.51 |")
+    with pytest.raises(ValueError):
+        tables.sim_tuning_table({"tuning": {**t, "Kv_z": 30.0}}, search)
+    noise = tables.sim_noise_table({"rows": rows}).splitlines()
+    assert noise[0] == "| swaps, range over the cases | BL | NN |"
+    assert noise[2:] == ["| z error rms (cm) | 2.1-5.0 | 0.2-0.2 |", "| motor-command noise (% PWM rms) | 1.1-3.0 | 2.5-2.5 |"]
+    pd = {"data": {"samples": 1000, "simulator": "rough", "teams": 9, "scenarios": 12, "flight_seconds_per_team": 700.0,
+                   "generation_s": 60.4},
+          "training": {"epochs": 20, "train_samples": 800, "train_time_s": 5.0, "validation_mse_g2": 2.0912,
+                       "label_variance_g2": 10.15, "validation_mse_per_scenario_g2": {"S": 0.766, "L->S": 0.455}},
+          "ablation": {"epochs": 5, "H": {"20": 2.114, "10": 2.137, "40": 2.109}, "W": {"40/25": 2.114, "24/16": 2.073}}}
+    lines = tables.paper_data_table(pd).splitlines()
+    assert lines[0].startswith("1,000 labelled samples of the rough simulator: 9 teams flying the 12 scenarios")
+    assert "| overall | S | L->S |" in lines and "| 2.09 | 0.77 | 0.46 |" in lines
+    assert lines[-1] == "| 10 2.14, 20 2.11, 40 2.11 | 24/16 2.07, 40/25 2.11 |"
