@@ -387,6 +387,43 @@ def sim_noise_table(doc: dict) -> str:
     return "\n".join(lines)
 
 
+# the paper's rings (its text, section "Generalization to larger swarms"): the largest z error of a
+# small robot in a vertical ring, with the powerful motors (S*), BL -> NN, metres
+PAPER_RINGS_S_STAR_M = {"5-robot rings": (0.10, 0.05), "16-robot three rings": (0.15, 0.10)}
+
+
+def readme_sim_table(swaps: dict, rings: dict, clean_swaps: dict, clean_rings: dict) -> str:
+    """README's make sim tables: the swaps' median worst z error per controller on the
+    rough simulator beside BL / BL-tuned / NN on the clean one; the rings' largest z error
+    of an S* robot beside the paper's real rings."""
+    def by(doc):
+        return {(r["case"], r["controller"]): r["median_worst_z_error_m"] for r in doc["rows"]}
+
+    rough, clean = by(swaps), by(clean_swaps)
+    ctrls = list(dict.fromkeys(r["controller"] for r in swaps["rows"]))
+    three = ("BL", "BL-tuned", "NN")
+    lines = [f"| swap: median worst z error of the bottom robot ({swaps['swaps']} swaps, cm) | " + " | ".join(ctrls)
+             + " | clean: " + " / ".join(three) + " |", "|---" * (len(ctrls) + 2) + "|"]
+    for case in dict.fromkeys(r["case"] for r in swaps["rows"]):
+        lines.append(f"| {case} | " + " | ".join(_cm(rough[case, c]) if (case, c) in rough else "-" for c in ctrls)
+                     + " | " + " / ".join(_cm(clean[case, c]) if (case, c) in clean else "-" for c in three) + " |")
+
+    def star(doc):
+        return {(r["case"], r["controller"]): r["max_worst_z_error_m"] for r in doc["rows"]
+                if r["robot_type"].endswith("*")}
+
+    rr, cr = star(rings), star(clean_rings)
+    lines += ["", "| the paper's rings (the authors' geometry): largest z error of an S* robot (cm) | "
+              + " | ".join(three) + " | clean: " + " / ".join(three) + " | paper (real), BL -> NN |",
+              "|---" * 6 + "|"]
+    for case in dict.fromkeys(r["case"] for r in rings["rows"]):
+        paper = PAPER_RINGS_S_STAR_M.get(case)
+        lines.append(f"| {case} | " + " | ".join(_cm(rr[case, c]) if (case, c) in rr else "-" for c in three)
+                     + " | " + " / ".join(_cm(cr[case, c]) if (case, c) in cr else "-" for c in three)
+                     + " | " + (f"{_cm(paper[0], 0)} -> {_cm(paper[1], 0)}" if paper else "-") + " |")
+    return "\n".join(lines)
+
+
 PAPER_DATA_AXES = {"H": "H (at L = 4)", "L": "L (at H = 20)", "W": "widths phi/rho (24/16 on board)"}
 
 
@@ -705,6 +742,8 @@ class DocTable:
 
 
 DOC_TABLES = (
+    DocTable("README.md", "readme-sim", "sim/swaps.json", readme_sim_table,
+             ("sim/rings.json", "sim-clean/swaps.json", "sim-clean/rings.json")),
     DocTable("docs/real-flights.md", "hover", "real/data_report.json", hover_table),
     DocTable("docs/real-flights.md", "blind", "real/blind.json", table),
     DocTable("docs/real-flights.md", "blind-gains", "real/blind.json",
@@ -746,10 +785,16 @@ DOC_TABLES = (
 )
 
 
-def _made(doc: dict, rel: str) -> str:
-    commit, command, source = origin(doc)
-    said = f" (as {source} records)" if source else ""
-    return f"`{command or 'command not recorded'}` at {_short(commit)}{said}; `{RUNS / rel}`"
+def _made(docs: list, rels: tuple) -> str:
+    """The command and commit of each file, files of the same command, commit and record together."""
+    groups: dict = {}
+    for doc, rel in zip(docs, rels):
+        groups.setdefault(origin(doc), []).append(f"`{RUNS / rel}`")
+    parts = []
+    for (commit, command, source), files in groups.items():
+        said = f" (as {source} records)" if source else ""
+        parts.append(f"`{command or 'command not recorded'}` at {_short(commit)}{said}; " + ", ".join(files))
+    return "; and ".join(parts)
 
 
 def doc_block(root: Path, t: DocTable) -> str:
@@ -763,7 +808,7 @@ def doc_block(root: Path, t: DocTable) -> str:
         body = t.render(*docs)
     except (KeyError, TypeError, ValueError) as e:
         raise ResultsError(f"{root / RUNS / t.file}: not the result its table is made of (lacks {e!r})") from None
-    made = "; and ".join(_made(doc, rel) for rel, doc in zip(rels, docs))
+    made = _made(docs, rels)
     return f"Made by {made}, table by `make results`:\n\n{body}"
 
 

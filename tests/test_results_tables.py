@@ -83,7 +83,8 @@ def _checkout(tmp_path) -> Path:
     (root / "docs").mkdir(parents=True)
     (root / "README.md").write_text("# x\n\nbefore\n<!-- results:begin -->\nold row\n<!-- results:end -->\nafter\n")
     for doc in dict.fromkeys(t.doc for t in tables.DOC_TABLES):
-        (root / doc).write_text("".join(f"## {t.name}\n<!-- results:{t.name}:begin -->\n<!-- results:{t.name}:end -->\n"
+        before = (root / doc).read_text() if doc == "README.md" else ""
+        (root / doc).write_text(before + "".join(f"## {t.name}\n<!-- results:{t.name}:begin -->\n<!-- results:{t.name}:end -->\n"
                                         "text\n" for t in tables.DOC_TABLES if t.doc == doc))
     return root
 
@@ -95,10 +96,10 @@ def test_renderer_on_synthetic_results(tmp_path):
     doc = stamp(_swaps(0.004, 0.012), "make sim")
     doc["provenance"]["commit"] = "abcdef1"
     (runs / "sim/swaps.json").write_text(json.dumps(doc))
-    assert tables.write(root) == ["README.md", *dict.fromkeys(t.doc for t in tables.DOC_TABLES)]
+    assert tables.write(root) == list(dict.fromkeys(["README.md", *(t.doc for t in tables.DOC_TABLES)]))
     readme = (root / "README.md").read_text()
-    assert readme.startswith("# x\n\nbefore\n<!-- results:begin -->\n| experiment |") and readme.endswith(
-        "<!-- results:end -->\nafter\n") and "old row" not in readme
+    assert readme.startswith("# x\n\nbefore\n<!-- results:begin -->\n| experiment |") and (
+        "<!-- results:end -->\nafter\n" in readme) and "old row" not in readme
     row = {e.key: line for e in tables.EXPERIMENTS for line in readme.splitlines() if line.startswith(f"| {e.title} |")}
     assert "L2S 0.40 vs 1.20 cm (3.00x)" in row["sim"] and "`make sim` at abcdef1" in row["sim"]
     assert "no committed result: `sim/rings.json`" in row["sim"]       # the file missing
@@ -219,6 +220,8 @@ def test_docs_tables_carry_the_runs_numbers():
             doc = tables.load(REPO, rel)
             assert f"`docs/results/runs/{rel}`" in block[t.name] and tables.origin(doc)[0][:7] in block[t.name]
     assert "| L2S | 7.4 / 8.4 | 1.2 / 1.3 | 0.4 / 0.4 | 0.8 / 1.1 | 6.5 / 6.6 | 3.19 |" in block["sim-swaps"]
+    assert "| L2S | 7.4 | 1.2 | 0.4 | 0.8 | 6.5 | 7.8 / 3.1 / 0.3 |" in block["readme-sim"]      # README's, as it was
+    assert "| 16-robot three rings | 11.5 | 1.8 | 1.8 | 13.4 / 4.6 / 4.1 | 15 -> 10 |" in block["readme-sim"]
     assert "| L2S | 7.8 / 8.9 | 3.1 / 3.4 | 0.3 / 0.4 | 0.8 / 0.9 | 6.7 / 6.9 | 9.00 |" in block["sim-clean-swaps"]
     assert "| 16-robot three rings | small* | 8.9 / 11.5 | 1.6 / 1.8 | 1.5 / 1.8 | 8.0 / 9.4 | 7.3 / 8.4 |" in block["sim-rings"]
     assert "| 5-robot rings | large | 3.0 / 4.9 | 1.1 / 1.2 | 0.9 / 1.0 | 2.4 / 2.4 | (BL) |" in block["sim-rings"]
