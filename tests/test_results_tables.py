@@ -177,8 +177,8 @@ def test_rows_of_each_command_s_results():
     old = REPO / "docs/results/runs"
     read = lambda name: json.loads((old / name).read_text())  # noqa: E731
     sim = tables.sim_summary({"sim/swaps.json": read("sim/swaps.json"), "sim/rings.json": read("sim/rings.json")})
-    assert "L2S 0.36 vs 1.15 cm (3.19x)" in sim and "5-robot rings: BL 8.2 / BL-tuned 1.5 / NN 1.4" in sim
-    assert "16-robot three rings: BL 11.5 / BL-tuned 1.8 / NN 1.8" in sim
+    assert "L2S 0.37 vs 1.15 cm (3.09x)" in sim and "5-robot rings: BL 8.1 / BL-tuned 1.4 / NN 1.4" in sim
+    assert "16-robot three rings: BL 11.6 / BL-tuned 1.8 / NN 1.8" in sim
     abl = tables.ablation_summary({"ablation/ablation.json": read("ablation/ablation.json")})
     assert abl.startswith("validation MSE of H = 20, L = 4: 1.99 +- 0.02 g^2 (1,392,285 samples, 3 seeds)")
     assert "without relative velocity: +28 %" in abl and "type-agnostic: +23 % (teams of 4-5 robots +98 %)" in abl
@@ -219,12 +219,15 @@ def test_docs_tables_carry_the_runs_numbers():
         for rel in (t.file, *t.more):
             doc = tables.load(REPO, rel)
             assert f"`docs/results/runs/{rel}`" in block[t.name] and tables.origin(doc)[0][:7] in block[t.name]
-    assert "| L2S | 7.4 / 8.4 | 1.2 / 1.3 | 0.4 / 0.4 | 0.8 / 1.1 | 6.5 / 6.6 | 3.19 |" in block["sim-swaps"]
-    assert "| L2S | 7.4 | 1.2 | 0.4 | 0.8 | 6.5 | 7.8 / 3.1 / 0.3 |" in block["readme-sim"]      # README's, as it was
-    assert "| 16-robot three rings | 11.5 | 1.8 | 1.8 | 13.4 / 4.6 / 4.1 | 15 -> 10 |" in block["readme-sim"]
+    assert "| L2S | 6.9 / 7.8 | 1.1 / 1.3 | 0.4 / 0.5 | 1.1 / 1.5 | 6.1 / 6.3 | 3.09 |" in block["sim-swaps"]
+    assert "| L2S | 6.9 | 1.1 | 0.4 | 1.1 | 6.1 | 7.8 / 3.1 / 0.3 |" in block["readme-sim"]
+    assert "| 16-robot three rings | 11.6 | 1.8 | 1.8 | 13.4 / 4.6 / 4.1 | 15 -> 10 |" in block["readme-sim"]
+    assert "| BL-tuned (BL-tuned, NN): 33 of 42 candidates within the bound | Lp = 4.5 / 4.5 / 8.4 1/s" in block["sim-tuning"]
+    assert "| z error rms (cm) | 2.1-6.4 | 0.3-0.9 | 0.2-0.4 | 0.5-2.5 | 1.7-25.9 |" in block["sim-noise"]
     assert "| L2S | 7.8 / 8.9 | 3.1 / 3.4 | 0.3 / 0.4 | 0.8 / 0.9 | 6.7 / 6.9 | 9.00 |" in block["sim-clean-swaps"]
-    assert "| 16-robot three rings | small* | 8.9 / 11.5 | 1.6 / 1.8 | 1.5 / 1.8 | 8.0 / 9.4 | 7.3 / 8.4 |" in block["sim-rings"]
-    assert "| 5-robot rings | large | 3.0 / 4.9 | 1.1 / 1.2 | 0.9 / 1.0 | 2.4 / 2.4 | (BL) |" in block["sim-rings"]
+    assert "| 16-robot three rings | small* | 8.7 / 11.6 | 1.6 / 1.8 | 1.6 / 1.8 | 8.6 / 11.4 | 7.3 / 8.4 |" in block["sim-rings"]
+    assert "| 5-robot rings | large | 2.9 / 4.6 | 1.0 / 1.2 | 0.8 / 0.9 | 2.0 / 2.1 | (BL) |" in block["sim-rings"]
+    assert "| 2.09 | 0.77 | 3.62 | 0.45 | 0.46 |" in block["paper-data"]
     rows = [line for line in block["planning"].splitlines() if line.startswith("| 2D") or line.startswith("| 3D")]
     assert [r.split(" | ")[0] for r in rows[::2]] == [f"| {d} {c}" for d in ("2D", "3D")
                                                        for c in ("SL", "SS", "LL", "SSL", "SLL")]
