@@ -3,6 +3,8 @@ Near-field flights (host/sim/scenarios.near_field) teach a model the force under
 another robot; downwash_check compares it with the simulator's ground truth."""
 from __future__ import annotations
 
+import shutil
+
 import numpy as np
 import pytest
 import torch
@@ -602,6 +604,27 @@ def test_plan_trained_checkpoint_adds_the_flown_plans_to_the_training_data(cfg, 
     again = ex.plan_trained_checkpoint(cfg, tmp_path / "model.pt", exported.gen_dir, held, ["SL"], (2,),
                                        seeds=(2000,), rounds=2, workers=1, log=lambda m: None)
     assert again == ck and seen == [] and load_checkpoint(ck).meta["data_hash"] == meta["data_hash"]
+    # kept in a runs folder too: a run elsewhere with only the base model and its data flies and trains nothing
+    kept = ex.plan_trained_checkpoint(cfg, tmp_path / "model.pt", exported.gen_dir, held, ["SL"], (2,),
+                                      seeds=(2000,), rounds=2, workers=1, log=lambda m: None, keep=tmp_path / "runs")
+    assert kept == ck and seen == [] and sorted(f.name for f in (tmp_path / "runs").iterdir()) == sorted(
+        [ck.name, meta["data_files"][1].replace(".npz", ".json"), meta["data_files"][2].replace(".npz", ".json"),
+         f"model_r1_{meta['data_files'][1].split('_')[3].split('.')[0]}.pt"])
+    (tmp_path / "else").mkdir()
+    for f in ("model.pt", "data_base.npz"):
+        shutil.copyfile(tmp_path / f, tmp_path / "else" / f)
+    there = ex.plan_trained_checkpoint(cfg, tmp_path / "else/model.pt", exported.gen_dir, held, ["SL"], (2,),
+                                       seeds=(2000,), rounds=2, workers=1, log=lambda m: None, keep=tmp_path / "runs")
+    assert seen == [] and there.name == ck.name and there.read_bytes() == ck.read_bytes()
+    # without the last model kept, the rounds before it are flown again for its training data (same bytes)
+    (tmp_path / "runs" / ck.name).unlink()
+    for f in (tmp_path / "else").glob("model_r*"):
+        f.unlink()
+    again = ex.plan_trained_checkpoint(cfg, tmp_path / "else/model.pt", exported.gen_dir, held, ["SL"], (2,),
+                                       seeds=(2000,), rounds=2, workers=1, log=lambda m: None, keep=tmp_path / "runs")
+    assert seen == [("SL", 2, 2000), ("SL", 2, 2100)] and load_checkpoint(again).meta["data_hash"] == meta["data_hash"]
+    assert (tmp_path / "runs" / ck.name).is_file()
+    seen.clear()
     # other tasks are other data: 3-D plans are flown, not the 2-D ones reused
     other = ex.plan_trained_checkpoint(cfg, tmp_path / "model.pt", exported.gen_dir, held, ["SL"], (3,),
                                        seeds=(2000,), rounds=1, workers=1, log=lambda m: None)
