@@ -770,6 +770,8 @@ DOC_TABLES = (
     DocTable("docs/simulator.md", "sim-noise", "sim/swaps.json", sim_noise_table),
     DocTable("docs/simulator.md", "sim-rings", "sim/rings.json", sim_rings_table),
     DocTable("docs/simulator.md", "paper-data", "paper-data/paper_data.json", paper_data_table),
+    DocTable("docs/simulator.md", "sim-clean-tuning", "sim-clean/swaps.json", sim_tuning_table,
+             ("sim-clean/gain_search.json",)),
     DocTable("docs/simulator.md", "sim-clean-swaps", "sim-clean/swaps.json", sim_swaps_table),
     DocTable("docs/simulator.md", "sim-clean-rings", "sim-clean/rings.json", sim_rings_table),
     DocTable("docs/planning.md", "planning", "planning/plan.json", planning_table),
