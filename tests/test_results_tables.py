@@ -286,3 +286,13 @@ def test_sim_tuning_noise_and_paper_data_tables():
     assert lines[0].startswith("1,000 labelled samples of the rough simulator: 9 teams flying the 12 scenarios")
     assert "| overall | S | L->S |" in lines and "| 2.09 | 0.77 | 0.46 |" in lines
     assert lines[-1] == "| 10 2.14, 20 2.11, 40 2.11 | 24/16 2.07, 40/25 2.11 |"
+
+
+def test_sim_adapt_flies_make_sim_s_committed_gain_search():
+    """`ns2 sim adapt`'s default BL-tuned gains are those of make sim's committed gain
+    search (one file, the one docs/simulator.md's table reads), not a copy beside it."""
+    from ns2cli.simexp import GAIN_SEARCH
+
+    assert GAIN_SEARCH == REPO / tables.RUNS / "sim/gain_search.json" and GAIN_SEARCH.is_file()
+    swaps = tables.load(REPO, "sim/swaps.json")
+    assert json.loads(GAIN_SEARCH.read_text())["tuning"] == swaps["tuning"]
