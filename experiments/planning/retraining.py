@@ -78,7 +78,6 @@ def plan_trained_checkpoint(cfg: Config, checkpoint, gen_dir, held_out: list, sc
     folder = Path(checkpoint).parent
     keep = Path(keep) if keep is not None else None
     names = training_data_files(checkpoint)
-    parts = {f: folder / f for f in names}
     todo = []                  # (round, model, tasks, margin, data file) of each round, its data flown when needed
 
     def fly_round(r, ck, tasks, m, data):
@@ -113,8 +112,7 @@ def plan_trained_checkpoint(cfg: Config, checkpoint, gen_dir, held_out: list, sc
             for rr, rck, rtasks, rm, rdata in todo:     # every round's data so far (flown again if not here)
                 if not rdata.is_file():
                     fly_round(rr, rck, rtasks, rm, rdata)
-                parts[rdata.name] = rdata
-            ds = Dataset.concat([Dataset.load(parts[f], cfg.neighbor_types) for f in names])
+            ds = Dataset.concat([Dataset.load(folder / f, cfg.neighbor_types) for f in names])
             model, rep = train(cfg, ds)
             save_checkpoint(nxt, model, cfg, {"seed": rep["seed"], "data_hash": ds.content_hash(), "report": rep,
                                               "data_files": names, "plan_data_of": str(ck)})
