@@ -149,29 +149,32 @@ def real_summary(d: dict) -> str:
     return "; ".join(parts)
 
 
-def _swap(rows: list, case: str, ctrl: str) -> float | None:
-    r = [x for x in rows if x["case"] == case and x["controller"] == ctrl]
-    return r[0]["median_worst_z_error_m"] if r else None
+def _medians(doc: dict) -> dict:
+    """{(case, controller): median worst z error} of a make sim swaps.json."""
+    return {(r["case"], r["controller"]): r["median_worst_z_error_m"] for r in doc["rows"]}
 
 
-def sim_summary(d: dict) -> str:
-    """make sim: NN against the tuned baseline in every swap; the rings' small robots."""
+def _s_star_max(doc: dict) -> dict:
+    """{(case, controller): largest worst z error of an S* robot} of a make sim rings.json."""
+    return {(r["case"], r["controller"]): r["max_worst_z_error_m"] for r in doc["rows"] if r["robot_type"].endswith("*")}
+
+
+def sim_summary(d: dict, folder: str = "sim") -> str:
+    """make sim (its files under ``folder``): NN against the tuned baseline in every swap;
+    the rings' small robots."""
     parts = []
-    swaps, rings = d.get("sim/swaps.json"), d.get("sim/rings.json")
+    swaps, rings = d.get(f"{folder}/swaps.json"), d.get(f"{folder}/rings.json")
     if swaps:
-        cases = list(dict.fromkeys(r["case"] for r in swaps["rows"]))
-        cells = []
-        for c in cases:
-            nn, bl = _swap(swaps["rows"], c, "NN"), _swap(swaps["rows"], c, "BL-tuned")
+        med, cells = _medians(swaps), []
+        for c in dict.fromkeys(r["case"] for r in swaps["rows"]):
+            nn, bl = med.get((c, "NN")), med.get((c, "BL-tuned"))
             if nn and bl:
                 cells.append(f"{c} {100 * nn:.2f} vs {100 * bl:.2f} cm ({bl / nn:.2f}x)")
         parts.append(f"{swaps['simulator']} simulator, median worst z error NN vs the tuned baseline: " + ", ".join(cells))
     if rings:
-        cells = []
+        star, cells = _s_star_max(rings), []
         for case in dict.fromkeys(r["case"] for r in rings["rows"]):
-            got = {r["controller"]: r["max_worst_z_error_m"] for r in rings["rows"]
-                   if r["case"] == case and r["robot_type"].endswith("*")}
-            cells.append(f"{case}: " + " / ".join(f"{k} {100 * v:.1f}" for k, v in got.items()))
+            cells.append(f"{case}: " + " / ".join(f"{k} {100 * v:.1f}" for (c, k), v in star.items() if c == case))
         parts.append("the paper's rings, the S* robots' largest z error (cm) " + "; ".join(cells))
     return "; ".join(parts)
 
@@ -262,7 +265,7 @@ EXPERIMENTS = (
                "make sim SIMULATOR=clean SIM=build/sim-clean",
                {"sim-clean/swaps.json": "build/sim-clean/results/swaps.json",
                 "sim-clean/rings.json": "build/sim-clean/results/rings.json"},
-               lambda d: sim_summary({k.replace("sim-clean/", "sim/"): v for k, v in d.items()}),
+               lambda d: sim_summary(d, "sim-clean"),
                "[docs/simulator.md](docs/simulator.md)",
                (("sim-clean/gain_search.json", "build/sim-clean/results/gain_search.json"),)),
     Experiment("calibrate", "the simulator against the real flights", "make calibrate",
@@ -377,12 +380,11 @@ def sim_noise_table(doc: dict) -> str:
     error rms and motor-command noise (PWM rms after removing a moving average)."""
     ctrls = list(dict.fromkeys(r["controller"] for r in doc["rows"]))
     lines = ["| swaps, range over the cases | " + " | ".join(ctrls) + " |", "|---" * (len(ctrls) + 1) + "|"]
-    for key, label, scale, digits in (("z_error_rms_m", "z error rms (cm)", 100, 1),
-                                      ("motor_cmd_rms", "motor-command noise (% PWM rms)", 100, 1)):
+    for key, label in (("z_error_rms_m", "z error rms (cm)"), ("motor_cmd_rms", "motor-command noise (% PWM rms)")):
         cells = []
         for c in ctrls:
-            v = [scale * r[key] for r in doc["rows"] if r["controller"] == c]
-            cells.append(f"{min(v):.{digits}f}-{max(v):.{digits}f}")
+            v = [r[key] for r in doc["rows"] if r["controller"] == c]
+            cells.append(f"{_cm(min(v))}-{_cm(max(v))}")
         lines.append(f"| {label} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
@@ -396,10 +398,7 @@ def readme_sim_table(swaps: dict, rings: dict, clean_swaps: dict, clean_rings: d
     """README's make sim tables: the swaps' median worst z error per controller on the
     rough simulator beside BL / BL-tuned / NN on the clean one; the rings' largest z error
     of an S* robot beside the paper's real rings."""
-    def by(doc):
-        return {(r["case"], r["controller"]): r["median_worst_z_error_m"] for r in doc["rows"]}
-
-    rough, clean = by(swaps), by(clean_swaps)
+    rough, clean = _medians(swaps), _medians(clean_swaps)
     ctrls = list(dict.fromkeys(r["controller"] for r in swaps["rows"]))
     three = ("BL", "BL-tuned", "NN")
     lines = [f"| swap: median worst z error of the bottom robot ({swaps['swaps']} swaps, cm) | " + " | ".join(ctrls)
@@ -408,11 +407,7 @@ def readme_sim_table(swaps: dict, rings: dict, clean_swaps: dict, clean_rings: d
         lines.append(f"| {case} | " + " | ".join(_cm(rough[case, c]) if (case, c) in rough else "-" for c in ctrls)
                      + " | " + " / ".join(_cm(clean[case, c]) if (case, c) in clean else "-" for c in three) + " |")
 
-    def star(doc):
-        return {(r["case"], r["controller"]): r["max_worst_z_error_m"] for r in doc["rows"]
-                if r["robot_type"].endswith("*")}
-
-    rr, cr = star(rings), star(clean_rings)
+    rr, cr = _s_star_max(rings), _s_star_max(clean_rings)
     lines += ["", "| the paper's rings (the authors' geometry): largest z error of an S* robot (cm) | "
               + " | ".join(three) + " | clean: " + " / ".join(three) + " | paper (real), BL -> NN |",
               "|---" * 6 + "|"]
