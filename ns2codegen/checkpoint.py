@@ -3,7 +3,8 @@
 A checkpoint is a ``torch.save`` dict (a zip archive), loaded with ``weights_only=True``:
   format, version, model_hash, state_dict (float32 tensors), meta_json (JSON text):
   config (the whole validated config: types, vehicles, dims, volumes, boxes),
-  phi_dims, rho_dims, gamma, normalization, data_hash, seed, report.
+  phi_dims, rho_dims, gamma, normalization, data_hash, seed, report (without its timing,
+  TIMING_KEYS: the same data, config and seed give the same bytes).
 
 Integrity (docs/inputs.md): ``model_hash`` is ``Checkpoint.model_hash()`` (sha256 over
 the weights and the config), written at save; every load checks the archive's CRC-32s,
@@ -39,8 +40,15 @@ class CheckpointError(Ns2Error, ValueError):
     """The checkpoint cannot be used (corrupt, truncated, inconsistent, non-finite)."""
 
 
+# a training report's timing: how fast this machine was, not what was trained (kept out of
+# the file, so a checkpoint's bytes are a function of its data, config and seed alone)
+TIMING_KEYS = ("train_seconds", "samples_per_second")
+
+
 def save_checkpoint(path: str | Path, model: HeteroDeepSet, cfg: Config, meta: dict) -> None:
     meta = dict(meta)
+    if isinstance(meta.get("report"), dict):
+        meta["report"] = {k: v for k, v in meta["report"].items() if k not in TIMING_KEYS}
     meta.update(config=cfg.raw, phi_dims=cfg.phi_dims(), rho_dims=cfg.rho_dims(),
                 gamma=float(cfg.model["gamma"]), normalization=NORMALIZATION)
     state = {k: v.detach().to(torch.float32).contiguous().clone() for k, v in model.state_dict().items()}
