@@ -46,7 +46,7 @@ def plan_experiments(cfg: Config, checkpoint, trained: bool, out_dir, names: lis
     if plan_data_rounds:
         held = held_out_flights(cfg, gen, gap_max=NEAR_GAP_MAX, cache=Path(out_dir) / "held_out_flights.npz",
                                 workers=workers)
-        keep = Path(runs_dir if runs_dir is not None else Path(out_dir) / ex.RESUME_DIR) / "models"
+        keep = ex.runs_folder(out_dir, runs_dir) / "models"
         checkpoint = ex.plan_trained_checkpoint(cfg, checkpoint, gen, held, names, dim_list, rounds=plan_data_rounds,
                                                 rrt=rrt, scp_params=scp_params, workers=workers, log=log, keep=keep)
         run_export(checkpoint, gen)

@@ -22,12 +22,11 @@ from .reports import (CHECK_GAPS, PROFILE_COLUMNS, downwash_check, downwash_tabl
                       summary_figure, table)
 from .retraining import PLAN_DATA_ROUNDS, PLAN_DATA_SEEDS, plan_trained_checkpoint, training_data_files
 from .runs import fly_plans, over_limit, run_trial, trial_summary, unforeseen
-from .store import RESUME_DIR, TrialStore
+from .store import RESUME_DIR, TrialStore, runs_folder
 
-__all__ = ["CALIBRATION_PLANS", "CALIBRATION_ROUNDS", "CALIBRATION_SEEDS", "CHECK_GAPS", "FA_MARGIN_G",
-           "HEIGHT", "LIMITS_2D", "LIMITS_3D", "NEAR_FIELD_M", "PLAN_DATA_ROUNDS", "PLAN_DATA_SEEDS",
-           "PROFILE_COLUMNS", "RESUME_DIR", "SCENARIOS", "SPACING", "TrialStore", "calibrated_margin",
-           "calibration_wave", "downwash_check", "downwash_table", "example_figure", "fly_plans",
-           "measured_margin", "over_limit", "plan_trained_checkpoint", "planning_experiments", "profile_table",
-           "run_trial", "scenario_problem", "summary_figure", "table", "training_data_files", "trial_summary",
-           "unforeseen"]
+__all__ = ["CALIBRATION_PLANS", "CALIBRATION_ROUNDS", "CALIBRATION_SEEDS", "CHECK_GAPS", "FA_MARGIN_G", "HEIGHT",
+           "LIMITS_2D", "LIMITS_3D", "NEAR_FIELD_M", "PLAN_DATA_ROUNDS", "PLAN_DATA_SEEDS", "PROFILE_COLUMNS",
+           "RESUME_DIR", "SCENARIOS", "SPACING", "TrialStore", "calibrated_margin", "calibration_wave",
+           "downwash_check", "downwash_table", "example_figure", "fly_plans", "measured_margin", "over_limit",
+           "plan_trained_checkpoint", "planning_experiments", "profile_table", "run_trial", "runs_folder",
+           "scenario_problem", "summary_figure", "table", "training_data_files", "trial_summary", "unforeseen"]

@@ -21,7 +21,7 @@ from . import runs
 from .calibrated import measured_margin
 from .cases import SCENARIOS, scenario_problem
 from .reports import downwash_check, downwash_table, example_figure, profile_table, summary_figure, table
-from .store import RESUME_DIR, TrialStore
+from .store import RESUME_DIR, TrialStore, runs_folder
 
 
 def planning_experiments(cfg: Config, checkpoint, gen_dir, out_dir, scenarios=None, dims=(2, 3), trials: int = 5,
@@ -43,7 +43,7 @@ def planning_experiments(cfg: Config, checkpoint, gen_dir, out_dir, scenarios=No
     models = [m for m in ("NN", "BL") if m in modes]
     nn = load_force_model(cfg, checkpoint)
     names = list(scenarios or SCENARIOS)
-    store = TrialStore(runs_dir if runs_dir is not None else out / RESUME_DIR, checkpoint, names, list(dims), rrt,
+    store = TrialStore(runs_folder(out, runs_dir), checkpoint, names, list(dims), rrt,
                        scp_params, examples=out / RESUME_DIR)
     rep = None
     if fa_margin_g is None:

@@ -15,6 +15,12 @@ RESUME_DIR = "resume"     # planning_experiments' finished work, in its output f
 VERSION = 1
 
 
+def runs_folder(out_dir, runs_dir=None) -> Path:
+    """Where a run keeps its finished work (trials, margin, the plan-data rounds' models in
+    ``models/``): ``runs_dir``, or by default ``out_dir``/RESUME_DIR."""
+    return Path(runs_dir) if runs_dir is not None else Path(out_dir) / RESUME_DIR
+
+
 class TrialStore(ResultStore):
     """planning_experiments' finished work kept in ``folder`` so that a run cut short
     goes on where it stopped: the margin (``margin_<key>.json``), every trial's record
