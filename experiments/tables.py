@@ -774,7 +774,7 @@ DOC_TABLES = (
     DocTable("docs/ground-truth.md", "ablation", "ablation/ablation.json", ablation_table),
     DocTable("docs/adaptation.md", "sim-adapt", "sim-adapt/adapt.json", sim_adapt_table),
     DocTable("docs/adaptation.md", "sim-adapt-gate0", "sim-adapt-gate0/adapt.json", sim_adapt_law_table,
-             ("sim-adapt/adapt.json",)),
+             ("sim-adapt-gate1/adapt.json",)),
     DocTable("docs/adaptation.md", "real-adapt", "real/adapt.json", adapt_table),
     DocTable("docs/adaptation.md", "real-adapt-types", "real/adapt.json", adapt_types_table),
     DocTable("docs/adaptation.md", "real-adapt-masses", "real/adapt.json", adapt_masses_table),
