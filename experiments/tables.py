@@ -213,15 +213,14 @@ def ablation_summary(d: dict) -> str:
                              ("P", "pairwise sum", "the sum of pairwise models")):
         r = a.get(axis, {}).get(key)
         if r:
-            text = f"{label}: {100 * (r['mean'] / ref['mean'] - 1):+.0f} %"
+            text = f"{label}: {_rel(r['mean'], ref['mean'])}"
             if "larger_teams" in r and "larger_teams" in ref:
-                more = r["larger_teams"]["mean"] / ref["larger_teams"]["mean"] - 1
-                text += f" (teams of 4-5 robots {100 * more:+.0f} %)"
+                text += f" (teams of 4-5 robots {_rel(r['larger_teams']['mean'], ref['larger_teams']['mean'])})"
             parts.append(text)
     for axis in ("H", "L"):
         others = {k: v["mean"] for k, v in a.get(axis, {}).items() if k not in ("20", "4")}
         if others:
-            parts.append(f"{axis} " + ", ".join(f"{k}: {100 * (m / ref['mean'] - 1):+.0f} %" for k, m in others.items()))
+            parts.append(f"{axis} " + ", ".join(f"{k}: {_rel(m, ref['mean'])}" for k, m in others.items()))
     return "; ".join(parts)
 
 
@@ -312,7 +311,9 @@ def readme_table(root: Path, experiments=EXPERIMENTS) -> str:
 
 # ------------------------------------------------------------------ the docs' tables
 def _rel(x: float, ref: float) -> str:
-    return f"{100 * (x / ref - 1):+.0f} %"
+    """x against ref in whole percent, signed ("+3 %", "-2 %"); "0 %" when it rounds to 0."""
+    pct = round(100 * (x / ref - 1))
+    return f"{pct:+d} %" if pct else "0 %"
 
 
 def _cm(x: float, digits: int = 1) -> str:

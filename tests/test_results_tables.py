@@ -180,9 +180,9 @@ def test_rows_of_each_command_s_results():
     assert "L2S 0.37 vs 1.15 cm (3.09x)" in sim and "5-robot rings: BL 8.1 / BL-tuned 1.4 / NN 1.4" in sim
     assert "16-robot three rings: BL 11.6 / BL-tuned 1.8 / NN 1.8" in sim
     abl = tables.ablation_summary({"ablation/ablation.json": read("ablation/ablation.json")})
-    assert abl.startswith("validation MSE of H = 20, L = 4: 1.99 +- 0.02 g^2 (1,392,285 samples, 3 seeds)")
-    assert "without relative velocity: +28 %" in abl and "type-agnostic: +23 % (teams of 4-5 robots +98 %)" in abl
-    assert "the sum of pairwise models: +1 % (teams of 4-5 robots +18 %)" in abl
+    assert abl.startswith("validation MSE of H = 20, L = 4: 1.99 +- 0.01 g^2 (1,392,294 samples, 3 seeds)")
+    assert "without relative velocity: +25 %" in abl and "type-agnostic: +25 % (teams of 4-5 robots +102 %)" in abl
+    assert "the sum of pairwise models: +1 % (teams of 4-5 robots +2 %)" in abl and "H 10: 0 %, 40: 0 %" in abl
     plan = tables.planning_summary({"planning/plan.json": read("planning/plan.json")})
     assert plan.startswith("3D: NN 125 of 125 planned, 125 within the force limits in flight; BL 125 of 125 planned, "
                            "86 within") and "2D: NN 94 of 125 planned, 91 within" in plan
@@ -234,11 +234,12 @@ def test_docs_tables_carry_the_runs_numbers():
                                                        for c in ("SL", "SS", "LL", "SSL", "SLL")]
     assert "| 2D SLL | NN | 3/25 | 3/3 | 3.9 / 4.8 | 2.9 g, 0/3 | 5.3 g, 0/3 | 15.6 / 8.7 |" in block["planning"]
     assert "| large under large | -20.3 / -26.6 | -23.0 / -23.0 | -20.6 / -18.6 |" in block["planning-model"]
-    assert ("| H = 20, L = 4 (the paper's network) | **1.987 +- 0.021** | 2.009, 1.959, 1.992 | 16, 21, 12 | "
-            "3.27 +- 0.19 | **6.42 +- 0.18** |") in block["ablation"]
-    assert ("| without relative velocity | 2.534 +- 0.032 (+28 %) | 2.511, 2.579, 2.513 | 16, 14, 15 | "
-            "3.82 +- 0.01 (+17 %) | 7.60 (+18 %) |") in block["ablation"]
-    assert "| type-agnostic deep set | 2.447 +- 0.007 (+23 %) |" in block["ablation"]
+    assert ("| H = 20, L = 4 (the paper's network) | **1.993 +- 0.006** | 2.002, 1.990, 1.988 | 14, 16, 11 | "
+            "3.77 +- 0.19 | **6.42 +- 0.18** |") in block["ablation"]
+    assert ("| without relative velocity | 2.494 +- 0.022 (+25 %) | 2.464, 2.504, 2.515 | 12, 18, 14 | "
+            "6.49 +- 0.30 (+72 %) | 7.60 (+18 %) |") in block["ablation"]
+    assert "| type-agnostic deep set | 2.491 +- 0.040 (+25 %) |" in block["ablation"]
+    assert "| H = 10 | 1.990 +- 0.042 (0 %) |" in block["ablation"]
     assert "| L2S after 4 s alone | 1.31 | 0.50 | 0.61 | 99-100 % |" in block["sim-adapt"]
     assert f"no payload: first {BATTERY_WINDOW_S:.0f} s | 0.90 | 0.37 | 0.39 | 100 % |" in block["sim-adapt"]
     assert "| NN+adapt at 428199a | NN+adapt at 2176e6a |" in block["sim-adapt-gate0"]
