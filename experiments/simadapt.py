@@ -32,7 +32,9 @@ import numpy as np
 from ns2codegen.config import Config
 from ns2codegen.executor import run_map
 from ns2codegen.export import export_config
+from ns2codegen.fileio import atomic_write_bytes
 from ns2codegen.onboard import ADAPT_UPDATED, AdaptCfg
+from ns2codegen.results import stamp
 
 from ns2host.sim.cloop import CLoopSwarm, NS2Controller, Setpoints, robots_of
 from ns2host.sim.roughness import LOW_BATTERY_V, Roughness
@@ -274,6 +276,6 @@ def experiment(gen_dir, out_dir, tuning: dict, workers: int = 1, progress=None, 
            "adapt": AdaptCfg(enable=1).as_dict(),
            "adapt_per_arm": {k: a.as_dict() for k in arms for a in [_adapt_cfg(k)] if a is not None},
            "summary": summarize(rows), "flights": rows}
-    (out / "adapt.json").write_text(json.dumps(res, indent=2) + "\n")
-    (out / "adapt.md").write_text(table(res["summary"], arms))
+    atomic_write_bytes(out / "adapt.json", (json.dumps(stamp(res), indent=2) + "\n").encode())
+    atomic_write_bytes(out / "adapt.md", table(res["summary"], arms).encode())
     return res

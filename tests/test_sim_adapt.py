@@ -115,7 +115,9 @@ def test_the_experiment_flies_every_controller_and_reads_the_adaptation(cfg, exp
     assert all(by[k, c]["bottom_bias_g_end"] == 0.0 for k in ("swap", "swap-solo") for c in ("BL-tuned", "NN"))
     v0, v1 = by["battery", "NN"]["battery_V_start_end"]
     assert v0 == pytest.approx(4.2) and 3.2 <= v1 < 3.3   # the clean simulator starts full
-    assert json.loads((tmp_path / "adapt.json").read_text())["summary"] == res["summary"]
+    written = json.loads((tmp_path / "adapt.json").read_text())
+    assert written["summary"] == res["summary"]
+    assert set(written["provenance"]) == {"commit", "command", "date"} and written["provenance"]["commit"]
     assert "| S2S |" in (tmp_path / "adapt.md").read_text()
     assert len((tmp_path / "adapt.partial.jsonl").read_text().splitlines()) == len(rows)
 
