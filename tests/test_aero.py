@@ -28,8 +28,13 @@ def grams(model, p, v=None, **kw):
     return model.forces(p, np.zeros_like(p) if v is None else np.array(v, float), **kw) * 1000.0 / G
 
 
-def test_calibration_table_against_the_paper(cfg):
-    rows = calibration_table(cfg)
+@pytest.fixture(scope="module")
+def cal_rows(cfg):
+    return calibration_table(cfg)
+
+
+def test_calibration_table_against_the_paper(cal_rows):
+    rows = cal_rows
     assert len(rows) >= 8
     for r in rows:
         short = [v for k, v in SHORT_OF_TOLERANCE.items() if k in r["point"]]
@@ -39,6 +44,32 @@ def test_calibration_table_against_the_paper(cfg):
             assert r["ok"], r
     fitted = [r for r in rows if r["fitted"]]
     assert len(fitted) == 2 and all(abs(r["rel_error"]) < 0.02 for r in fitted)
+
+
+def test_calibration_result_file(cal_rows, tmp_path, capsys):
+    """``--json`` writes the tables docs/ground-truth.md is made of (the same rows, stamped
+    with commit and command); a file it cannot write is one line and a non-zero exit."""
+    import json
+
+    from ns2host.sim.calibration import gap_markdown, main, markdown
+
+    out = tmp_path / "gt" / "calibration.json"
+    assert main(["--json", str(out)]) == 0
+    printed = capsys.readouterr().out
+    doc = json.loads(out.read_text())
+    assert doc["points"] == json.loads(json.dumps(cal_rows))
+    assert doc["provenance"]["command"] == f"python -m ns2host.sim.calibration --json {out}"
+    assert markdown(doc["points"]) in printed and gap_markdown(doc["gap_table"]) in printed
+    gaps = doc["gap_table"]
+    assert [(r["lower"], r["upper"]) for r in gaps["rows"]] == [("small", "small"), ("small", "large"),
+                                                                ("large", "small"), ("large", "large")]
+    assert all(len(r["f_z_g"]) == len(gaps["gaps_m"]) and all(np.diff(r["f_z_g"]) > 0) for r in gaps["rows"])
+    assert "\\|truth" in markdown(doc["points"])           # a | in a point's text does not split the row
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    assert main(["--json", str(blocker / "c.json")]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and str(blocker / "c.json") in err[0] and blocker.read_text() == "x"
 
 
 def test_rotor_response_is_momentum_theory():

@@ -1,12 +1,15 @@
 """The ground truth (aero.py) against every quantitative point the paper gives about
 the interactions themselves, point by point with the relative error; printed by
-``python -m ns2host.sim.calibration`` (Markdown) and checked by tests/test_aero.py.
+``python -m ns2host.sim.calibration`` (Markdown; ``--json FILE`` writes the result docs/ground-truth.md's
+tables are made of) and checked by tests/test_aero.py.
 
 Two points are fitted (the wake's spreading rate and the ground-effect radius); the
 others are predictions of the physics.  Points the paper states only in words get
 a measured number and the check that the words hold (no relative error).
 Experiment results (swaps, rings, planning) are never calibration points."""
 from __future__ import annotations
+
+import sys
 
 import numpy as np
 
@@ -117,31 +120,72 @@ def calibration_table(cfg: Config | None = None) -> list[dict]:
 
 
 def markdown(rows: list[dict]) -> str:
+    """The calibration rows as a Markdown table (a ``|`` in a point's text escaped)."""
     lines = ["| point | paper | simulator | rel. error | tolerance | |", "|---|---|---|---|---|---|"]
     for r in rows:
         paper = "in words" if r["paper"] is None else f"{r['paper']:g}"
-        rel = "" if r["rel_error"] is None else f"{100 * r['rel_error']:+.1f} %"
+        rel = "" if r["rel_error"] is None else f"{100 * r['rel_error']:+.1f} %".replace("-0.0 %", "0.0 %")
         tol = r["tolerance"] if isinstance(r["tolerance"], str) else f"{100 * r['tolerance']:.0f} %"
         tag = ("fitted" if r["fitted"] else "predicted") + ("" if r["ok"] else ", OUT OF TOLERANCE")
         note = f" ({r['note']})" if r["note"] else ""
-        lines.append(f"| {r['point']}{note} | {paper} | {r['sim']:.2f} | {rel} | {tol} | {tag} |")
+        point = f"{r['point']}{note}".replace("|", "\\|")
+        lines.append(f"| {point} | {paper} | {r['sim']:.2f} | {rel} | {tol} | {tag} |")
     return "\n".join(lines) + "\n"
 
 
-def gap_table(cfg: Config | None = None, gaps=(0.1, 0.2, 0.3, 0.5, 1.0, 1.5, 2.0)) -> str:
-    """f_z (g) of a hovering robot at z = 1 m under a hovering neighbour, per gap."""
+def gap_rows(cfg: Config | None = None, gaps=(0.1, 0.2, 0.3, 0.5, 1.0, 1.5, 2.0)) -> dict:
+    """f_z (g) of a hovering robot at z = 1 m under a hovering neighbour, per gap (m):
+    {"gaps_m": [...], "rows": [{"lower", "upper", "f_z_g": [one per gap]}]}."""
     cfg = cfg or Config.load()
     small = vehicle(cfg, cfg.robot_types[0])
-    lines = ["| lower under upper | " + " | ".join(f"{g} m" for g in gaps) + " |", "|---|" + "---|" * len(gaps)]
+    rows = []
     for lo in cfg.robot_types:
         for up in cfg.robot_types:
             m = calibrated([vehicle(cfg, lo), vehicle(cfg, up)], small)
-            cells = [m.forces(np.array([[0, 0, 1.0], [0, 0, 1.0 + g]]), np.zeros((2, 3)))[0, 2] * 1000 / G
-                     for g in gaps]
-            lines.append(f"| {lo} under {up} | " + " | ".join(f"{c:.1f}" for c in cells) + " |")
+            rows.append({"lower": lo, "upper": up, "f_z_g": [
+                float(m.forces(np.array([[0, 0, 1.0], [0, 0, 1.0 + g]]), np.zeros((2, 3)))[0, 2] * 1000 / G)
+                for g in gaps]})
+    return {"gaps_m": list(gaps), "rows": rows}
+
+
+def gap_markdown(doc: dict) -> str:
+    lines = ["| lower under upper | " + " | ".join(f"{g} m" for g in doc["gaps_m"]) + " |",
+             "|---|" + "---|" * len(doc["gaps_m"])]
+    for r in doc["rows"]:
+        lines.append(f"| {r['lower']} under {r['upper']} | " + " | ".join(f"{c:.1f}" for c in r["f_z_g"]) + " |")
     return "\n".join(lines) + "\n"
 
 
+def main(argv=None) -> int:
+    """Print both tables; with ``--json FILE`` also write them as a result (the rows and
+    the gap table, stamped with the commit and command: docs/ground-truth.md's tables,
+    ``make results``)."""
+    import argparse
+    import json
+    import shlex
+    from pathlib import Path
+
+    from ns2codegen.fileio import atomic_write_bytes
+    from ns2codegen.results import stamp
+
+    ap = argparse.ArgumentParser(prog="python -m ns2host.sim.calibration", description=__doc__.split("\n\n")[0])
+    ap.add_argument("--json", type=Path, default=None, help="also write the tables as a stamped JSON result here")
+    args = ap.parse_args(argv)
+    rows, gaps = calibration_table(), gap_rows()
+    print(markdown(rows))
+    print(gap_markdown(gaps))
+    if args.json is not None:
+        command = " ".join(["python -m ns2host.sim.calibration", *(shlex.quote(a) for a in (argv if argv is not None
+                                                                                             else sys.argv[1:]))])
+        doc = stamp({"points": rows, "gap_table": gaps}, command)
+        try:
+            args.json.parent.mkdir(parents=True, exist_ok=True)
+            atomic_write_bytes(args.json, (json.dumps(doc, indent=1) + "\n").encode())
+        except OSError as e:
+            print(f"{args.json}: cannot write ({e.strerror or e})", file=sys.stderr)
+            return 1
+    return 0
+
+
 if __name__ == "__main__":
-    print(markdown(calibration_table()))
-    print(gap_table())
+    sys.exit(main())
