@@ -26,6 +26,8 @@ from typing import Callable
 from ns2codegen.errors import Ns2Error
 from ns2paper.collection import COLLECTIONS
 
+from .bench_tables import (benchmarks_target_table, calibration_gaps_table, calibration_points_table,
+                           memory_table as cycles_table, readme_measures_table)
 from .blind import gains_table, mean_std, memory_rows, memory_table, table
 from .real import ablation_table as real_ablation_table
 
@@ -737,9 +739,19 @@ class DocTable:
     more: tuple = ()                  # further committed files the table is made of
 
 
+# the Cortex-M4 benchmarks of the paper-sized, present-state network (make export's firmware/generated)
+BENCH_TARGET, BENCH_STABILIZER = ("wake-memory-cycles/bench_target_default.json",
+                                  "wake-memory-cycles/bench_stabilizer_default.json")
+GROUND_TRUTH = "ground-truth/calibration.json"
+
 DOC_TABLES = (
+    DocTable("README.md", "readme-measures", BENCH_TARGET, readme_measures_table, (BENCH_STABILIZER, GROUND_TRUTH)),
     DocTable("README.md", "readme-sim", "sim/swaps.json", readme_sim_table,
              ("sim/rings.json", "sim-clean/swaps.json", "sim-clean/rings.json")),
+    DocTable("docs/benchmarks.md", "bench-target", BENCH_TARGET, benchmarks_target_table),
+    DocTable("docs/memory.md", "cycles", BENCH_TARGET, cycles_table),
+    DocTable("docs/ground-truth.md", "calibration", GROUND_TRUTH, calibration_points_table),
+    DocTable("docs/ground-truth.md", "gaps", GROUND_TRUTH, calibration_gaps_table),
     DocTable("docs/real-flights.md", "hover", "real/data_report.json", hover_table),
     DocTable("docs/real-flights.md", "blind", "real/blind.json", table),
     DocTable("docs/real-flights.md", "blind-gains", "real/blind.json",
@@ -751,10 +763,9 @@ DOC_TABLES = (
              lambda paper, held, *rest: real_ablation_table(paper, held, *rest[:-1], authors=rest[-1]),
              ("real/heldout.json", *(f"real/ablation-{a}.json" for a in REAL_AXES), "real/authors.json")),
     DocTable("docs/real-flights.md", "flights", "real/data_report.json", flights_table),
-    DocTable("docs/app.md", "stabilizer-parts", "wake-memory-cycles/bench_stabilizer_default.json",
-             stabilizer_parts_table),
-    DocTable("docs/app.md", "stabilizer-app", "wake-memory-cycles/bench_stabilizer_default.json",
-             stabilizer_app_table, ("wake-memory-cycles/bench_stabilizer.json",)),
+    DocTable("docs/app.md", "stabilizer-parts", BENCH_STABILIZER, stabilizer_parts_table),
+    DocTable("docs/app.md", "stabilizer-app", BENCH_STABILIZER, stabilizer_app_table,
+             ("wake-memory-cycles/bench_stabilizer.json",)),
     DocTable("docs/simulator.md", "calibrate-lateral", "calibrate/calibration.json", calibrate_table("lateral")),
     DocTable("docs/simulator.md", "calibrate-replays", "calibrate/calibration.json", calibrate_table("replays")),
     DocTable("docs/simulator.md", "calibrate-paper-l2s", "calibrate/calibration.json", calibrate_table("paper-l2s")),

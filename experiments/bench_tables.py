@@ -1,0 +1,241 @@
+"""The tables made of the Cortex-M4 benchmarks' JSON (benchmarks/bench_target.py,
+benchmarks/bench_stabilizer.py) and of the ground truth's calibration
+(``python -m ns2host.sim.calibration --json``), as committed under docs/results/runs/:
+docs/benchmarks.md's and docs/memory.md's cycle tables, docs/ground-truth.md's
+calibration tables and README's "what make bench measures" (experiments/tables.py's
+DOC_TABLES).  Every number is read from the files; nothing here measures."""
+from __future__ import annotations
+
+import re
+
+NEIGHBORS = "15_neighbors"        # bench_target's prediction of robot type 0 with 15 neighbours + environment
+
+
+def _us(x: float, digits: int = 0) -> str:
+    return f"{x:.{digits}f}"
+
+
+def _kb(n_bytes: float) -> str:
+    return f"{n_bytes / 1000:.1f} KB"
+
+
+def _within(us: float, budget: float) -> str:
+    return "within budget" if us <= budget else "over budget"
+
+
+def _verdict(values, budget: float, places=("zero wait", "flash", "SRAM")) -> str:
+    """"within budget" / "over budget" when every value agrees, else where it is within."""
+    ok = [p for v, p in zip(values, places) if v <= budget]
+    if len(ok) in (0, len(places)):
+        return _within(max(values), budget)
+    return "within budget at " + " and ".join(ok) + " only"
+
+
+def _one_tick(t: dict, kind: str, place: str) -> dict:
+    """bench_target's one-iteration prediction (15 neighbours + environment) of ``kind``
+    (fixed / float) with its tables in ``place`` (flash / ram)."""
+    return t["stabilizer_1kHz"][kind][place]["one_iteration"]
+
+
+def _sliced(t: dict, kind: str, place: str, rate: str) -> dict:
+    key = {"1kHz": "sliced_1kHz_2_phi_per_iteration", "500Hz": "sliced_500Hz_4_phi_per_tick"}[rate]
+    return t["stabilizer_1kHz"][kind][place][key]
+
+
+def _tick_us(t: dict, kind: str, which: str) -> float:
+    o = _one_tick(t, kind, "flash" if which != "ram" else "ram")
+    return o["with_controller_us_zero_wait"] if which == "zero_wait" else o["with_controller_us"]
+
+
+def _sliced_us(t: dict, kind: str, which: str, rate: str) -> float:
+    s = _sliced(t, kind, "flash" if which != "ram" else "ram", rate)
+    return (s["worst_iteration_with_controller_us_zero_wait"] if which == "zero_wait"
+            else s["worst_iteration_with_controller_us"])
+
+
+def _prediction_us(t: dict, kind: str, which: str) -> float:
+    p = t[kind]["prediction"][NEIGHBORS]
+    if which == "zero_wait":
+        return p["us_at_168MHz"]
+    if which == "flash":
+        return p["memory_model_us"]
+    return _one_tick(t, kind, "ram")["prediction"]["memory_model_us"]
+
+
+def _cycles_per_mac(t: dict, kind: str, which: str) -> float:
+    p = t[kind]["prediction"][NEIGHBORS]
+    cycles = {"zero_wait": p["cycles"], "flash": p["memory_model_cycles"],
+              "ram": _one_tick(t, kind, "ram")["prediction"]["memory_model_cycles"]}[which]
+    return cycles / t["moonshot_one_tick"]["macs_per_prediction"]
+
+
+def _layers(net: dict) -> str:
+    return "-".join(map(str, net["phi"])) + " / " + "-".join(map(str, net["rho"]))
+
+
+def _onboard_us(t: dict, kind: str, which: str) -> float:
+    o = t["onboard_variant_one_tick"][kind]
+    return o["total_us"] if which == "zero_wait" else o["memory_model"][which]["total_us"]
+
+
+# ------------------------------------------------------------------ docs/memory.md
+def memory_table(t: dict) -> str:
+    """Each case at zero wait, on the memory model with the tables in flash and with the
+    hot tables in SRAM (bench_target.py of the paper-sized network)."""
+    def row(label: str, f, kind: str, ram_note: str = "") -> str:
+        return (f"| {label} | {_us(f(t, kind, 'zero_wait'), 1)} us | {_us(f(t, kind, 'flash'), 1)} us | "
+                f"{_us(f(t, kind, 'ram'), 1)} us{ram_note} |")
+
+    def ram_note(kind: str) -> str:
+        r = t["stabilizer_1kHz"][kind]["ram"]
+        return f" ({_kb(r['tables_in_ram_bytes'])}" + ("" if r["fits_ram_budget"] else ": over the budget") + ")"
+
+    budget = t["budget_2ms_tick"]["budget_us"]
+    onb = t["onboard_variant_one_tick"]
+    n1k, n500 = (_sliced(t, "fixed", "flash", r)["iterations_with_phi"] for r in ("1kHz", "500Hz"))
+    macs = t["moonshot_one_tick"]["macs_per_prediction"]
+
+    def onboard(kind: str) -> str:
+        f = [_onboard_us(t, kind, w) for w in ("zero_wait", "flash", "ram")]
+        over = lambda us: f" (over {budget:g})" if us > budget else ""          # noqa: E731
+        kb = _kb(onb[kind]["memory_model"]["ram"]["tables_in_ram_bytes"])
+        return (f"| on-board variant, {kind}, one iteration + controller | {f[0]:.1f} us{over(f[0])} | "
+                f"{f[1]:.1f} us{over(f[1])} | {f[2]:.1f} us ({kb}{'; over ' + f'{budget:g}' if f[2] > budget else ''}) |")
+
+    return "\n".join([
+        "| case | zero wait | memory model, tables in flash | memory model, hot tables in SRAM |",
+        "|---|---|---|---|",
+        row("fixed, whole prediction, 15 neighbours", _prediction_us, "fixed", ram_note("fixed")),
+        row("fixed, + controller step, one iteration", _tick_us, "fixed"),
+        row(f"fixed, sliced, worst 1 ms iteration (2 phi per iteration, {n1k} iterations) + controller",
+            lambda t, k, w: _sliced_us(t, k, w, "1kHz"), "fixed"),
+        row(f"fixed, sliced, worst 500 Hz tick (4 phi per tick, {n500} ticks) + controller",
+            lambda t, k, w: _sliced_us(t, k, w, "500Hz"), "fixed"),
+        row("float, whole prediction, 15 neighbours", _prediction_us, "float", ram_note("float")),
+        row("float, sliced, worst 1 ms iteration + controller", lambda t, k, w: _sliced_us(t, k, w, "1kHz"), "float"),
+        row("float, sliced, worst 500 Hz tick + controller", lambda t, k, w: _sliced_us(t, k, w, "500Hz"), "float"),
+        onboard("fixed"), onboard("float"),
+        f"| cycles per MAC, fixed, whole prediction ({macs:,} MACs) | "
+        + " | ".join(f"{_cycles_per_mac(t, 'fixed', w):.3f}" for w in ("zero_wait", "flash", "ram")) + " |",
+        "| cycles per MAC, float, whole prediction | "
+        + " | ".join(f"{_cycles_per_mac(t, 'float', w):.3f}" for w in ("zero_wait", "flash", "ram")) + " |"])
+
+
+# ------------------------------------------------------------------ docs/benchmarks.md
+def benchmarks_target_table(t: dict) -> str:
+    """bench_target.py's rows of docs/benchmarks.md: the Cortex-M4's instructions and
+    cycles, the 400 us budget of a 2 ms tick, the on-board variant, memory."""
+    fx, fl, m1 = t["fixed"], t["float"], t["moonshot_one_tick"]
+    budget = t["budget_2ms_tick"]["budget_us"]
+    em, emr = t["emlearn"], t["emlearn_vs_ns2"]
+    onb = t["onboard_variant_one_tick"]
+    mem = t["memory"]
+    one = [_tick_us(t, "fixed", w) for w in ("zero_wait", "flash", "ram")]
+    s500 = [_sliced_us(t, "fixed", w, "500Hz") for w in ("zero_wait", "flash", "ram")]
+    onb_fx = [_onboard_us(t, "fixed", w) for w in ("zero_wait", "flash", "ram")]
+    bound = m1["float"]["bound_instructions_per_mac"]
+
+    def three(values, digits=0) -> str:
+        return " / ".join(_us(v, digits) for v in values)
+
+    def sizes(name: str) -> str:
+        r = mem[name]
+        return f"{_kb(r['flash_bytes'])} / {r['static_ram_bytes']} / {r['worst_case_stack_bytes']:,} B"
+
+    onb_verdict = _verdict(onb_fx, budget)
+    return "\n".join([
+        "| what (Cortex-M4 at 168 MHz, emulated) | result |", "|---|---|",
+        f"| network | paper-sized, {_layers(t['network'])}: {t['macs']['phi']:,} MACs per phi evaluation, "
+        f"{t['macs']['rho']:,} per rho |",
+        f"| instructions per multiply-accumulate per phi evaluation | float {fl['instructions_per_mac_phi']:.2f} "
+        f"(pair kernels alone {fl['kernel_instructions_per_mac']:.2f}; bound {bound['pair']:.4g}-{bound['single']:.4g}), "
+        f"fixed {fx['instructions_per_mac_phi']:.3f} (dense kernels alone {fx['kernel_instructions_per_mac']:.2f}) |",
+        f"| emlearn {em['emlearn_version']}'s C for the same layer sizes | {em['phi']['instructions_per_mac']:.2f} "
+        f"instructions per MAC: {emr['phi_instructions_ratio_float']:.1f}x ours (float), "
+        f"{emr['phi_instructions_ratio_fixed']:.1f}x (fixed); cycles {emr['phi_cycles_ratio_float']:.1f}x and "
+        f"{emr['phi_cycles_ratio_fixed']:.1f}x |",
+        f"| per phi evaluation, zero wait | fixed {fx['per_phi']['us_at_168MHz']:.0f} us, "
+        f"float {fl['per_phi']['us_at_168MHz']:.0f} us |",
+        "| full prediction with 1 / 4 / 16 neighbours (+ environment), zero wait | fixed "
+        + " / ".join(_us(fx["prediction"][f"{n}_neighbors"]["us_at_168MHz"]) for n in (1, 4, 16)) + " us, float "
+        + " / ".join(_us(fl["prediction"][f"{n}_neighbors"]["us_at_168MHz"]) for n in (1, 4, 16)) + " us |",
+        "| cycles per MAC, whole prediction: zero wait / modelled, tables in flash / hot tables in SRAM | fixed "
+        + " / ".join(f"{_cycles_per_mac(t, 'fixed', w):.3f}" for w in ("zero_wait", "flash", "ram")) + ", float "
+        + " / ".join(f"{_cycles_per_mac(t, 'float', w):.3f}" for w in ("zero_wait", "flash", "ram")) + " |",
+        f"| controller step (position + attitude), zero wait / memory model | "
+        f"{t['budget_2ms_tick']['controller_step_us']:.1f} / {t['stabilizer_1kHz']['controller_step_us_memory_model']:.1f} us |",
+        f"| 15 neighbours + environment + controller step vs {budget:g} us (20 % of a 2 ms tick), in one tick: "
+        f"zero wait / modelled flash / modelled SRAM tables | fixed {three(one)} us: **{_verdict(one, budget)}** "
+        f"(the machine's bound is {m1['bound_us_with_controller']:.0f} us, [memory.md](memory.md)); float prediction "
+        f"alone {three(_prediction_us(t, 'float', w) for w in ('zero_wait', 'flash', 'ram'))} us |",
+        f"| the same prediction sliced over the 500 Hz ticks of a 100 Hz period (the app), worst tick + controller "
+        f"step: zero wait / flash / SRAM | fixed {three(s500)} us (4 phi per tick): **{_verdict(s500, budget)}** |",
+        "| the same against the firmware's 1 ms stabilizer iteration (2 phi per ms), worst iteration + controller "
+        "step | fixed " + three(_sliced_us(t, "fixed", w, "1kHz") for w in ("zero_wait", "flash", "ram"))
+        + " us, float " + three(_sliced_us(t, "float", w, "1kHz") for w in ("zero_wait", "flash", "ram")) + " us |",
+        f"| the on-board variant (`make export-onboard`, {_layers(onb)}), 15 neighbours + environment + controller "
+        f"step in one tick: zero wait / flash / SRAM | fixed {three(onb_fx)} us: **{onb_verdict}** "
+        f"({_kb(onb['fixed']['memory_model']['ram']['tables_in_ram_bytes'])} in SRAM); float "
+        f"{three(_onboard_us(t, 'float', w) for w in ('zero_wait', 'flash', 'ram'))} us; flash "
+        f"{_kb(onb['memory']['flash_bytes'])}, stack {onb['memory']['worst_case_stack_bytes']:,} B |",
+        f"| RAM per robot for the sliced prediction (`ns2_job_t`) | {fx['sliced_15_neighbors']['job_ram_bytes']:,} B |",
+        f"| flash (code + tables) / static RAM / worst-case stack | float {sizes('ns2_predict_f32')}, fixed "
+        f"{sizes('ns2_predict_q15')}, controller {sizes('ns2_ctrl_position')} |"])
+
+
+# ------------------------------------------------------------------ docs/ground-truth.md
+def calibration_points_table(doc: dict) -> str:
+    from ns2host.sim.calibration import markdown
+
+    return markdown(doc["points"]).rstrip("\n")
+
+
+def calibration_gaps_table(doc: dict) -> str:
+    from ns2host.sim.calibration import gap_markdown
+
+    return gap_markdown(doc["gap_table"]).rstrip("\n")
+
+
+def _source(point: str) -> str:
+    """The paper's place a calibration point comes from (its "[...]")."""
+    m = re.search(r"\[([^\]]*)\]", point)
+    return m.group(1).split(":")[0].split(", ")[0] if m else point
+
+
+# ------------------------------------------------------------------ README
+def readme_measures_table(target: dict, stabilizer: dict, calibration: dict) -> str:
+    """README's rows of what the benchmarks and the ground truth's calibration measured."""
+    budget = target["budget_2ms_tick"]["budget_us"]
+    one = [_tick_us(target, "fixed", w) for w in ("flash", "ram")]
+    bound = target["moonshot_one_tick"]["bound_us_with_controller"]
+    s500 = _sliced_us(target, "fixed", "flash", "500Hz")
+    onb = target["onboard_variant_one_tick"]
+    fx = stabilizer["fixed"]
+    adds = fx["app_adds_to_worst_tick"]
+    cm4 = (f"paper-sized network ({_layers(target['network'])}): fixed point {one[0]:.0f} us for 15 neighbours + "
+           f"controller in one tick ({one[1]:.0f} us with its hot tables in SRAM; the machine's bound is {bound:.0f} us: "
+           f"{'over' if bound > budget else 'within'} the {budget:g} us budget), {s500:.0f} us in the "
+           "worst 500 Hz tick when sliced over the 100 Hz period; on-board variant: "
+           f"{onb['fixed']['memory_model']['ram']['total_us']:.0f} us in one tick with its tables in SRAM; the app "
+           f"({stabilizer['network']['phi'][0]} inputs per neighbour), its 100 Hz work spread over the milliseconds, "
+           f"adds {100 * adds['zero_wait']:.1f} % of 1 ms to the firmware's worst stabilizer iteration with its Kalman "
+           f"filter ({100 * adds['memory']:.1f} % on the memory model, "
+           f"{100 * fx['stock_worst_tick']['memory']['share_of_1ms']:.0f} % to "
+           f"{100 * fx['app_worst_tick']['memory']['share_of_1ms']:.0f} % of the millisecond)")
+    pts = calibration["points"]
+    ok = sum(bool(p["ok"]) for p in pts)
+    fitted = [p for p in pts if p["fitted"]]
+    numeric = [p for p in pts if not p["fitted"] and p["paper"] is not None]
+    out = [p for p in pts if not p["ok"]]
+    truth = (f"flow-based, non-additive wakes: {ok} of the paper's {len(pts)} points within their tolerance; "
+             f"fitted: " + ", ".join(f"{p['sim']:.2f} vs {p['paper']:g} ({_source(p['point'])})" for p in fitted)
+             + "; predicted: " + ", ".join(f"{p['sim']:.2f} vs {p['paper']:g} ({_source(p['point'])})" for p in numeric))
+    if out:
+        truth += "; out of tolerance: " + ", ".join(f"{p['sim']:.2f}, criterion {p['tolerance']} ({_source(p['point'])})"
+                                                   for p in out)
+    return "\n".join([
+        "| | result | details |", "|---|---|---|",
+        "| on the Cortex-M4 (emulated, with the STM32F405's flash wait states and ART accelerator) | "
+        f"{cm4} | [docs/benchmarks.md](docs/benchmarks.md), [docs/memory.md](docs/memory.md), [docs/app.md](docs/app.md) |",
+        f"| ground truth of the simulator against the paper's points | {truth} | "
+        "[docs/ground-truth.md](docs/ground-truth.md) |"])
