@@ -183,6 +183,26 @@ def benchmarks_target_table(t: dict) -> str:
         f"{sizes('ns2_predict_q15')}, controller {sizes('ns2_ctrl_position')} |"])
 
 
+# ------------------------------------------------------------------ docs/planning.md
+def scp_programs_table(doc: dict) -> str:
+    """bench_plan.py's ``scp_programs``: per case and over all trials, Stage 2 and Stage 1 + 2
+    seconds per trial with the program rebuilt at every solve and with the parametrized one."""
+    plan = doc["planning"]
+
+    def row(label: str, s: dict, bold: bool = False) -> str:
+        reb, par = s["rebuilt"], s["parametrized"]
+        b = "**" if bold else ""
+        return (f"| {label} | {reb['stage2_s_per_trial']:.2f} / {par['stage2_s_per_trial']:.2f} | "
+                f"{b}{s['stage2_speedup']:.2f}{b} | {reb['stage1_plus_2_s_per_trial']:.2f} / "
+                f"{par['stage1_plus_2_s_per_trial']:.2f} | {b}{s['stage1_plus_2_speedup']:.2f}{b} |")
+
+    lines = ["| case | Stage 2 rebuilt / parametrized | Stage 2 ratio | Stage 1 + 2 rebuilt / parametrized | "
+             "Stage 1 + 2 ratio |", "|---|---|---|---|---|"]
+    lines += [row(re.sub(r"^(\d)D ", r"\1-D ", case), c["scp_programs"]) for case, c in plan["cases"].items()]
+    lines.append(row(f"all {plan['scp_programs']['trials']} trials", plan["scp_programs"], bold=True))
+    return "\n".join(lines)
+
+
 # ------------------------------------------------------------------ docs/ground-truth.md
 def calibration_points_table(doc: dict) -> str:
     from ns2host.sim.calibration import markdown

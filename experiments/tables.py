@@ -27,7 +27,7 @@ from ns2codegen.errors import Ns2Error
 from ns2paper.collection import COLLECTIONS
 
 from .bench_tables import (benchmarks_target_table, calibration_gaps_table, calibration_points_table,
-                           memory_table as cycles_table, readme_measures_table)
+                           memory_table as cycles_table, readme_measures_table, scp_programs_table)
 from .blind import gains_table, mean_std, memory_rows, memory_table, table
 from .real import ablation_table as real_ablation_table
 
@@ -781,6 +781,7 @@ DOC_TABLES = (
              ("sim-clean/gain_search.json",)),
     DocTable("docs/simulator.md", "sim-clean-swaps", "sim-clean/swaps.json", sim_swaps_table),
     DocTable("docs/simulator.md", "sim-clean-rings", "sim-clean/rings.json", sim_rings_table),
+    DocTable("docs/planning.md", "scp-programs", "bench-plan/bench_plan.json", scp_programs_table),
     DocTable("docs/planning.md", "planning", "planning/plan.json", planning_table),
     DocTable("docs/planning.md", "planning-model", "planning/plan.json", planning_model_table),
     DocTable("docs/ground-truth.md", "ablation", "ablation/ablation.json", ablation_table),

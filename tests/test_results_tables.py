@@ -275,6 +275,8 @@ def test_docs_tables_carry_the_runs_numbers():
     assert "11.93 vs 11.4 (Fig. vis (g))" in block["readme-measures"]
     assert "| small under small | -12.4 | -10.6 | -9.0 | -6.7 | -3.9 | -2.8 | -2.1 |" in block["gaps"]
     assert "| 5.00 | 0.0 % | 2 % | fitted |" in block["calibration"]
+    assert "| 2-D SSL NN | 6.31 / 0.97 | 6.50 | 8.75 / 3.41 | 2.57 |" in block["scp-programs"]
+    assert "| all 16 trials | 4.83 / 0.84 | **5.74** | 7.74 / 3.75 | **2.06** |" in block["scp-programs"]
 
 
 def test_sim_tuning_noise_and_paper_data_tables():
