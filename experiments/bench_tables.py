@@ -1,9 +1,11 @@
 """The tables made of the Cortex-M4 benchmarks' JSON (benchmarks/bench_target.py,
-benchmarks/bench_stabilizer.py) and of the ground truth's calibration
+benchmarks/bench_stabilizer.py, benchmarks/bench_plan.py), the firmware's size reports
+(``python -m ns2host.cfapp``) and the ground truth's calibration
 (``python -m ns2host.sim.calibration --json``), as committed under docs/results/runs/:
-docs/benchmarks.md's and docs/memory.md's cycle tables, docs/ground-truth.md's
-calibration tables and README's "what make bench measures" (experiments/tables.py's
-DOC_TABLES).  Every number is read from the files; nothing here measures."""
+docs/benchmarks.md's and docs/memory.md's cycle tables, docs/app.md's flash and RAM,
+docs/planning.md's SCP benchmark, docs/ground-truth.md's calibration tables and README's
+"what make bench measures" (experiments/tables.py's DOC_TABLES).  Every number is read
+from the files; nothing here measures."""
 from __future__ import annotations
 
 import re
@@ -181,6 +183,60 @@ def benchmarks_target_table(t: dict) -> str:
         f"| RAM per robot for the sliced prediction (`ns2_job_t`) | {fx['sliced_15_neighbors']['job_ram_bytes']:,} B |",
         f"| flash (code + tables) / static RAM / worst-case stack | float {sizes('ns2_predict_f32')}, fixed "
         f"{sizes('ns2_predict_q15')}, controller {sizes('ns2_ctrl_position')} |"])
+
+
+# ------------------------------------------------------------------ docs/app.md
+def _b(n: int, sign: bool = False) -> str:
+    return f"{n:+,} B" if sign else f"{n:,} B"
+
+
+def app_sizes_table(fixed: dict, flt: dict, both: dict) -> str:
+    """`make app`'s size report (python -m ns2host.cfapp) of the stock cf2 and of the app with
+    each inference path: flash, RAM and CCM, and what the app adds."""
+    st = fixed["stock"]
+    if flt["stock"] != st or both["stock"] != st:
+        raise ValueError("the reports were not made against the same stock firmware")
+    lines = ["| build | flash | RAM (bss + data) | CCM |", "|---|---|---|---|",
+             f"| stock cf2 | {_b(st['flash'])} | {_b(st['ram'])} ({st['ram_free']:,} free) | "
+             f"{_b(st['ccm'])} ({st['ccm_free']:,} free) |"]
+    for doc in (fixed, flt, both):
+        d = doc["delta"]
+        default = " (default)" if doc["infer"] == "fixed" else ""
+        lines.append(f"| with the app, `NS2_INFER={doc['infer']}`{default} | {_b(d['flash'], True)} "
+                     f"({_kb(d['flash'])}) | {_b(d['ram'], True)} | {_b(d['ccm'], True)} |")
+    return "\n".join(lines)
+
+
+def app_memory_sizes_table(default: dict, memory: dict) -> str:
+    """The app's flash and RAM with the present-state network and with the wake-memory one."""
+    def row(label: str, doc: dict) -> str:
+        return (f"| {label} | {_b(doc['delta']['flash'], True)} | {_b(doc['delta']['ram'], True)} | "
+                f"{_b(doc['ram_added']['app_bss'])} | {_b(doc['app']['ram_free'])} |")
+
+    lags = memory["network"]["history_ms"]
+    if default["network"]["history_ms"] or not lags:
+        raise ValueError("the first report is not of a present-state network or the second not of a wake-memory one")
+    df, dr, db = (memory[a][k] - default[a][k] for a, k in (("delta", "flash"), ("delta", "ram"),
+                                                          ("ram_added", "app_bss")))
+    return "\n".join([
+        "| build | flash over stock | RAM over stock | app bss | RAM left free |", "|---|---|---|---|---|",
+        row("default network", default),
+        row(f"with wake memory ({memory['network']['input_dim']} inputs, {len(lags)} lags)", memory),
+        f"| difference | {_b(df, True)} | **{_b(dr, True)}** | {_b(db, True)} | |"])
+
+
+def app_sram_table(flash: dict, ram: dict) -> str:
+    """The default app with every table in flash and with the fixed-point phi tables in SRAM
+    (`make app NS2_TABLES=ram`): the firmware's flash and RAM."""
+    if (flash["tables"], ram["tables"]) != ("flash", "ram") or flash["stock"] != ram["stock"]:
+        raise ValueError("not a flash-tables and a ram-tables report of the same stock firmware")
+
+    def row(label: str, doc: dict) -> str:
+        a = doc["app"]
+        return f"| {label} | {_b(a['flash'])} | {_b(a['ram'])} ({a['ram_free']:,} free) | {_b(doc['delta']['data'], True)} |"
+
+    return "\n".join(["| cf2 with the app (fixed point) | flash | RAM (bss + data) | data over stock |", "|---|---|---|---|",
+                      row("tables in flash (default)", flash), row("phi tables in SRAM (`NS2_TABLES=ram`)", ram)])
 
 
 # ------------------------------------------------------------------ docs/planning.md

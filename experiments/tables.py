@@ -26,8 +26,9 @@ from typing import Callable
 from ns2codegen.errors import Ns2Error
 from ns2paper.collection import COLLECTIONS
 
-from .bench_tables import (benchmarks_target_table, calibration_gaps_table, calibration_points_table,
-                           memory_table as cycles_table, readme_measures_table, scp_programs_table)
+from .bench_tables import (app_memory_sizes_table, app_sizes_table, app_sram_table, benchmarks_target_table,
+                           calibration_gaps_table, calibration_points_table, memory_table as cycles_table,
+                           readme_measures_table, scp_programs_table)
 from .blind import gains_table, mean_std, memory_rows, memory_table, table
 from .real import ablation_table as real_ablation_table
 
@@ -763,6 +764,10 @@ DOC_TABLES = (
              lambda paper, held, *rest: real_ablation_table(paper, held, *rest[:-1], authors=rest[-1]),
              ("real/heldout.json", *(f"real/ablation-{a}.json" for a in REAL_AXES), "real/authors.json")),
     DocTable("docs/real-flights.md", "flights", "real/data_report.json", flights_table),
+    DocTable("docs/app.md", "app-sizes", "app-sizes/fixed.json", app_sizes_table,
+             ("app-sizes/float.json", "app-sizes/both.json")),
+    DocTable("docs/app.md", "app-memory-sizes", "app-sizes/fixed.json", app_memory_sizes_table, ("app-sizes/memory.json",)),
+    DocTable("docs/app.md", "app-sram", "app-sizes/fixed.json", app_sram_table, ("app-sizes/fixed-ram.json",)),
     DocTable("docs/app.md", "stabilizer-parts", BENCH_STABILIZER, stabilizer_parts_table),
     DocTable("docs/app.md", "stabilizer-app", BENCH_STABILIZER, stabilizer_app_table,
              ("wake-memory-cycles/bench_stabilizer.json",)),

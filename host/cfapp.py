@@ -312,13 +312,19 @@ def app_objects_ram(build_dir: Path) -> dict[str, int]:
 
 
 def report(gen_dir: Path, infer: str = "fixed", out: Path | None = None, tables: str = "flash") -> dict:
-    """Flash/RAM/CCM of the stock firmware and with the app; what the app adds."""
+    """Flash/RAM/CCM of the stock firmware and with the app; what the app adds; the
+    network it was built with (the export's ``ns2_config.toml``, as bench_target.py reports it)."""
+    from ns2codegen.export import export_config
+
+    net = export_config(gen_dir)
     stock, app = build_stock(), build_app(gen_dir, infer, out, tables)
     s, a = sizes(stock / "cf2.elf"), sizes(app / "cf2.elf")
     cfg = kconfig(app)
     stack = int(cfg.get("CONFIG_APP_STACKSIZE", "0")) * 4
     d = {k: a[k] - s[k] for k in ("flash", "ram", "ccm", "text", "data", "bss")}
     return {"infer": infer, "tables": tables, "elf": str(app / "cf2.elf"), "bin": str(app / "cf2.bin"),
+            "network": {"phi": net.phi_dims(), "rho": net.rho_dims(), "history_ms": net.history_ms,
+                        "input_dim": net.input_dim},
             "stock": s, "app": a, "delta": d,
             # what the app's RAM is: its task's static stack, its own bss (the app
             # objects' .data is their PARAM/LOG tables, which the linker puts in flash)

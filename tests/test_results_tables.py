@@ -277,6 +277,9 @@ def test_docs_tables_carry_the_runs_numbers():
     assert "| 5.00 | 0.0 % | 2 % | fitted |" in block["calibration"]
     assert "| 2-D SSL NN | 6.31 / 0.97 | 6.50 | 8.75 / 3.41 | 2.57 |" in block["scp-programs"]
     assert "| all 16 trials | 4.83 / 0.84 | **5.74** | 7.74 / 3.75 | **2.06** |" in block["scp-programs"]
+    assert "| with the app, `NS2_INFER=fixed` (default) | +63,772 B (63.8 KB) | +4,092 B | +96 B |" in block["app-sizes"]
+    assert "| difference | +4,296 B | **+11,016 B** | +11,016 B | |" in block["app-memory-sizes"]
+    assert "| phi tables in SRAM (`NS2_TABLES=ram`) | 371,944 B | 121,276 B (9,796 free) | +24,060 B |" in block["app-sram"]
 
 
 def test_sim_tuning_noise_and_paper_data_tables():
