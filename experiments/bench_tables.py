@@ -185,6 +185,48 @@ def benchmarks_target_table(t: dict) -> str:
         f"{sizes('ns2_predict_q15')}, controller {sizes('ns2_ctrl_position')} |"])
 
 
+def wake_memory_cycles_table(present: dict, memory: dict) -> str:
+    """bench_target.py on the present-state network and on the wake-memory one side by side:
+    a phi evaluation, the whole prediction, the app's slicing, the 2 ms-tick budget, RAM."""
+    nets = (present, memory)
+
+    def cells(f) -> str:
+        return " | ".join(f(d) for d in nets)
+
+    def sliced(d: dict) -> str:
+        s = d["fixed"]["sliced_15_neighbors"]
+        return (f"{s['begin_cycles']:,}; {s['worst_tick_cycles']:,} / {s['memory_model_worst_tick_cycles']:,} cycles "
+                f"({s['worst_tick_us_at_168MHz']:.0f} / {s['memory_model_worst_tick_us']:.0f} µs)")
+
+    def whole(d: dict) -> str:
+        p = d["fixed"]["prediction"][NEIGHBORS]
+        return (f"{p['cycles']:,} / {p['memory_model_cycles']:,} cycles ({p['us_at_168MHz']:.0f} / "
+                f"{p['memory_model_us']:.0f} µs)")
+
+    def sram(d: dict) -> str:
+        r = d["stabilizer_1kHz"]["fixed"]["ram"]
+        return f"{r['tables_in_ram_bytes']:,} B, " + ("fits" if r["fits_ram_budget"] else "does not fit")
+
+    budget = present["budget_2ms_tick"]["budget_us"]
+    table_budget = present["stabilizer_1kHz"]["table_ram_budget_bytes"]
+    return "\n".join([
+        f"| | present state ({present['network']['input_dim']} inputs) | wake memory "
+        f"({memory['network']['input_dim']} inputs) |", "|---|---|---|",
+        "| one phi evaluation, zero wait | " + cells(lambda d: f"{d['fixed']['per_phi']['cycles']:,} cycles "
+                                                            f"({d['fixed']['per_phi']['us_at_168MHz']:.1f} µs)") + " |",
+        "| instructions per multiply-accumulate, whole phi | "
+        + cells(lambda d: f"{d['fixed']['instructions_per_mac_phi']:.3f}") + " |",
+        "| whole prediction, zero wait / memory model, tables in flash | " + cells(whole) + " |",
+        "| the app's slicing (4 phi per 500 Hz tick): `ns2_job_begin*`; worst tick, zero wait / memory model | "
+        + cells(sliced) + " |",
+        f"| 2 ms-tick budget ({budget:g} µs): that worst tick + controller step, zero wait | "
+        + cells(lambda d: f"{d['budget_2ms_tick']['fixed_sliced_worst_tick_plus_controller_us']:.0f} µs, "
+                          + ("within" if d["budget_2ms_tick"]["fixed_sliced_meets_budget"] else "over")) + " |",
+        "| `ns2_job_t` | " + cells(lambda d: f"{d['fixed']['sliced_15_neighbors']['job_ram_bytes']:,} B") + " |",
+        f"| hot fixed-point tables in SRAM (`target.ram_placement`), against the {table_budget:,} B table budget | "
+        + cells(sram) + " |"])
+
+
 # ------------------------------------------------------------------ docs/app.md
 def _b(n: int, sign: bool = False) -> str:
     return f"{n:+,} B" if sign else f"{n:,} B"

@@ -28,7 +28,7 @@ from ns2paper.collection import COLLECTIONS
 
 from .bench_tables import (app_memory_sizes_table, app_sizes_table, app_sram_table, benchmarks_target_table,
                            calibration_gaps_table, calibration_points_table, memory_table as cycles_table,
-                           readme_measures_table, scp_programs_table)
+                           readme_measures_table, scp_programs_table, wake_memory_cycles_table)
 from .blind import gains_table, mean_std, memory_rows, memory_table, table
 from .real import ablation_table as real_ablation_table
 
@@ -768,6 +768,8 @@ DOC_TABLES = (
              ("app-sizes/float.json", "app-sizes/both.json")),
     DocTable("docs/app.md", "app-memory-sizes", "app-sizes/fixed.json", app_memory_sizes_table, ("app-sizes/memory.json",)),
     DocTable("docs/app.md", "app-sram", "app-sizes/fixed.json", app_sram_table, ("app-sizes/fixed-ram.json",)),
+    DocTable("docs/app.md", "wake-memory-cycles", BENCH_TARGET, wake_memory_cycles_table,
+             ("wake-memory-cycles/bench_target.json",)),
     DocTable("docs/app.md", "stabilizer-parts", BENCH_STABILIZER, stabilizer_parts_table),
     DocTable("docs/app.md", "stabilizer-app", BENCH_STABILIZER, stabilizer_app_table,
              ("wake-memory-cycles/bench_stabilizer.json",)),

@@ -279,6 +279,9 @@ def test_docs_tables_carry_the_runs_numbers():
     assert "| all 16 trials | 4.83 / 0.84 | **5.74** | 7.74 / 3.75 | **2.06** |" in block["scp-programs"]
     assert "| with the app, `NS2_INFER=fixed` (default) | +63,772 B (63.8 KB) | +4,092 B | +96 B |" in block["app-sizes"]
     assert "| difference | +4,296 B | **+11,016 B** | +11,016 B | |" in block["app-memory-sizes"]
+    assert ("| whole prediction, zero wait / memory model, tables in flash | 94,778 / 125,722 cycles (564 / 748 µs) | "
+            "116,999 / 150,849 cycles (696 / 898 µs) |") in block["wake-memory-cycles"]
+    assert "| 32,816 B, fits | 35,504 B, does not fit |" in block["wake-memory-cycles"]
     assert "| phi tables in SRAM (`NS2_TABLES=ram`) | 371,944 B | 121,276 B (9,796 free) | +24,060 B |" in block["app-sram"]
 
 
