@@ -116,6 +116,22 @@ def test_final_config_has_the_oot_controller_and_no_battery_compensation(app):
     assert cfg["CONFIG_ENABLE_THRUST_BAT_COMPENSATED"] == "n"  # psi_2 of the controller uses the voltage
 
 
+def test_size_report_is_stamped_and_refuses_a_folder_that_is_not_an_export(monkeypatch, capsys, tmp_path):
+    """`python -m ns2host.cfapp` prints its report with the commit and command that made it
+    (docs/app.md's tables are made of such files); a folder without an export is one line."""
+    from ns2codegen.results import commit
+
+    monkeypatch.setattr(cfapp, "report", lambda gen, infer, out, tables: {"infer": infer, "tables": tables})
+    cfapp.main(["some/gen", "--infer", "float"])
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["infer"] == "float" and doc["provenance"]["commit"] == commit()
+    assert doc["provenance"]["command"] == "python -m ns2host.cfapp some/gen --infer float"
+    monkeypatch.undo()
+    with pytest.raises(SystemExit) as e:
+        cfapp.main([str(tmp_path)])
+    assert str(tmp_path) in str(e.value) and "\n" not in str(e.value)
+
+
 def test_flash_budget_and_ram_of_the_default_app(app, stock, exported):
     """The default app (fixed point) with the paper-sized network costs at most 72 KB
     of flash over stock cf2 and fits the RAM and CCM the stock firmware leaves free."""
