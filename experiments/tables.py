@@ -275,7 +275,7 @@ EXPERIMENTS = (
                calibrate_summary, "[docs/simulator.md](docs/simulator.md)"),
     Experiment("planning", "planning experiments (flow-based truth), the full-scale default pipeline",
                "ns2 plan --checkpoint build/plan/full/model/model.pt --plan-data-rounds 2 --out build/plan/p24 "
-               "--trials 25 --time-limit 90 --workers 2",
+               "--trials 25 --time-limit 90 --workers 2 --runs docs/results/runs/planning",
                {"planning/plan.json": "build/plan/p24/plan.json"},
                planning_summary, "[docs/planning.md](docs/planning.md)"),
     Experiment("paper-data", "the paper-sized simulated data set", "make paper-data",
