@@ -80,6 +80,38 @@ def _onboard_us(t: dict, kind: str, which: str) -> float:
     return o["total_us"] if which == "zero_wait" else o["memory_model"][which]["total_us"]
 
 
+def benchmarks_host_table(core: dict, sim: dict, plan: dict) -> str:
+    """bench_core.py, bench_sim.py and bench_plan.py's rows of docs/benchmarks.md: training,
+    the host C, data generation and C-in-the-loop speed, the SCP programs side by side."""
+    tr, c = core["training"], core["host_c_inference"]
+    dg, rtf = sim["data_generation"], sim["c_in_the_loop_real_time_factor"]
+    sp = plan["planning"]["scp_programs"]
+    reb, par = sp["rebuilt"], sp["parametrized"]
+
+    def per_call(kind: str) -> str:
+        return " / ".join(f"{c[f'{kind}_{n}_neighbors_us']:.1f}" for n in (1, 4, 16))
+
+    return "\n".join([
+        f"| what (host, {core['machine']['cpu_count']} cores) | result |", "|---|---|",
+        f"| training, {tr['samples'] / 1e6:.1f} M generated samples ({tr['train_samples']:,} train), {tr['epochs']} "
+        f"epochs, batch {tr['batch_size']}, {tr['torch_threads']} torch threads | {tr['train_time_s']:.0f} s, "
+        f"{tr['samples_per_second']:,} samples/s, validation MSE {tr['validation_mse_g2']:.3f} g^2 (label variance "
+        f"{tr['label_variance_g2']:.0f} g^2) |",
+        f"| host C inference per call, 1 / 4 / 16 neighbours (portable C on x86) | fixed {per_call('fixed')} us; "
+        f"float {per_call('float')} us |",
+        f"| simulated data generation ({dg['teams']} teams, {dg['flight_seconds_per_team']:g} s of flight each, labels "
+        f"from the drones' logs) | {dg['samples_per_second']:,} samples/s: about "
+        f"{dg['paper_size_1.4M_estimate_s'] / 60:.0f} min for the paper's 1.4 M samples |",
+        f"| planning, SSL and SLL in 2-D and 3-D, NN and BL, {len(plan['planning']['seeds'])} trials each "
+        f"(`scp_programs`) | Stage 2 per trial: rebuilt program {reb['stage2_s_per_trial']:.2f} s, parametrized "
+        f"{par['stage2_s_per_trial']:.2f} s, **{sp['stage2_speedup']:.1f}x**; Stage 1 + 2 per trial "
+        f"{reb['stage1_plus_2_s_per_trial']:.2f} -> {par['stage1_plus_2_s_per_trial']:.2f} s, "
+        f"**{sp['stage1_plus_2_speedup']:.1f}x**; the two programs' plans within {sp['plans_max_dp_m']:.1e} m |",
+        f"| C-in-the-loop real-time factor (1 kHz: IMU, the firmware's EKF, `ns2_pilot` with the fixed-point NN; "
+        f"100 Hz mocap; flow-based truth) | {rtf['1_robots']:.1f} (1 robot), {rtf['16_robots']:.1f} (16 robots): a "
+        f"60 s 16-robot flight in {sim['c_in_the_loop_60s_16_robots_wall_s_estimate']:.0f} s |"])
+
+
 # ------------------------------------------------------------------ docs/memory.md
 def memory_table(t: dict) -> str:
     """Each case at zero wait, on the memory model with the tables in flash and with the

@@ -26,7 +26,8 @@ from typing import Callable
 from ns2codegen.errors import Ns2Error
 from ns2paper.collection import COLLECTIONS
 
-from .bench_tables import (app_memory_sizes_table, app_sizes_table, app_sram_table, benchmarks_target_table,
+from .bench_tables import (app_memory_sizes_table, app_sizes_table, app_sram_table, benchmarks_host_table,
+                           benchmarks_target_table,
                            calibration_gaps_table, calibration_points_table, memory_table as cycles_table,
                            readme_measures_table, scp_programs_table, wake_memory_cycles_table)
 from .blind import gains_table, mean_std, memory_rows, memory_table, table
@@ -750,6 +751,8 @@ DOC_TABLES = (
     DocTable("README.md", "readme-sim", "sim/swaps.json", readme_sim_table,
              ("sim/rings.json", "sim-clean/swaps.json", "sim-clean/rings.json")),
     DocTable("docs/benchmarks.md", "bench-target", BENCH_TARGET, benchmarks_target_table),
+    DocTable("docs/benchmarks.md", "bench-host", "host-bench/bench_core.json", benchmarks_host_table,
+             ("host-bench/bench_sim.json", "bench-plan/bench_plan.json")),
     DocTable("docs/memory.md", "cycles", BENCH_TARGET, cycles_table),
     DocTable("docs/ground-truth.md", "calibration", GROUND_TRUTH, calibration_points_table),
     DocTable("docs/ground-truth.md", "gaps", GROUND_TRUTH, calibration_gaps_table),
