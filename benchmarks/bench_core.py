@@ -22,6 +22,7 @@ from ns2codegen.checkpoint import save_checkpoint
 from ns2codegen.config import Config
 from ns2codegen.data.analytic import downwash_dataset, scenario_mixes
 from ns2codegen.export import export
+from ns2codegen.results import stamp
 from ns2codegen.train import train
 
 
@@ -86,7 +87,7 @@ def main() -> None:
         export(ck, Path(tmp) / "gen")
         result["export_s"] = round(time.perf_counter() - t0, 2)
         result["host_c_inference"] = bench_inference(Path(tmp) / "gen", cfg)
-    print(json.dumps(result, indent=2))
+    print(json.dumps(stamp(result), indent=2))
 
 
 if __name__ == "__main__":

@@ -34,6 +34,7 @@ from ns2plan.forces import ForceModel, load_force_model, single_thread
 from ns2plan.planner import PlanResult
 from ns2plan.problem import PlanningError, RRTParams, SCPParams
 from ns2plan.scp import scp
+from ns2codegen.results import stamp
 from ns2codegen.train import train
 
 SEEDS = (0, 1)
@@ -136,7 +137,7 @@ def main() -> None:
                         "scp_programs": side_by_side(results),
                         "no_plan_within_limits": failed}
         result["scp_programs"] = {"trials": len(every), **side_by_side(every)}
-    print(json.dumps({"planning": result}, indent=2))
+    print(json.dumps(stamp({"planning": result}), indent=2))
 
 
 if __name__ == "__main__":

@@ -16,6 +16,7 @@ from ns2codegen.checkpoint import save_checkpoint
 from ns2codegen.config import Config
 from ns2codegen.data.analytic import downwash_dataset
 from ns2codegen.export import export
+from ns2codegen.results import stamp
 from ns2codegen.train import train
 from ns2host.sim.cloop import CLoopSwarm, NS2Controller, hover_setpoints, robots_of
 from ns2host.sim.collect import collect, teams
@@ -46,7 +47,7 @@ def main() -> None:
             rtf[f"{n}_robots"] = round(duration / (time.perf_counter() - t0), 2)
         result["c_in_the_loop_real_time_factor"] = rtf
         result["c_in_the_loop_60s_16_robots_wall_s_estimate"] = round(60.0 / rtf["16_robots"], 1)
-    print(json.dumps(result, indent=2))
+    print(json.dumps(stamp(result), indent=2))
 
 
 if __name__ == "__main__":
