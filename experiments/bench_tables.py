@@ -11,6 +11,7 @@ from __future__ import annotations
 import re
 
 NEIGHBORS = "15_neighbors"        # bench_target's prediction of robot type 0 with 15 neighbours + environment
+PLACES = ("zero_wait", "flash", "ram")    # zero wait states; the memory model with the tables in flash / in SRAM
 
 
 def _us(x: float, digits: int = 0) -> str:
@@ -42,6 +43,15 @@ def _one_tick(t: dict, kind: str, place: str) -> dict:
 def _sliced(t: dict, kind: str, place: str, rate: str) -> dict:
     key = {"1kHz": "sliced_1kHz_2_phi_per_iteration", "500Hz": "sliced_500Hz_4_phi_per_tick"}[rate]
     return t["stabilizer_1kHz"][kind][place][key]
+
+
+def _each(f, t: dict, kind: str, *args) -> list:
+    """``f(t, kind, place, *args)`` at zero wait, on the memory model with flash tables, with SRAM tables."""
+    return [f(t, kind, w, *args) for w in PLACES]
+
+
+def _cycles_per_mac_cells(t: dict, kind: str, sep: str) -> str:
+    return sep.join(f"{c:.3f}" for c in _each(_cycles_per_mac, t, kind))
 
 
 def _tick_us(t: dict, kind: str, which: str) -> float:
@@ -116,9 +126,9 @@ def benchmarks_host_table(core: dict, sim: dict, plan: dict) -> str:
 def memory_table(t: dict) -> str:
     """Each case at zero wait, on the memory model with the tables in flash and with the
     hot tables in SRAM (bench_target.py of the paper-sized network)."""
-    def row(label: str, f, kind: str, ram_note: str = "") -> str:
-        return (f"| {label} | {_us(f(t, kind, 'zero_wait'), 1)} us | {_us(f(t, kind, 'flash'), 1)} us | "
-                f"{_us(f(t, kind, 'ram'), 1)} us{ram_note} |")
+    def row(label: str, f, kind: str, *args, ram_note: str = "") -> str:
+        zero, flash, ram = _each(f, t, kind, *args)
+        return f"| {label} | {zero:.1f} us | {flash:.1f} us | {ram:.1f} us{ram_note} |"
 
     def ram_note(kind: str) -> str:
         r = t["stabilizer_1kHz"][kind]["ram"]
@@ -130,7 +140,7 @@ def memory_table(t: dict) -> str:
     macs = t["moonshot_one_tick"]["macs_per_prediction"]
 
     def onboard(kind: str) -> str:
-        f = [_onboard_us(t, kind, w) for w in ("zero_wait", "flash", "ram")]
+        f = _each(_onboard_us, t, kind)
         over = lambda us: f" (over {budget:g})" if us > budget else ""          # noqa: E731
         kb = _kb(onb[kind]["memory_model"]["ram"]["tables_in_ram_bytes"])
         return (f"| on-board variant, {kind}, one iteration + controller | {f[0]:.1f} us{over(f[0])} | "
@@ -139,20 +149,17 @@ def memory_table(t: dict) -> str:
     return "\n".join([
         "| case | zero wait | memory model, tables in flash | memory model, hot tables in SRAM |",
         "|---|---|---|---|",
-        row("fixed, whole prediction, 15 neighbours", _prediction_us, "fixed", ram_note("fixed")),
+        row("fixed, whole prediction, 15 neighbours", _prediction_us, "fixed", ram_note=ram_note("fixed")),
         row("fixed, + controller step, one iteration", _tick_us, "fixed"),
         row(f"fixed, sliced, worst 1 ms iteration (2 phi per iteration, {n1k} iterations) + controller",
-            lambda t, k, w: _sliced_us(t, k, w, "1kHz"), "fixed"),
-        row(f"fixed, sliced, worst 500 Hz tick (4 phi per tick, {n500} ticks) + controller",
-            lambda t, k, w: _sliced_us(t, k, w, "500Hz"), "fixed"),
-        row("float, whole prediction, 15 neighbours", _prediction_us, "float", ram_note("float")),
-        row("float, sliced, worst 1 ms iteration + controller", lambda t, k, w: _sliced_us(t, k, w, "1kHz"), "float"),
-        row("float, sliced, worst 500 Hz tick + controller", lambda t, k, w: _sliced_us(t, k, w, "500Hz"), "float"),
+            _sliced_us, "fixed", "1kHz"),
+        row(f"fixed, sliced, worst 500 Hz tick (4 phi per tick, {n500} ticks) + controller", _sliced_us, "fixed", "500Hz"),
+        row("float, whole prediction, 15 neighbours", _prediction_us, "float", ram_note=ram_note("float")),
+        row("float, sliced, worst 1 ms iteration + controller", _sliced_us, "float", "1kHz"),
+        row("float, sliced, worst 500 Hz tick + controller", _sliced_us, "float", "500Hz"),
         onboard("fixed"), onboard("float"),
-        f"| cycles per MAC, fixed, whole prediction ({macs:,} MACs) | "
-        + " | ".join(f"{_cycles_per_mac(t, 'fixed', w):.3f}" for w in ("zero_wait", "flash", "ram")) + " |",
-        "| cycles per MAC, float, whole prediction | "
-        + " | ".join(f"{_cycles_per_mac(t, 'float', w):.3f}" for w in ("zero_wait", "flash", "ram")) + " |"])
+        f"| cycles per MAC, fixed, whole prediction ({macs:,} MACs) | {_cycles_per_mac_cells(t, 'fixed', ' | ')} |",
+        f"| cycles per MAC, float, whole prediction | {_cycles_per_mac_cells(t, 'float', ' | ')} |"])
 
 
 # ------------------------------------------------------------------ docs/benchmarks.md
@@ -164,9 +171,9 @@ def benchmarks_target_table(t: dict) -> str:
     em, emr = t["emlearn"], t["emlearn_vs_ns2"]
     onb = t["onboard_variant_one_tick"]
     mem = t["memory"]
-    one = [_tick_us(t, "fixed", w) for w in ("zero_wait", "flash", "ram")]
-    s500 = [_sliced_us(t, "fixed", w, "500Hz") for w in ("zero_wait", "flash", "ram")]
-    onb_fx = [_onboard_us(t, "fixed", w) for w in ("zero_wait", "flash", "ram")]
+    one = _each(_tick_us, t, "fixed")
+    s500 = _each(_sliced_us, t, "fixed", "500Hz")
+    onb_fx = _each(_onboard_us, t, "fixed")
     bound = m1["float"]["bound_instructions_per_mac"]
 
     def three(values, digits=0) -> str:
@@ -194,23 +201,22 @@ def benchmarks_target_table(t: dict) -> str:
         + " / ".join(_us(fx["prediction"][f"{n}_neighbors"]["us_at_168MHz"]) for n in (1, 4, 16)) + " us, float "
         + " / ".join(_us(fl["prediction"][f"{n}_neighbors"]["us_at_168MHz"]) for n in (1, 4, 16)) + " us |",
         "| cycles per MAC, whole prediction: zero wait / modelled, tables in flash / hot tables in SRAM | fixed "
-        + " / ".join(f"{_cycles_per_mac(t, 'fixed', w):.3f}" for w in ("zero_wait", "flash", "ram")) + ", float "
-        + " / ".join(f"{_cycles_per_mac(t, 'float', w):.3f}" for w in ("zero_wait", "flash", "ram")) + " |",
+        f"{_cycles_per_mac_cells(t, 'fixed', ' / ')}, float {_cycles_per_mac_cells(t, 'float', ' / ')} |",
         f"| controller step (position + attitude), zero wait / memory model | "
         f"{t['budget_2ms_tick']['controller_step_us']:.1f} / {t['stabilizer_1kHz']['controller_step_us_memory_model']:.1f} us |",
         f"| 15 neighbours + environment + controller step vs {budget:g} us (20 % of a 2 ms tick), in one tick: "
         f"zero wait / modelled flash / modelled SRAM tables | fixed {three(one)} us: **{_verdict(one, budget)}** "
         f"(the machine's bound is {m1['bound_us_with_controller']:.0f} us, [memory.md](memory.md)); float prediction "
-        f"alone {three(_prediction_us(t, 'float', w) for w in ('zero_wait', 'flash', 'ram'))} us |",
+        f"alone {three(_each(_prediction_us, t, 'float'))} us |",
         f"| the same prediction sliced over the 500 Hz ticks of a 100 Hz period (the app), worst tick + controller "
         f"step: zero wait / flash / SRAM | fixed {three(s500)} us (4 phi per tick): **{_verdict(s500, budget)}** |",
         "| the same against the firmware's 1 ms stabilizer iteration (2 phi per ms), worst iteration + controller "
-        "step | fixed " + three(_sliced_us(t, "fixed", w, "1kHz") for w in ("zero_wait", "flash", "ram"))
-        + " us, float " + three(_sliced_us(t, "float", w, "1kHz") for w in ("zero_wait", "flash", "ram")) + " us |",
+        "step | fixed " + three(_each(_sliced_us, t, "fixed", "1kHz"))
+        + " us, float " + three(_each(_sliced_us, t, "float", "1kHz")) + " us |",
         f"| the on-board variant (`make export-onboard`, {_layers(onb)}), 15 neighbours + environment + controller "
         f"step in one tick: zero wait / flash / SRAM | fixed {three(onb_fx)} us: **{onb_verdict}** "
         f"({_kb(onb['fixed']['memory_model']['ram']['tables_in_ram_bytes'])} in SRAM); float "
-        f"{three(_onboard_us(t, 'float', w) for w in ('zero_wait', 'flash', 'ram'))} us; flash "
+        f"{three(_each(_onboard_us, t, 'float'))} us; flash "
         f"{_kb(onb['memory']['flash_bytes'])}, stack {onb['memory']['worst_case_stack_bytes']:,} B |",
         f"| RAM per robot for the sliced prediction (`ns2_job_t`) | {fx['sliced_15_neighbors']['job_ram_bytes']:,} B |",
         f"| flash (code + tables) / static RAM / worst-case stack | float {sizes('ns2_predict_f32')}, fixed "

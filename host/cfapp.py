@@ -412,12 +412,10 @@ def main(argv=None) -> None:
                     help="flash, or ram: the fixed-point phi tables in SRAM (docs/memory.md)")
     ap.add_argument("--out", default=None, help="build folder (default: a cache folder under build/cf)")
     a = ap.parse_args(argv)
-    import shlex
-
     from ns2codegen.errors import Ns2Error
-    from ns2codegen.results import stamp
+    from ns2codegen.results import command_line, stamp
 
-    command = " ".join(["python -m ns2host.cfapp", *map(shlex.quote, sys.argv[1:] if argv is None else argv)])
+    command = command_line(None if argv is None else ["", *argv], prog=ap.prog)
     try:
         rep = report(Path(a.gen), a.infer, Path(a.out) if a.out else None, a.tables)
     except (Ns2Error, crazyflie.FirmwareMissing) as e:     # a build error, a folder that is not an export

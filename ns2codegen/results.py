@@ -49,10 +49,13 @@ def commit(repo=REPO) -> str:
     return head.stdout.strip() + ("-dirty" if dirty.returncode != 0 or dirty.stdout.strip() else "")
 
 
-def command_line(argv=None) -> str:
+def command_line(argv=None, prog: str | None = None) -> str:
     """The command line as typed: ``ns2 ...`` for the CLI (``python -m ns2cli`` or the
-    ``ns2`` script), a script by its path in the checkout, arguments shell-quoted."""
+    ``ns2`` script), a script by its path in the checkout, arguments shell-quoted; ``prog``
+    names a module run as ``python -m ...`` (its argparse ``prog``), whose argv[0] is a file."""
     argv = list(sys.argv if argv is None else argv)
+    if prog is not None:
+        return " ".join([prog, *(shlex.quote(a) for a in argv[1:])])
     prog = Path(argv[0]) if argv and argv[0] else Path("python")
     if prog.name == "ns2" or (prog.name == "__main__.py" and prog.parent.name in ("cli", "ns2cli")):
         name = "ns2"

@@ -162,11 +162,10 @@ def main(argv=None) -> int:
     ``make results``)."""
     import argparse
     import json
-    import shlex
     from pathlib import Path
 
     from ns2codegen.fileio import atomic_write_bytes
-    from ns2codegen.results import stamp
+    from ns2codegen.results import command_line, stamp
 
     ap = argparse.ArgumentParser(prog="python -m ns2host.sim.calibration", description=__doc__.split("\n\n")[0])
     ap.add_argument("--json", type=Path, default=None, help="also write the tables as a stamped JSON result here")
@@ -175,8 +174,7 @@ def main(argv=None) -> int:
     print(markdown(rows))
     print(gap_markdown(gaps))
     if args.json is not None:
-        command = " ".join(["python -m ns2host.sim.calibration", *(shlex.quote(a) for a in (argv if argv is not None
-                                                                                             else sys.argv[1:]))])
+        command = command_line(None if argv is None else ["", *argv], prog=ap.prog)
         doc = stamp({"points": rows, "gap_table": gaps}, command)
         try:
             args.json.parent.mkdir(parents=True, exist_ok=True)
